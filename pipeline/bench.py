@@ -1,0 +1,186 @@
+"""Speed and accuracy of the trackers on the authors' benchmark streams, side by side with their implementation.
+
+Each (T, N) combination runs in a fresh process (``python -m pipeline.bench worker ...``) so that peak memory is
+that process's own, as in the reference harness; compiled kernels are loaded and warmed up before the clock
+starts, as the reference's torch import and set-up are excluded from its figures. The reference figures come
+from ``data/anchors/reference.json`` (transcribed from ``../shared/anchors/ref_tracker_bench.txt``) or, with
+``reference_python``, from rerunning the authors' harness on this machine.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.anchors import ANCHOR_DIR, contact_error_cm, load_stream, stream_path, untracked_contact_error_cm
+
+REFERENCE_FILE = ANCHOR_DIR / "reference.json"
+DEFAULT_REFERENCE_SCRIPT = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "ref_tracker_bench.py"
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def replay(stream: dict, tracker) -> dict:
+    """Feed a stream to a tracker step by step, timing every update.
+
+    Returns
+    -------
+    dict with ``step_ms`` (L,), ``points`` (M, 2) and ``labels`` (M,) of the final estimate.
+    """
+    c = stream["in_contact"].astype(bool)
+    step_ms = np.empty(len(c))
+    for i in range(len(c)):
+        t0 = time.perf_counter()
+        if c[i]:
+            tracker.update(stream["x"][i], stream["dx"][i][None], stream["p"][i][None])
+        else:
+            tracker.update(stream["x"][i], None, None)
+        step_ms[i] = (time.perf_counter() - t0) * 1e3
+    return dict(step_ms=step_ms, points=tracker.points_, labels=np.asarray(tracker.labels()))
+
+
+def score(stream: dict, points: np.ndarray, labels: np.ndarray) -> dict:
+    from sklearn.metrics import fowlkes_mallows_score
+
+    truth = stream["obj_id"][stream["in_contact"].astype(bool)]
+    return dict(fmi=float(fowlkes_mallows_score(truth, labels)), ce_cm=contact_error_cm(points, stream))
+
+
+def make_tracker(method: str, n_particles: int, seed: int, robot_spec: str, weighting: str = "reference"):
+    from pipeline.robot import load_robot
+    from pipeline.track.stage import TrackConfig, make_tracker as build
+
+    params = dict(n_particles=n_particles, weighting=weighting) if method == "stucco" else {}
+    return build(TrackConfig(method=method, robot=robot_spec, params=params), load_robot(robot_spec),
+                 np.random.default_rng(seed))
+
+
+def _warm_up(method: str, robot_spec: str) -> None:
+    """Load (or compile) the kernels outside the timed region."""
+    stream = load_stream(stream_path(50))
+    short = {k: (v[:40] if getattr(v, "ndim", 0) and len(v) == len(stream["x"]) else v) for k, v in stream.items()}
+    replay(short, make_tracker(method, 4, 0, robot_spec))
+
+
+def worker(T: int, N: int, method: str = "stucco", seed: int = 0, weighting: str = "reference",
+           streams: str | Path | None = None, robot_spec: str = "disc:0.05") -> dict:
+    """One timed replay in this process (call it in a fresh process for a clean peak-memory figure)."""
+    _warm_up(method, robot_spec)
+    rss_setup = _peak_rss_mb()
+    stream = load_stream(stream_path(T, streams))
+    out = replay(stream, make_tracker(method, N, seed, robot_spec, weighting))
+    c = stream["in_contact"].astype(bool)
+    ms = out["step_ms"]
+    contact_ms = ms[c]
+    last = max(1, math.ceil(0.1 * len(contact_ms)))
+    return dict(T=T, N=N, method=method, seed=seed, weighting=weighting, L=len(c), total_s=float(ms.sum() / 1e3),
+                ms_all=float(ms.mean()), ms_contact=float(contact_ms.mean()),
+                ms_free=float(ms[~c].mean()) if (~c).any() else float("nan"),
+                last10_ms=float(contact_ms[-last:].mean()), peak_rss_mb=_peak_rss_mb(), setup_rss_mb=rss_setup,
+                **score(stream, out["points"], out["labels"]))
+
+
+def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighting: str = "reference",
+               streams: str | Path | None = None) -> dict:
+    cmd = [sys.executable, "-m", "pipeline.bench", "worker", str(T), str(N), method, str(seed), weighting,
+           str(streams or ANCHOR_DIR)]
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        raise RuntimeError(f"benchmark worker failed: {res.stderr.strip().splitlines()[-1:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def run_reference_worker(T: int, N: int, python: str, script: str | Path = DEFAULT_REFERENCE_SCRIPT,
+                         seed: int = 0, budget_s: float = 180.0) -> dict:
+    """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors)."""
+    cmd = [python, str(script), "--worker", "--T", str(T), "--N", str(N), "--seed", str(seed), "--budget",
+           str(budget_s)]
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        raise RuntimeError(f"reference worker failed: {res.stderr.strip()[-500:]}")
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    return dict(total_s=r["total_s"], ms_contact=r["mean_ms_contact"], last10_ms=r["last10pct_contact_ms"],
+                peak_rss_mb=r["rss_peak_mb"], truncated=r.get("truncated", False), fmi=r.get("fmi_cc"),
+                ce_cm=r.get("ce_map_cm"), source="rerun here")
+
+
+def recorded_reference() -> dict:
+    with open(REFERENCE_FILE) as f:
+        return json.load(f)
+
+
+def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int = 3, acc_seeds: int = 5,
+                streams: str | Path | None = None, reference_python: str | None = None,
+                methods=("stucco",), echo=print) -> dict:
+    """Print the speed table, the accuracy table and the weighting comparison; return every figure."""
+    ref = recorded_reference()
+    results: dict = {"speed": [], "accuracy": [], "weighting": [], "methods": []}
+    echo("SPEED: STUCCO soft tracking on the anchor streams (disc robot r=0.05 m, 1 mm grid, seed 0); median of "
+         f"{repeats} runs, each in a fresh process.\nReference = the authors' stucco 1.2.1 "
+         + ("rerun on this machine now." if reference_python else "as recorded in data/anchors/reference.json "
+            "(../shared/anchors/ref_tracker_bench.txt, 2-core Xeon, torch 2 threads)."))
+    hdr = (f"{'T':>4} {'N':>4} {'L':>5} {'total_s':>8} {'ms/contact':>10} {'last10%ms':>9} {'ms/free':>8} "
+           f"{'peakMB':>7} {'FMI':>6} {'CE_cm':>6} | {'ref_s':>7} {'ref_ms/c':>8} {'ref_last10':>10} {'ref_MB':>6} "
+           f"{'speedup':>8}")
+    echo(hdr)
+    for N in N_list:
+        for T in T_list:
+            runs = sorted((run_worker(T, N, streams=streams) for _ in range(repeats)), key=lambda r: r["total_s"])
+            r = runs[len(runs) // 2]
+            key = f"T{T}_N{N}"
+            if reference_python:
+                rr = run_reference_worker(T, N, reference_python)
+            else:
+                rr = ref["timing"].get(key)
+            speedup = (rr["total_s"] / r["total_s"]) if rr else float("nan")
+            cut = ">" if rr and rr.get("truncated") else ""
+            rs = (f"{cut + format(rr['total_s'], '.2f'):>7} {rr['ms_contact']:>8.1f} {rr['last10_ms']:>10.1f} "
+                  f"{rr['peak_rss_mb']:>6.0f} {cut + format(speedup, '.1f') + 'x':>8}") if rr else "(no reference)"
+            echo(f"{T:>4} {N:>4} {r['L']:>5} {r['total_s']:>8.3f} {r['ms_contact']:>10.2f} {r['last10_ms']:>9.2f} "
+                 f"{r['ms_free']:>8.3f} {r['peak_rss_mb']:>7.0f} {r['fmi']:>6.3f} {r['ce_cm']:>6.2f} | {rs}")
+            results["speed"].append(dict(ours=r, reference=rr, speedup=speedup))
+    if acc_seeds:
+        echo(f"\nACCURACY of the final MAP particle over tracker seeds 0..{acc_seeds - 1} (N=100; mean ± std; "
+             "FMI of Alg. 3 vs true objects; CE = mean distance to the nearest true surface at the end)")
+        echo(f"{'T':>4} {'weighting':>10} {'FMI':>13} {'CE_cm':>13} {'s/run':>6} | {'ref FMI':>13} {'ref CE_cm':>13}"
+             f" {'untracked CE':>12}")
+        for T in T_list:
+            stream = load_stream(stream_path(T, streams))
+            for weighting in ("reference", "paper"):
+                rows = [run_worker(T, 100, seed=s, weighting=weighting, streams=streams) for s in range(acc_seeds)]
+                fmi = np.array([x["fmi"] for x in rows])
+                ce = np.array([x["ce_cm"] for x in rows])
+                ra = ref["accuracy"].get(f"T{T}")
+                refs = (f"{ra['fmi_mean']:>6.3f}±{ra['fmi_std']:<6.3f} {ra['ce_cm_mean']:>6.2f}±{ra['ce_cm_std']:<6.2f}"
+                        if ra else "")
+                echo(f"{T:>4} {weighting:>10} {fmi.mean():>6.3f}±{fmi.std():<6.3f} {ce.mean():>6.2f}±{ce.std():<6.2f} "
+                     f"{np.mean([x['total_s'] for x in rows]):>6.2f} | {refs} {untracked_contact_error_cm(stream):>12.2f}")
+                results["accuracy"].append(dict(T=T, weighting=weighting, fmi=fmi.tolist(), ce_cm=ce.tolist()))
+    others = [m for m in methods if m != "stucco"]
+    if others:
+        echo("\nMETHODS on the anchor streams (seed 0; baselines have no particles)")
+        echo(f"{'method':>8} {'T':>4} {'total_s':>8} {'ms/contact':>10} {'FMI':>6} {'CE_cm':>6}")
+        for m in ("stucco",) + tuple(others):
+            for T in T_list:
+                r = run_worker(T, 100, method=m, streams=streams)
+                echo(f"{m:>8} {T:>4} {r['total_s']:>8.3f} {r['ms_contact']:>10.2f} {r['fmi']:>6.3f} {r['ce_cm']:>6.2f}")
+                results["methods"].append(r)
+    return results
+
+
+if __name__ == "__main__":  # worker entry point: python -m pipeline.bench worker T N method seed weighting dir
+    if len(sys.argv) >= 7 and sys.argv[1] == "worker":
+        os.environ.setdefault("PYTHONHASHSEED", "0")
+        _, _, T, N, method, seed, weighting, streams = sys.argv[:8]
+        print(json.dumps(worker(int(T), int(N), method, int(seed), weighting, streams)))
+    else:
+        sys.exit("usage: python -m pipeline.bench worker T N METHOD SEED WEIGHTING STREAM_DIR")

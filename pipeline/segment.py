@@ -1,0 +1,201 @@
+"""Segmentation of tracked contact points into objects (the paper's Algorithm 3).
+
+Two points are connected when exp(-d^2 / l) > alpha, i.e. when d^2 < l * ln(1 / alpha); objects are the connected
+components of that graph (a true connected-components search, unlike the authors' one-pass grouping). The test
+is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an exponential.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def canonical_labels(labels: np.ndarray) -> np.ndarray:
+    """Relabel to 0..k-1 in order of first appearance (so equal segmentations give equal label arrays)."""
+    labels = np.asarray(labels)
+    if labels.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return rank[inverse.ravel()]
+
+
+def connection_radius(length: float, alpha: float) -> float:
+    """Distance below which two points are connected: sqrt(l ln(1/alpha)) (metres); 0 if alpha >= 1, inf if <= 0."""
+    if alpha >= 1.0:
+        return 0.0
+    if alpha <= 0.0:
+        return np.inf
+    return float(np.sqrt(length * np.log(1.0 / alpha)))
+
+
+def segment_points(points: np.ndarray, length: float, alpha: float) -> np.ndarray:
+    """Connected components of the graph exp(-d^2/l) > alpha over the points (Alg. 3).
+
+    Parameters
+    ----------
+    points : ndarray, shape (M, D)
+        Tracked contact points (metres).
+    length : float
+        Characteristic length l (m^2, as in exp(-d^2/l)).
+    alpha : float
+        Connection probability threshold.
+
+    Returns
+    -------
+    labels : ndarray, shape (M,), int64
+        Object index of each point, numbered 0..k-1 in order of first appearance.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    m = len(points)
+    if m == 0:
+        return np.zeros(0, dtype=np.int64)
+    radius = connection_radius(length, alpha)
+    if radius == np.inf:
+        return np.zeros(m, dtype=np.int64)
+    if radius == 0.0:
+        return np.arange(m, dtype=np.int64)
+    pairs = cKDTree(points).query_pairs(r=radius, output_type="ndarray")
+    if len(pairs):
+        d2 = np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1)
+        pairs = pairs[d2 < radius * radius]  # the paper's test is strict
+    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    _, labels = connected_components(graph, directed=False)
+    return canonical_labels(labels)
+
+
+SEGMENT_BY = ("auto", "components", "tracker")
+
+
+def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", method: str = "stucco"):
+    """The `segment` stage: add a ``segment`` column to every estimate of a tracks table.
+
+    Each (run, estimate_step) group is one estimate of a run's contact points and is segmented on its own.
+
+    Parameters
+    ----------
+    tracks : pyarrow.Table
+        A validated tracks table.
+    length, alpha : float
+        Alg. 3 parameters (used when segmenting by connected components).
+    by : str
+        "components" (Alg. 3 on the tracked points), "tracker" (the tracker's own ``tracker_label``) or "auto":
+        components for STUCCO, whose tracker labels *are* Alg. 3, and the tracker's labels for the baselines,
+        whose clusters are their segmentation.
+    method : str
+        The tracking method that produced the table (from its metadata), used by ``by="auto"``.
+
+    Returns
+    -------
+    pyarrow.Table
+        The input rows, in order, plus ``segment`` (int64, 0..k-1 per estimate in order of first appearance).
+    """
+    import pyarrow as pa
+
+    if by not in SEGMENT_BY:
+        raise ValueError(f"by must be one of {', '.join(SEGMENT_BY)}, got {by!r}")
+    use_components = by == "components" or (by == "auto" and method == "stucco")
+    run = np.asarray(tracks.column("run").to_pylist(), dtype=object)
+    est = tracks.column("estimate_step").to_numpy()
+    xy = np.column_stack([tracks.column("x_m").to_numpy(), tracks.column("y_m").to_numpy()])
+    tracker_label = tracks.column("tracker_label").to_numpy()
+    segment = np.zeros(len(run), dtype=np.int64)
+    if len(run):
+        _, group = np.unique(np.stack([np.unique(run, return_inverse=True)[1], est]), axis=1, return_inverse=True)
+        group = group.ravel()
+        order = np.argsort(group, kind="stable")
+        bounds = np.flatnonzero(np.diff(group[order])) + 1
+        for rows in np.split(order, bounds):
+            if use_components:
+                segment[rows] = segment_points(xy[rows], length, alpha)
+            else:
+                segment[rows] = canonical_labels(tracker_label[rows])
+    return tracks.append_column("segment", pa.array(segment, pa.int64()))
+
+
+def final_estimates(table):
+    """Rows of the last estimate of each run (the whole table unless it was written with --every-step)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if table.num_rows == 0:
+        return table
+    last = table.group_by("run").aggregate([("estimate_step", "max")])
+    joined = table.append_column("_row", pa.array(np.arange(table.num_rows))).join(
+        last, keys="run", join_type="inner")
+    keep = joined.filter(pc.equal(joined["estimate_step"], joined["estimate_step_max"]))
+    rows = np.sort(keep.column("_row").to_numpy())
+    return table.take(pa.array(rows))
+
+
+def summarise(segments) -> list[dict]:
+    """One dict per (run, segment) of the final estimates: point count, centroid (m) and, when the table
+    carries ground truth, the run's Fowlkes-Mallows index."""
+    from sklearn.metrics import fowlkes_mallows_score
+
+    final = final_estimates(segments)
+    run = np.asarray(final.column("run").to_pylist(), dtype=object)
+    seg = final.column("segment").to_numpy()
+    xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])
+    truth = final.column("object_id").to_numpy() if "object_id" in final.column_names else None
+    rows = []
+    for r in dict.fromkeys(run):
+        mask = run == r
+        fmi = None
+        if truth is not None:
+            known = mask & (truth >= 0)
+            if known.any():
+                fmi = float(fowlkes_mallows_score(truth[known], seg[known]))
+        for s in np.unique(seg[mask]):
+            sel = mask & (seg == s)
+            c = xy[sel].mean(axis=0)
+            rows.append(dict(run=r, segment=int(s), n_points=int(sel.sum()), centroid_x_m=float(c[0]),
+                             centroid_y_m=float(c[1]), run_fmi=fmi))
+    return rows
+
+
+def plot_segments(segments, path, max_runs: int = 6) -> None:
+    """PNG of the final tracked points of up to ``max_runs`` runs, coloured by segment; where ground truth is
+    carried, the marker shape shows the true object."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    final = final_estimates(segments)
+    run = np.asarray(final.column("run").to_pylist(), dtype=object)
+    runs = list(dict.fromkeys(run))[:max_runs] or ["(no contacts)"]
+    fig, axes = plt.subplots(1, len(runs), figsize=(max(6.0, 4.2 * len(runs)), 4.6), squeeze=False)
+    markers = "osD^v<>phX*"
+    truth = final.column("object_id").to_numpy() if "object_id" in final.column_names else None
+    for ax, r in zip(axes[0], runs):
+        mask = run == r
+        x = final.column("x_m").to_numpy()[mask]
+        y = final.column("y_m").to_numpy()[mask]
+        seg = final.column("segment").to_numpy()[mask]
+        cmap = plt.get_cmap("tab10")
+        if truth is None:
+            ax.scatter(x, y, c=[cmap(s % 10) for s in seg], s=18)
+        else:
+            t = truth[mask]
+            for k, obj in enumerate(np.unique(t)):
+                sel = t == obj
+                ax.scatter(x[sel], y[sel], c=[cmap(s % 10) for s in seg[sel]], s=22, marker=markers[k % len(markers)],
+                           label=f"object {obj}", edgecolors="k", linewidths=0.3)
+            ax.legend(fontsize=7, loc="best")
+        ax.set_title(f"{r}: {len(np.unique(seg))} segments, {mask.sum()} points", fontsize=9)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    fig.suptitle("tracked contact points: colour = segment" + ("" if truth is None else ", marker = true object"),
+                 fontsize=10)
+    fig.tight_layout()
+    tmp = f"{path}.tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    import os
+
+    os.replace(tmp, path)

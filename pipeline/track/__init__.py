@@ -1,0 +1,1 @@
+"""Contact trackers: STUCCO soft tracking (:mod:`.soft`) and the baselines, behind one interface (:mod:`.base`)."""

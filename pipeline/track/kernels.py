@@ -1,0 +1,337 @@
+"""Compiled kernels of the soft tracker: penetration bookkeeping on whole particle arrays.
+
+All kernels work on the tracker's arrays in place:
+
+* ``P`` and ``C``: float64, shape (N, capacity, D) -- contact points and the end-effector configuration at which
+  each was observed, per particle (metres). Only the first ``m`` slots are live.
+* ``colpen``: float64, shape (N, capacity) -- for each point j of each particle, the summed penetration it incurs
+  against every config of the same particle: ``sum_i min(0, sdf(P[n, j] - C[n, i]) + tol)`` (<= 0, metres).
+* ``npen``: int32, shape (N, capacity) -- how many of those terms are negative. It is the exact test of
+  "inconsistent point" (Alg. 2) and lets ``colpen`` be reset to exactly 0 so that additions and subtractions never
+  leave round-off residue that would look like a penetration.
+
+The paper's per-particle penetration epsilon_n (Alg. 1 line 16) is ``colpen[n, :m].sum()``. Keeping it per point
+is what makes the update incremental: a contact step only changes pairs whose relative position changed (one
+side moved by a different displacement than the other), plus the pairs of the new points. Pairs that cannot
+penetrate are skipped with a bounding-box test against the robot's interior (the region where sdf < -tol).
+
+The grid lookup is nearest-cell, ``idx = floor((q - origin) / resolution + 0.5)``, outside the grid = free,
+matching :meth:`pipeline.robot.GridSDF.query`.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, inline="always")
+def _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res, lo, hi, tol):
+    """Penetration term of point j against config i of particle n, as it was before a motion.
+
+    Returns min(0, sdf(P[n, j] - C[n, i] - (disp[b] - disp[a])) + tol): the point moved by ``disp[b]`` and the
+    config by ``disp[a]``; pass a == b for the current term. Works for any D.
+    """
+    flat = 0
+    D = P.shape[2]
+    for d in range(D):
+        q = P[n, j, d] - C[n, i, d] - (disp[b, d] - disp[a, d])
+        if q < lo[d] or q > hi[d]:
+            return 0.0  # outside the robot's interior box: cannot penetrate deeper than tol
+        k = int(np.floor((q - origin[d]) * inv_res + 0.5))
+        if k < 0 or k >= shape[d]:
+            return 0.0
+        flat += k * strides[d]
+    v = values[flat] + tol
+    return v if v < 0.0 else 0.0
+
+
+@njit(cache=True, parallel=True)
+def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, npen,
+                       values, shape, strides, origin, inv_res, lo, hi, tol):
+    """Predict step of Alg. 1 on every particle, then bring ``colpen``/``npen`` up to date.
+
+    Each old point j of particle n is connected to its nearest new (pre-motion) point k with probability
+    exp(-d^2 / l) (connected when ``u[n, j]`` is below it) and, if connected, it and its config translate by
+    ``dx[k]``. The K new points are appended at ``p`` with config ``x`` (their pre-motion location plus their own
+    motion). Then only the pairs whose relative position changed are re-evaluated: a config and a point moved by
+    different displacements, and every pair involving a new point.
+
+    Parameters
+    ----------
+    P, C : ndarray, shape (N, capacity, D)
+        Points and configs, updated in place; slots ``m_old .. m_old+K-1`` receive the new points.
+    u : ndarray, shape (N, m_old)
+        Uniform draws in [0, 1) for the adjacency sampling.
+    prev_points : ndarray, shape (K, D)
+        New contact points at their pre-motion location (p - dx).
+    dx : ndarray, shape (K, D)
+        In-contact displacement of each new contact (metres).
+    x : ndarray, shape (D,)
+        End-effector position after the step.
+    p : ndarray, shape (K, D)
+        New contact points after the step.
+    length : float
+        Characteristic length l (m^2).
+    colpen, npen : ndarray, shape (N, capacity)
+        Updated in place.
+    values, shape, strides, origin, inv_res : grid of the robot SDF (see ``GridSDF.kernel_arrays``).
+    lo, hi : ndarray, shape (D,)
+        Robot-frame box outside which no query can penetrate deeper than the tolerance.
+    tol : float
+        Intersection tolerance (metres).
+
+    Returns
+    -------
+    n_moved : ndarray, shape (N,), int64
+        Old points moved in each particle.
+    """
+    N = P.shape[0]
+    D = P.shape[2]
+    K = dx.shape[0]
+    m_new = m_old + K
+    zero = np.zeros((1, D))
+    disp = np.zeros((K + 1, D))  # row K: "did not move"
+    for k in range(K):
+        for d in range(D):
+            disp[k, d] = dx[k, d]
+    n_moved = np.zeros(N, np.int64)
+    for n in prange(N):
+        group = np.empty(m_old, np.int64)
+        for j in range(m_old):
+            best = 0
+            best_d2 = np.inf
+            for k in range(K):
+                d2 = 0.0
+                for d in range(D):
+                    t = P[n, j, d] - prev_points[k, d]
+                    d2 += t * t
+                if d2 < best_d2:
+                    best_d2 = d2
+                    best = k
+            if u[n, j] < np.exp(-best_d2 / length):
+                group[j] = best
+                n_moved[n] += 1
+                for d in range(D):
+                    P[n, j, d] += dx[best, d]
+                    C[n, j, d] += dx[best, d]
+            else:
+                group[j] = K
+        for k in range(K):
+            for d in range(D):
+                P[n, m_old + k, d] = p[k, d]
+                C[n, m_old + k, d] = x[d]
+
+        # Points of each displacement group sorted by their first coordinate, so that each config only scans
+        # the window of points that can lie inside the robot's interior box (now or before the motion).
+        counts = np.zeros(K + 2, np.int64)
+        for j in range(m_old):
+            counts[group[j] + 1] += 1
+        for a in range(K + 1):
+            counts[a + 1] += counts[a]
+        order = np.empty(m_old, np.int64)
+        fill = counts[: K + 1].copy()
+        for j in range(m_old):
+            a = group[j]
+            order[fill[a]] = j
+            fill[a] += 1
+        xs = np.empty(m_old)
+        for a in range(K + 1):
+            seg = order[counts[a]:counts[a + 1]].copy()
+            key = np.empty(seg.size)
+            for t in range(seg.size):
+                key[t] = P[n, seg[t], 0]
+            srt = np.argsort(key)
+            for t in range(seg.size):
+                order[counts[a] + t] = seg[srt[t]]
+                xs[counts[a] + t] = key[srt[t]]
+        for a in range(K + 1):  # group of the config
+            for b in range(K + 1):  # group of the point
+                if a == b or counts[a] == counts[a + 1] or counts[b] == counts[b + 1]:
+                    continue
+                s0 = disp[b, 0] - disp[a, 0]  # how far the points moved relative to the configs (axis 0)
+                win_lo = lo[0] + min(0.0, s0)
+                win_hi = hi[0] + max(0.0, s0)
+                xs_b = xs[counts[b]:counts[b + 1]]
+                for ii in range(counts[a], counts[a + 1]):
+                    i = order[ii]
+                    c0 = C[n, i, 0]
+                    j0 = counts[b] + np.searchsorted(xs_b, c0 + win_lo)
+                    j1 = counts[b] + np.searchsorted(xs_b, c0 + win_hi, side="right")
+                    for jj in range(j0, j1):
+                        j = order[jj]
+                        new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
+                        old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
+                        if new != old:
+                            colpen[n, j] += new - old
+                            npen[n, j] += (new < 0.0) - (old < 0.0)
+                            if npen[n, j] == 0:
+                                colpen[n, j] = 0.0
+        # The new points against every config, and the new configs against the old points.
+        for j in range(m_old, m_new):
+            colpen[n, j] = 0.0
+            npen[n, j] = 0
+            for i in range(m_new):
+                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                if c < 0.0:
+                    colpen[n, j] += c
+                    npen[n, j] += 1
+        for i in range(m_old, m_new):
+            for j in range(m_old):
+                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                if c < 0.0:
+                    colpen[n, j] += c
+                    npen[n, j] += 1
+    return n_moved
+
+
+@njit(cache=True, parallel=True)
+def free_space_penetration(P, m, x, values, shape, strides, origin, inv_res, lo, hi, tol):
+    """Summed penetration of every live point against the current config only (Alg. 1 line 20).
+
+    Parameters
+    ----------
+    P : ndarray, shape (N, capacity, D)
+    m : int
+        Live points.
+    x : ndarray, shape (D,)
+        Current end-effector position (metres).
+
+    Returns
+    -------
+    eps : ndarray, shape (N,)
+        sum_j min(0, sdf(P[n, j] - x) + tol) (<= 0, metres).
+    """
+    N = P.shape[0]
+    D = P.shape[2]
+    eps = np.zeros(N)
+    for n in prange(N):
+        acc = 0.0
+        for j in range(m):
+            flat = 0
+            inside = True
+            for d in range(D):
+                q = P[n, j, d] - x[d]
+                if q < lo[d] or q > hi[d]:
+                    inside = False
+                    break
+                k = int(np.floor((q - origin[d]) * inv_res + 0.5))
+                if k < 0 or k >= shape[d]:
+                    inside = False
+                    break
+                flat += k * strides[d]
+            if inside:
+                v = values[flat] + tol
+                if v < 0.0:
+                    acc += v
+        eps[n] = acc
+    return eps
+
+
+@njit(cache=True, parallel=True)
+def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
+    """Alg. 2 on every particle: each inconsistent point (and its config) becomes a copy of the nearest
+    consistent point of the same particle. A point is inconsistent when it penetrates at least one of its
+    particle's configs deeper than the tolerance (``npen > 0``). Particles whose points are all consistent or
+    all inconsistent are left alone. Updates ``colpen``/``npen`` exactly.
+
+    Returns
+    -------
+    n_replaced : ndarray, shape (N,), int64
+    """
+    N = P.shape[0]
+    D = P.shape[2]
+    zero = np.zeros((1, D))
+    n_replaced = np.zeros(N, np.int64)
+    for n in prange(N):
+        n_bad = 0
+        for j in range(m):
+            if npen[n, j] > 0:
+                n_bad += 1
+        if n_bad == 0 or n_bad == m:
+            continue
+        bad = np.empty(n_bad, np.int64)
+        is_bad = np.zeros(m, np.bool_)
+        b = 0
+        for j in range(m):
+            if npen[n, j] > 0:
+                bad[b] = j
+                is_bad[j] = True
+                b += 1
+        # nearest consistent point of each inconsistent one (positions before any replacement)
+        source = np.empty(n_bad, np.int64)
+        for b in range(n_bad):
+            j = bad[b]
+            best = -1
+            best_d2 = np.inf
+            for k in range(m):
+                if is_bad[k]:
+                    continue
+                d2 = 0.0
+                for d in range(D):
+                    t = P[n, k, d] - P[n, j, d]
+                    d2 += t * t
+                if d2 < best_d2:
+                    best_d2 = d2
+                    best = k
+            source[b] = best
+        # remove the old terms of configs being replaced from the consistent points' sums
+        for b in range(n_bad):
+            i = bad[b]
+            for j in range(m):
+                if not is_bad[j]:
+                    c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                    if c < 0.0:
+                        colpen[n, j] -= c
+                        npen[n, j] -= 1
+                        if npen[n, j] == 0:
+                            colpen[n, j] = 0.0
+        for b in range(n_bad):
+            j = bad[b]
+            k = source[b]
+            for d in range(D):
+                P[n, j, d] = P[n, k, d]
+                C[n, j, d] = C[n, k, d]
+        # add the new configs' terms to the consistent points, and recompute the replaced points fully
+        for b in range(n_bad):
+            i = bad[b]
+            for j in range(m):
+                if not is_bad[j]:
+                    c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                    if c < 0.0:
+                        colpen[n, j] += c
+                        npen[n, j] += 1
+        for b in range(n_bad):
+            j = bad[b]
+            acc = 0.0
+            cnt = 0
+            for i in range(m):
+                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                if c < 0.0:
+                    acc += c
+                    cnt += 1
+            colpen[n, j] = acc
+            npen[n, j] = cnt
+        n_replaced[n] = n_bad
+    return n_replaced
+
+
+def penetration_bruteforce(P: np.ndarray, C: np.ndarray, m: int, query, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Reference (non-incremental) computation of ``colpen`` and ``npen`` with plain numpy.
+
+    Parameters
+    ----------
+    P, C : ndarray, shape (N, >= m, D)
+    query : callable
+        Signed distance of robot-frame offsets, shape (..., D) -> (...), e.g. ``GridSDF.query``.
+
+    Returns
+    -------
+    colpen : ndarray, shape (N, m)
+    npen : ndarray, shape (N, m), int32
+    """
+    rel = P[:, None, :m, :] - C[:, :m, None, :]  # (N, i config, j point, D)
+    s = query(rel) + tol
+    pen = np.minimum(s, 0.0)
+    return pen.sum(axis=1), (s < 0).sum(axis=1).astype(np.int32)

@@ -1,0 +1,280 @@
+"""STUCCO soft tracking (the paper's Algorithm 1 with Algorithm 2), as a particle filter on whole arrays.
+
+Each particle holds every contact point seen so far and the end-effector configuration it was observed at:
+``points`` and ``configs`` of shape (N particles, M points, D). One control step does, on all particles at once:
+
+1. *In contact* (K >= 1 contact points p_k with in-contact displacements dx_k): the new points enter at their
+   pre-motion location (p_k - dx_k, config x - dx_k); every existing point is connected to its nearest new point
+   with probability exp(-d^2 / l) (sampled independently per particle and point); connected points and their
+   configs translate by that new point's dx (pxdyn, Eq. 2); the new points always move.
+2. *Weighting*: epsilon_n = summed penetration of every point into every config of the particle (contact) or
+   into the current config only (free space), each term min(0, sdf + tolerance); the log-likelihood is
+   -epsilon^2 / l_p (``weighting="paper"``) or -(epsilon - max_n epsilon)^2 / l_p (``weighting="reference"``,
+   the authors' code, which measures each particle against the least penetrating one).
+3. *Resampling* (systematic) when the effective sample size drops below ``ess_threshold`` * N, followed by
+   ReplaceInconsistentPoints (Alg. 2).
+
+Only what changed is recomputed: penetration is kept per point (see :mod:`pipeline.track.kernels`), so a contact
+step evaluates only pairs whose relative position changed and the new points' pairs, and a free-space step only
+the current configuration against the points.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.segment import segment_points
+from pipeline.track import kernels
+from pipeline.track.resampling import effective_sample_size, normalise, systematic
+
+WEIGHTINGS = ("reference", "paper")
+REPLACE_MODES = ("after-resample", "every-step", "never")
+
+
+@dataclass(frozen=True)
+class SoftTrackingParams:
+    """Parameters of STUCCO soft tracking; defaults are the paper's Table I (simulation) and the authors' code.
+
+    Attributes
+    ----------
+    length : float
+        Characteristic length l (m^2): connection probability exp(-d^2 / l). Table I: 0.02.
+    penetration_length : float
+        Penetration length l_p (m^2): observation likelihood exp(-epsilon^2 / l_p). Table I: 0.002.
+    alpha : float
+        Connection threshold for segmentation (Alg. 3). Table I: 0.4.
+    n_particles : int
+        N. Table I: 100.
+    tolerance : float
+        Penetration shallower than this is ignored (metres); the authors' sim value 0.002.
+    ess_threshold : float
+        Resample when ESS / N falls below this (the authors' code: 0.8).
+    weighting : str
+        "reference" (the authors' code: epsilon relative to the best particle) or "paper" (raw epsilon).
+    replace : str
+        When to run ReplaceInconsistentPoints: "after-resample" (the authors' code), "every-step" (Alg. 1 as
+        printed) or "never".
+    weight_floor : float
+        Normalised weights are floored at this value before renormalising (the authors' code: 1e-15), so a
+        particle that was unlucky once can recover; 0 disables the floor.
+    """
+
+    length: float = 0.02
+    penetration_length: float = 0.002
+    alpha: float = 0.4
+    n_particles: int = 100
+    tolerance: float = 0.002
+    ess_threshold: float = 0.8
+    weighting: str = "reference"
+    replace: str = "after-resample"
+    weight_floor: float = 1e-15
+
+    def __post_init__(self) -> None:
+        for name in ("length", "penetration_length"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not (isinstance(self.n_particles, (int, np.integer)) and self.n_particles >= 1):
+            raise ValueError(f"n_particles must be a positive integer, got {self.n_particles!r}")
+        if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
+            raise ValueError(f"tolerance must be a non-negative finite number (metres), got {self.tolerance!r}")
+        if not 0.0 <= self.ess_threshold <= 1.0:
+            raise ValueError(f"ess_threshold must be in [0, 1], got {self.ess_threshold!r}")
+        if not 0.0 <= self.weight_floor < 1.0 / self.n_particles:
+            raise ValueError(f"weight_floor must be in [0, 1/N), got {self.weight_floor!r}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting must be one of {', '.join(WEIGHTINGS)}, got {self.weighting!r}")
+        if self.replace not in REPLACE_MODES:
+            raise ValueError(f"replace must be one of {', '.join(REPLACE_MODES)}, got {self.replace!r}")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class StepDiagnostics:
+    """What one update did: ESS / N after weighting (before resampling), whether it resampled, and how many
+    points ReplaceInconsistentPoints replaced over all particles."""
+
+    ess: float
+    resampled: bool
+    n_replaced: int
+
+
+class SoftTracker:
+    """STUCCO particle filter over contact points and their configurations.
+
+    Parameters
+    ----------
+    robot : GridSDF
+        The robot's signed distance grid (pxpen); see :mod:`pipeline.robot`.
+    params : SoftTrackingParams
+    rng : numpy.random.Generator
+        Source of every random draw (adjacency sampling and resampling).
+
+    Attributes (after updates)
+    --------------------------
+    points_ : ndarray, shape (M, D)
+        Contact points of the MAP particle.
+    log_weights_ : ndarray, shape (N,)
+        Normalised log-weights.
+    n_points_ : int
+    last_step_ : StepDiagnostics or None
+    """
+
+    def __init__(self, robot, params: SoftTrackingParams | None = None, *, rng: np.random.Generator) -> None:
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError("rng must be a numpy.random.Generator")
+        self.robot = robot
+        self.params = params if params is not None else SoftTrackingParams()
+        self.rng = rng
+        values, shape, strides, origin, resolution = robot.kernel_arrays()
+        self._grid = (values, np.asarray(shape, np.int64), np.asarray(strides, np.int64),
+                      np.asarray(origin, np.float64), 1.0 / float(resolution))
+        self.dim = len(shape)
+        lo, hi = robot.interior_bounds(-self.params.tolerance)
+        # One cell of margin: a query within half a cell of an interior cell centre looks that cell up.
+        self._lo = np.asarray(lo, np.float64) - resolution
+        self._hi = np.asarray(hi, np.float64) + resolution
+        n = self.params.n_particles
+        self._capacity = 0
+        self._m = 0
+        self._P = np.zeros((n, 0, self.dim))
+        self._C = np.zeros((n, 0, self.dim))
+        self._colpen = np.zeros((n, 0))
+        self._npen = np.zeros((n, 0), np.int32)
+        self.log_weights_ = np.full(n, -np.log(n))
+        self._map = 0
+        self.last_step_: StepDiagnostics | None = None
+
+    # ------------------------------------------------------------------ public state
+    @property
+    def n_points_(self) -> int:
+        return self._m
+
+    @property
+    def points_(self) -> np.ndarray:
+        """ndarray, shape (M, D): points of the MAP particle (copy)."""
+        return self._P[self._map, : self._m].copy()
+
+    @property
+    def configs_(self) -> np.ndarray:
+        """ndarray, shape (M, D): configurations of the MAP particle (copy)."""
+        return self._C[self._map, : self._m].copy()
+
+    @property
+    def particle_points_(self) -> np.ndarray:
+        """ndarray, shape (N, M, D): points of every particle (view; do not modify)."""
+        return self._P[:, : self._m]
+
+    @property
+    def particle_configs_(self) -> np.ndarray:
+        return self._C[:, : self._m]
+
+    def penetration_(self) -> np.ndarray:
+        """ndarray, shape (N,): summed penetration epsilon_n of each particle's points into its configs (<= 0)."""
+        return self._colpen[:, : self._m].sum(axis=1)
+
+    def labels(self) -> np.ndarray:
+        """Alg. 3 on the MAP particle: object index of each point, shape (M,)."""
+        return segment_points(self.points_, self.params.length, self.params.alpha)
+
+    # ------------------------------------------------------------------ the filter
+    def update(self, x, dx=None, p=None) -> StepDiagnostics:
+        """One control step; see the module docstring.
+
+        Parameters
+        ----------
+        x : array_like, shape (D,)
+            End-effector position after the step (metres).
+        dx : array_like, shape (K, D) or (D,), or None
+            In-contact displacement for each of the K contacts of the step; None in free space.
+        p : array_like, shape (K, D) or (D,), or None
+            Contact points at the end of the step; None in free space.
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(self.dim)
+        if (dx is None) != (p is None):
+            raise ValueError("dx and p must both be given (contact) or both be None (free space)")
+        if dx is not None:
+            dx = np.asarray(dx, dtype=np.float64).reshape(-1, self.dim)
+            p = np.asarray(p, dtype=np.float64).reshape(-1, self.dim)
+            if dx.shape != p.shape:
+                raise ValueError(f"dx {dx.shape} and p {p.shape} must have the same shape (K, {self.dim})")
+            if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
+                raise ValueError("x, dx and p must be finite")
+        if dx is None or len(dx) == 0:
+            if self._m == 0:
+                self.last_step_ = StepDiagnostics(ess=1.0, resampled=False, n_replaced=0)
+                return self.last_step_
+            eps = kernels.free_space_penetration(self._P, self._m, x, *self._grid, self._lo, self._hi,
+                                                 self.params.tolerance)
+        else:
+            self._predict(x, dx, p)
+            eps = self.penetration_()
+        return self._reweight_and_resample(eps)
+
+    def _ensure_capacity(self, m_needed: int) -> None:
+        if m_needed <= self._capacity:
+            return
+        cap = max(16, 2 * self._capacity, m_needed)
+        n = self.params.n_particles
+
+        def grow(a, fill_dtype):
+            out = np.zeros((n, cap) + a.shape[2:], dtype=fill_dtype)
+            out[:, : self._m] = a[:, : self._m]
+            return out
+
+        self._P = grow(self._P, np.float64)
+        self._C = grow(self._C, np.float64)
+        self._colpen = grow(self._colpen, np.float64)
+        self._npen = grow(self._npen, np.int32)
+        self._capacity = cap
+
+    def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> None:
+        """Append the K new points (moved by their own dx) and move connected old points (pxdyn)."""
+        m_old = self._m
+        self._ensure_capacity(m_old + len(dx))
+        u = self.rng.random((self.params.n_particles, m_old))
+        kernels.predict_and_update(self._P, self._C, u, p - dx, dx, x, p, m_old, self.params.length,
+                                   self._colpen, self._npen, *self._grid, self._lo, self._hi,
+                                   self.params.tolerance)
+        self._m = m_old + len(dx)
+
+    def _reweight_and_resample(self, eps: np.ndarray) -> StepDiagnostics:
+        prm = self.params
+        if prm.weighting == "reference":
+            eps = eps - eps.max()
+        log_lik = -(eps * eps) / prm.penetration_length
+        log_w = normalise(self.log_weights_ + log_lik)
+        if prm.weight_floor > 0:
+            log_w = normalise(np.maximum(log_w, np.log(prm.weight_floor)))
+        self._map = int(np.argmax(log_w))
+        ess = effective_sample_size(log_w)
+        resampled = ess < prm.ess_threshold
+        n_replaced = 0
+        replace = self._m > 0 and (prm.replace == "every-step" or (resampled and prm.replace == "after-resample"))
+        if resampled:
+            ancestors = systematic(log_w, self.rng)
+            # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
+            # once per distinct ancestor, then hand out the copies.
+            distinct, copy_of = np.unique(ancestors, return_inverse=True)
+            live = slice(0, self._m)
+            state = [np.ascontiguousarray(a[distinct, live]) for a in (self._P, self._C, self._colpen, self._npen)]
+            if replace:
+                points, configs, colpen, npen = state
+                n_replaced = int(kernels.replace_inconsistent(points, configs, self._m, colpen, npen, *self._grid,
+                                                              self._lo, self._hi, prm.tolerance)[copy_of].sum())
+            for full, part in zip((self._P, self._C, self._colpen, self._npen), state):
+                full[:, live] = part[copy_of]
+            # the MAP particle's first descendant (the highest weight always has one under systematic resampling)
+            self._map = int(np.searchsorted(ancestors, self._map))
+            log_w = np.full(prm.n_particles, -np.log(prm.n_particles))
+        elif replace:
+            n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._m, self._colpen, self._npen,
+                                                          *self._grid, self._lo, self._hi, prm.tolerance).sum())
+        self.log_weights_ = log_w
+        self.last_step_ = StepDiagnostics(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
+        return self.last_step_

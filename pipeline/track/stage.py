@@ -1,0 +1,199 @@
+"""The `track` stage: a contacts table in, a tracks table and a diagnostics table out.
+
+Every run of the contacts table is tracked independently with its own random stream,
+``SeedSequence([seed, run_key(run)])``, so results do not depend on the order of runs or on ``jobs``.
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import schema
+from pipeline.robot import load_robot
+from pipeline.track.soft import SoftTracker, SoftTrackingParams
+
+METHODS = ("stucco",)  # the baselines register here when available, see make_tracker
+
+# Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
+_CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}
+
+
+def run_key(run: str) -> int:
+    """Stable 64-bit integer of a run name (Python's hash() is salted per process)."""
+    return int.from_bytes(hashlib.sha256(run.encode("utf-8")).digest()[:8], "little")
+
+
+def run_rng(seed: int, run: str) -> np.random.Generator:
+    """The random stream of one run: independent of other runs and of the order they are processed in."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), run_key(run)]))
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """What `stucco track` was asked to do; serialised into the output metadata."""
+
+    method: str = "stucco"
+    robot: str = "panda"
+    params: dict[str, Any] = field(default_factory=dict)
+    every_step: bool = False
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS + _baseline_names():
+            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS + _baseline_names())}")
+
+
+def _baseline_names() -> tuple[str, ...]:
+    try:
+        from pipeline.track import cluster  # noqa: F401
+    except ImportError:
+        return ()
+    return ("birch", "dbscan", "kmeans", "gmphd")
+
+
+def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
+    """Build a fresh tracker for one run."""
+    if config.method == "stucco":
+        return SoftTracker(robot, SoftTrackingParams(**config.params), rng=rng)
+    from pipeline.track.cluster import make_baseline
+
+    return make_baseline(config.method, config.params, rng)
+
+
+def stucco_params(config: TrackConfig) -> dict[str, Any]:
+    """The full parameter set (defaults filled in) recorded in the output metadata."""
+    if config.method == "stucco":
+        return SoftTrackingParams(**config.params).to_dict()
+    return dict(config.params)
+
+
+@dataclass
+class RunResult:
+    """Rows of one tracked run, as column arrays."""
+
+    run: str
+    tracks: dict[str, np.ndarray]
+    source_rows: np.ndarray  # row of the contacts table each tracks row comes from (for carried columns)
+    diagnostics: dict[str, np.ndarray]
+
+
+def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot, seed: int) -> RunResult:
+    """Replay one run through a fresh tracker.
+
+    Returns the estimate after the last step (or after every step with ``config.every_step``) and per-step
+    diagnostics. Point i of the tracker is the i-th contact row of the run, so its observation step, index within
+    the step and source row are known without asking the tracker.
+    """
+    tracker = make_tracker(config, robot, run_rng(seed, run))
+    n_steps = contacts.n_steps
+    point_step: list[np.ndarray] = []
+    point_index: list[np.ndarray] = []
+    point_row: list[np.ndarray] = []
+    out: dict[str, list] = {"step": [], "contact_index": [], "estimate_step": [], "x_m": [], "y_m": [],
+                            "tracker_label": []}
+    rows_out: list[np.ndarray] = []
+    diag = {k: np.zeros(n_steps, dtype=t) for k, t in
+            (("step", np.int64), ("in_contact", bool), ("n_contacts", np.int64), ("ess", np.float64),
+             ("resampled", bool), ("n_replaced", np.int64), ("update_ms", np.float64))}
+    for s in range(n_steps):
+        x, dx, p = contacts.observation(s)
+        t0 = time.perf_counter()
+        info = tracker.update(x, dx, p)
+        diag["update_ms"][s] = (time.perf_counter() - t0) * 1e3
+        diag["step"][s] = contacts.step[s]
+        diag["in_contact"][s] = contacts.in_contact[s]
+        diag["n_contacts"][s] = 0 if dx is None else len(dx)
+        diag["ess"][s] = getattr(info, "ess", 1.0)
+        diag["resampled"][s] = getattr(info, "resampled", False)
+        diag["n_replaced"][s] = getattr(info, "n_replaced", 0)
+        if dx is not None:
+            rows = contacts.rows(s)
+            k = rows.stop - rows.start
+            point_step.append(np.full(k, contacts.step[s], np.int64))
+            point_index.append(np.arange(k, dtype=np.int64))
+            point_row.append(contacts.row_index[rows])
+        if (config.every_step or s == n_steps - 1) and point_step:
+            pts = tracker.points_
+            out["step"].append(np.concatenate(point_step))
+            out["contact_index"].append(np.concatenate(point_index))
+            out["estimate_step"].append(np.full(len(pts), contacts.step[s], np.int64))
+            out["x_m"].append(pts[:, 0])
+            out["y_m"].append(pts[:, 1])
+            out["tracker_label"].append(np.asarray(tracker.labels(), np.int64))
+            rows_out.append(np.concatenate(point_row))
+    tracks = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in out.items()}
+    for k in ("step", "contact_index", "estimate_step", "tracker_label"):
+        tracks[k] = tracks[k].astype(np.int64)
+    source = np.concatenate(rows_out) if rows_out else np.zeros(0, np.int64)
+    return RunResult(run, tracks, source, diag)
+
+
+def _track_one(run: str, contacts: schema.RunContacts, config: TrackConfig, seed: int) -> RunResult:
+    # Worker entry point: each process loads the robot grid once per run (a millisecond cache read).
+    return track_run(run, contacts, config, load_robot(config.robot), seed)
+
+
+def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 1,
+                progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
+    """Track every run of a validated contacts table.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        A contacts table (see :data:`pipeline.schema.CONTACTS_COLUMNS`).
+    config : TrackConfig
+    seed : int
+        Root seed.
+    jobs : int
+        Runs tracked in parallel processes.
+    progress : callable, optional
+        Wraps the iterable of finished runs (e.g. a tqdm factory taking ``total=``).
+
+    Returns
+    -------
+    tracks, diagnostics : pyarrow.Table
+        Rows in the order the runs first appear in the input.
+    """
+    runs = schema.contacts_by_run(table)
+    if jobs > 1 and len(runs) > 1:
+        from joblib import Parallel, delayed
+
+        results = Parallel(n_jobs=jobs, return_as="generator")(
+            delayed(_track_one)(run, rc, config, seed) for run, rc in runs)
+    else:
+        robot = load_robot(config.robot)
+        results = (track_run(run, rc, config, robot, seed) for run, rc in runs)
+    if progress is not None:
+        results = progress(results, total=len(runs))
+    results = list(results)
+    return _tracks_table(table, results), _diagnostics_table(results)
+
+
+def _tracks_table(contacts: pa.Table, results: list[RunResult]) -> pa.Table:
+    n = [len(r.tracks["step"]) for r in results]
+    cols: dict[str, pa.Array] = {
+        "run": pa.array(np.repeat([r.run for r in results], n).astype(object) if results else [], pa.string()),
+    }
+    for name, dtype in (("step", pa.int64()), ("contact_index", pa.int64()), ("estimate_step", pa.int64()),
+                        ("x_m", pa.float64()), ("y_m", pa.float64()), ("tracker_label", pa.int64())):
+        values = np.concatenate([r.tracks[name] for r in results]) if results else np.zeros(0)
+        cols[name] = pa.array(values, dtype)
+    source = np.concatenate([r.source_rows for r in results]).astype(np.int64) if results else np.zeros(0, np.int64)
+    carried = [c for c in contacts.column_names if c not in _CONSUMED]
+    taken = contacts.select(carried).take(pa.array(source)) if carried else None
+    for c in carried:
+        cols[c] = taken.column(c)
+    return pa.table(cols)
+
+
+def _diagnostics_table(results: list[RunResult]) -> pa.Table:
+    n = [len(r.diagnostics["step"]) for r in results]
+    cols: dict[str, Any] = {"run": pa.array(np.repeat([r.run for r in results], n).astype(object)
+                                            if results else [], pa.string())}
+    for name in ("step", "in_contact", "n_contacts", "ess", "resampled", "n_replaced", "update_ms"):
+        cols[name] = pa.array(np.concatenate([r.diagnostics[name] for r in results]) if results else [])
+    return pa.table(cols)

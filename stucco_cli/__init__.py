@@ -1,0 +1,1 @@
+"""The `stucco` command line: a thin click layer over :mod:`pipeline`."""

@@ -1,0 +1,72 @@
+"""`stucco` entry point: the click group with the options shared by every stage.
+
+Commands live in sibling modules (one per stage family) and only parse options, call :mod:`pipeline`,
+and report. Errors a user can fix (bad input files, unknown scenes, bad option values) surface as one line
+through :class:`click.ClickException` with a non-zero exit code, never as a traceback.
+"""
+from __future__ import annotations
+
+import logging
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import click
+
+from pipeline import __version__
+
+
+@dataclass
+class Settings:
+    """Options of the `stucco` group, shared with every command through the click context."""
+
+    seed: int = 0
+    jobs: int = 1
+    verbosity: int = 0  # -1 quiet, 0 normal, >0 verbose
+
+    @property
+    def progress(self) -> bool | None:
+        """tqdm's `disable` argument: bars off when quiet, auto (TTY only) otherwise."""
+        return True if self.verbosity < 0 else None
+
+
+pass_settings = click.make_pass_decorator(Settings, ensure=True)
+
+
+@contextmanager
+def user_errors(what: str | None = None):
+    """Turn the errors a user can fix (bad files, bad values) into one-line :class:`click.ClickException`."""
+    from pipeline.schema import SchemaError
+
+    try:
+        yield
+    except SchemaError as e:
+        raise click.ClickException(str(e)) from None
+    except (ValueError, FileNotFoundError) as e:
+        msg = " ".join(str(e).split())
+        raise click.ClickException(f"{what}: {msg}" if what else msg) from None
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Root seed; every random draw of every stage derives from it.")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Parallel worker processes for stages that process independent runs.")
+@click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")
+@click.version_option(__version__, prog_name="stucco")
+@click.pass_context
+def cli(ctx: click.Context, seed: int, jobs: int, verbose: int, quiet: bool) -> None:
+    """STUCCO: track contact points in clutter, segment them into objects, retrieve a target blind."""
+    verbosity = -1 if quiet else verbose
+    ctx.obj = Settings(seed=seed, jobs=jobs, verbosity=verbosity)
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+
+
+def _register() -> None:
+    # Imported here so that `stucco --help` stays fast and each command module can import its stage lazily.
+    from stucco_cli import bench as _bench  # noqa: F401
+    from stucco_cli import track as _track  # noqa: F401
+
+
+_register()

@@ -1,0 +1,137 @@
+"""`stucco track` and `stucco segment`."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stucco_cli.main import Settings, cli, pass_settings, user_errors
+
+
+def _progress(settings: Settings, desc: str):
+    from tqdm import tqdm
+
+    return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
+
+
+def _parse_sets(values: tuple[str, ...]) -> dict:
+    """--set KEY=VALUE pairs -> dict; values parsed as int, float, bool or string."""
+    out = {}
+    for item in values:
+        if "=" not in item:
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--set")
+        key, raw = item.split("=", 1)
+        val: object = raw
+        for conv in (int, float):
+            try:
+                val = conv(raw)
+                break
+            except ValueError:
+                pass
+        if raw.lower() in ("true", "false"):
+            val = raw.lower() == "true"
+        out[key.strip().replace("-", "_")] = val
+    return out
+
+
+@cli.command()
+@click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Contacts table (Parquet).")
+@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Tracks table to write.")
+@click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
+              help="Per-step diagnostics table [default: OUT with suffix .diagnostics.parquet].")
+@click.option("--method", default="stucco", show_default=True,
+              help="stucco, or a baseline: birch, dbscan, kmeans, gmphd.")
+@click.option("--robot", default="panda", show_default=True, help="'panda' or 'disc:RADIUS' (metres).")
+@click.option("--particles", "n_particles", type=int, default=None, help="N particles [100].")
+@click.option("--length", type=float, default=None, help="Characteristic length l, m^2 [0.02].")
+@click.option("--penetration-length", type=float, default=None, help="Penetration length l_p, m^2 [0.002].")
+@click.option("--alpha", type=float, default=None, help="Connection threshold of Alg. 3 [0.4].")
+@click.option("--tolerance", type=float, default=None, help="Ignored penetration depth, m [0.002].")
+@click.option("--weighting", type=click.Choice(["reference", "paper"]), default=None,
+              help="Particle weighting rule [reference].")
+@click.option("--replace", type=click.Choice(["after-resample", "every-step", "never"]), default=None,
+              help="When ReplaceInconsistentPoints runs [after-resample].")
+@click.option("--ess-threshold", type=float, default=None, help="Resample when ESS/N is below this [0.8].")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Any other tracker parameter (e.g. baselines: --set eps=0.05).")
+@click.option("--every-step", is_flag=True, help="Also write the estimate after every step.")
+@pass_settings
+def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
+          sets: tuple[str, ...], every_step: bool, **stucco_opts) -> None:
+    """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
+    from pipeline import schema
+    from pipeline.robot import load_robot
+    from pipeline.track.stage import TrackConfig, stucco_params, track_table
+
+    params = {k: v for k, v in stucco_opts.items() if v is not None}
+    if params and method != "stucco":
+        raise click.UsageError(f"--{next(iter(params)).replace('_', '-')} applies to --method stucco only; "
+                               "use --set KEY=VALUE for baseline parameters")
+    params.update(_parse_sets(sets))
+    with user_errors("track"):
+        config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
+        grid = load_robot(robot)
+        full_params = stucco_params(config)
+    with user_errors():
+        contacts = schema.read_contacts(in_path)
+    with user_errors(f"{in_path}"):
+        tracks, diagnostics = track_table(contacts, config, seed=settings.seed, jobs=settings.jobs,
+                                          progress=_progress(settings, "track"))
+    meta = dict(method=method, robot=robot, robot_digest=grid.digest, every_step=every_step, **full_params)
+    inputs = {"contacts": str(in_path)}
+    diag_path = diag_path or out_path.with_name(out_path.name.removesuffix(".parquet") + ".diagnostics.parquet")
+    schema.write_table(tracks, out_path, stage="track", params=meta, seed=settings.seed, inputs=inputs,
+                       kind="tracks")
+    # The diagnostics hold wall times, so unlike the tracks they differ between two identical runs.
+    schema.write_table(diagnostics, diag_path, stage="track", params=meta, seed=settings.seed, inputs=inputs,
+                       kind="diagnostics")
+    if settings.verbosity >= 0:
+        n_runs = len(set(tracks.column("run").to_pylist()))
+        ms = diagnostics.column("update_ms").to_numpy()
+        click.echo(f"tracked {n_runs} run(s), {tracks.num_rows} point rows -> {out_path} "
+                   f"({ms.sum() / 1e3:.2f} s in updates; diagnostics -> {diag_path})", err=True)
+
+
+@cli.command()
+@click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Tracks table (Parquet).")
+@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Segments table to write.")
+@click.option("--by", type=click.Choice(["auto", "components", "tracker"]), default="auto", show_default=True,
+              help="Alg. 3 connected components, the tracker's own labels, or auto (components for stucco).")
+@click.option("--length", type=float, default=None, help="Characteristic length l, m^2 [from the tracks metadata].")
+@click.option("--alpha", type=float, default=None, help="Connection threshold [from the tracks metadata].")
+@click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None,
+              help="Also draw the final segments of the first runs to this PNG.")
+@click.option("--print", "print_table", is_flag=True, help="Print one line per segment to stdout.")
+@pass_settings
+def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: float | None, alpha: float | None,
+            plot_path: Path | None, print_table: bool) -> None:
+    """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
+    from pipeline import schema
+    from pipeline.segment import plot_segments, segment_table, summarise
+    from pipeline.track.soft import SoftTrackingParams
+
+    with user_errors():
+        tracks = schema.read_tracks(in_path)
+        meta = schema.read_metadata(in_path)
+    tparams = meta.get("params") or {}
+    defaults = SoftTrackingParams()
+    length = length if length is not None else float(tparams.get("length", defaults.length))
+    alpha = alpha if alpha is not None else float(tparams.get("alpha", defaults.alpha))
+    method = str(tparams.get("method", "stucco"))
+    with user_errors("segment"):
+        segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
+    params = dict(length=length, alpha=alpha, by=by, method=method)
+    schema.write_table(segments, out_path, stage="segment", params=params, seed=settings.seed,
+                       inputs={"tracks": str(in_path)}, kind="segments")
+    if plot_path is not None:
+        plot_segments(segments, plot_path)
+    if print_table:
+        rows = summarise(segments)
+        click.echo(f"{'run':<16} {'segment':>7} {'points':>6} {'centroid_x_m':>12} {'centroid_y_m':>12} {'run_FMI':>8}")
+        for r in rows:
+            fmi = "" if r["run_fmi"] is None else f"{r['run_fmi']:.3f}"
+            click.echo(f"{r['run']:<16} {r['segment']:>7} {r['n_points']:>6} {r['centroid_x_m']:>12.4f} "
+                       f"{r['centroid_y_m']:>12.4f} {fmi:>8}")
+    if settings.verbosity >= 0:
+        click.echo(f"segmented {segments.num_rows} rows -> {out_path}" +
+                   (f" (plot: {plot_path})" if plot_path else ""), err=True)
