@@ -1,0 +1,472 @@
+"""Run a scene in pybullet and record one Parquet file per (scene, seed): the ``sim_run`` table.
+
+Policies (REFERENCE_SPEC §2.2-2.4):
+
+``scripted``
+    The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
+    whole sequence before the run.
+``greedy-walk``
+    Start and goal uniform in the scene's square (rejected if closer than 0.7 m or if the gripper would touch
+    anything at either); at most 299 actions, stop within 4 cm of the goal; after an action that ends in
+    contact take 6 uniform random actions, otherwise the best of 100 uniform random actions towards the goal.
+    Runs failing the discard rule (§2.4) are not written unless asked.
+
+Every random draw of a job comes from ``numpy.random.SeedSequence([root_seed, scene_hash(scene), seed])``
+(children: 0 = replay noise, 1 = policy), so every method sees the same scene and actions for a given seed.
+
+The ``sim_run`` table has one row per action; see :data:`RUN_COLUMNS` (name, unit, meaning) and
+docs/simulation.md. Files are written atomically with :func:`pipeline.schema.write_table`; the same scene, seed
+and effects give byte-identical files.
+"""
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.isolate import DetectionParams, gripper_yaw, residual, step_in_contact, window_in_contact
+from pipeline.scenes import Scene, SceneError, scene_hash
+from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
+from pipeline.sim.world import ActionTrace
+
+__all__ = ["POLICIES", "RUN_COLUMNS", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
+           "output_path", "collect_run", "collect", "summarize_action", "action_label", "representative_force",
+           "discard_reason", "RunResult"]
+
+POLICIES = ("scripted", "greedy-walk")
+RUN_KIND = "sim_run"
+#: Sim steps of each action kept for detection/isolation: the detector looks at the last 5, isolation takes the
+#: latest in-contact one among them plus up to 3 preceding in-contact steps, so it can reach 8 steps back.
+WINDOW_STEPS = 8
+#: Observations per bucket for labels and the representative force, and the observation used in a bucket.
+BUCKET = 20
+BUCKET_SAMPLE = 5
+#: Discard rule thresholds (REFERENCE_SPEC §2.4).
+MIN_REP_FORCE_N = 0.1
+MAX_NO_CONTACT_FRACTION = 0.95
+
+#: (name, unit, meaning) of every column of the sim_run table, in order.
+RUN_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("run", "", "Run id '<scene>/<seed>'."),
+    ("scene", "", "Scene name."),
+    ("seed", "", "Run seed (the job's third SeedSequence entry)."),
+    ("step", "", "Action index, 0-based."),
+    ("ee_start_x_m", "m", "Gripper base x at the start of the action."),
+    ("ee_start_y_m", "m", "Gripper base y at the start of the action."),
+    ("ee_x_m", "m", "Gripper base x after the action."),
+    ("ee_y_m", "m", "Gripper base y after the action."),
+    ("ee_z_m", "m", "Gripper base z after the action."),
+    ("ee_yaw_rad", "rad", "In-plane rotation of the gripper from its fixed orientation, after the action."),
+    ("cmd_ux", "", "Commanded action x in [-1, 1] (noise included, clipped)."),
+    ("cmd_uy", "", "Commanded action y in [-1, 1]."),
+    ("cmd_dx_m", "m", "Commanded displacement x = cmd_ux * action scale."),
+    ("cmd_dy_m", "m", "Commanded displacement y."),
+    ("exec_dx_m", "m", "Executed displacement x (after - start)."),
+    ("exec_dy_m", "m", "Executed displacement y."),
+    ("in_contact", "", "Detector verdict: residual > threshold at any of the action's last 5 sim steps."),
+    ("contact_dx_m", "m", "Sum of the gripper's per-sim-step x displacement over in-contact steps; null if not "
+                          "in_contact."),
+    ("contact_dy_m", "m", "Same for y."),
+    ("residual_max", "", "Largest detection residual over the action's sim steps (NaN without wrench)."),
+    ("win_wrench", "N, N m", "Last 8 sim steps' contact wrench on the gripper (f_x, f_y, f_z, tau_x, tau_y, "
+                             "tau_z), world frame, torque about the gripper base; shape (8, 6); NaN without "
+                             "wrench."),
+    ("win_pose", "m, quaternion", "Last 8 sim steps' gripper base pose (x, y, z, qx, qy, qz, qw); shape (8, 7)."),
+    ("win_true_contact_m", "m", "Last 8 sim steps' true contact point on the gripper (x, y) of the first object "
+                                "in contact; NaN without contact; shape (8, 2)."),
+    ("win_true_object", "", "Last 8 sim steps' object id of that contact (-1 none); shape (8,)."),
+    ("true_contact_x_m", "m", "True contact point x at the action's last sim step with contact; null if none."),
+    ("true_contact_y_m", "m", "Same for y."),
+    ("object_id", "", "Ground-truth label of the action: mode over 16 buckets of 20 sim steps of the body in "
+                      "contact, -1 (no contact) winning ties; index into the 'bodies' metadata list."),
+    ("force_rep_x_n", "N", "Representative contact force x: sampled at the 6th step of each bucket, the bucket "
+                           "of median magnitude."),
+    ("force_rep_y_n", "N", "Same for y."),
+    ("obj_pose", "m, m, rad", "Every body's inertial-frame (x, y, yaw) after the action, in 'bodies' order; "
+                              "NaN for bodies not built."),
+    ("obj_distance_m", "m", "Every body's minimum distance to the gripper after the action (negative: "
+                            "penetration); NaN for bodies not built."),
+)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Seeds
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from ``"0-19"``, ``"3"``, ``"0,2,5-7"``; raises ValueError naming the bad part."""
+    seeds: list[int] = []
+    for part in str(text).split(","):
+        part = part.strip()
+        m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        if not m:
+            raise ValueError(f"seed range {part!r}: expected N, N-M or a comma-separated list of them")
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) is not None else lo
+        if hi < lo:
+            raise ValueError(f"seed range {part!r}: end before start")
+        seeds.extend(range(lo, hi + 1))
+    return sorted(set(seeds))
+
+
+def job_seed_sequence(root_seed: int, scene_name: str, seed: int) -> np.random.SeedSequence:
+    """The job's SeedSequence([root_seed, scene_hash(scene_name), seed])."""
+    return np.random.SeedSequence([int(root_seed), scene_hash(scene_name), int(seed)])
+
+
+def run_name(scene_name: str, seed: int) -> str:
+    return f"{scene_name}/{seed}"
+
+
+def output_path(out_dir: str | Path, scene_name: str, seed: int) -> Path:
+    """``<out_dir>/<scene>-<seed:03d>.parquet``."""
+    return Path(out_dir) / f"{scene_name}-{seed:03d}.parquet"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Per-action kernels
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def action_label(ids: np.ndarray, bucket: int = BUCKET) -> int:
+    """Ground-truth object of an action (REFERENCE_SPEC §2.1).
+
+    Parameters
+    ----------
+    ids : ndarray, shape (S,), int
+        Per sim step, the (last-found = highest) object id in contact, NO_CONTACT = -1 otherwise.
+
+    Returns
+    -------
+    int
+        Mode over the ceil(S / bucket) buckets of each bucket's id (that of its last step with contact, -1 if
+        none), ties broken toward the smallest value (``scipy.stats.mode``), so -1 wins any tie.
+    """
+    ids = np.asarray(ids)
+    labels = []
+    for b in range(0, len(ids), bucket):
+        chunk = ids[b:b + bucket]
+        hit = np.flatnonzero(chunk != NO_CONTACT)
+        labels.append(int(chunk[hit[-1]]) if len(hit) else NO_CONTACT)
+    vals, counts = np.unique(np.asarray(labels), return_counts=True)
+    return int(vals[np.argmax(counts)])  # unique sorts ascending and argmax takes the first maximum
+
+
+def representative_force(wrench: np.ndarray, bucket: int = BUCKET, sample: int = BUCKET_SAMPLE) -> np.ndarray:
+    """Representative in-plane contact force of an action (MEDIAN_OVER_MINI_STEPS, REFERENCE_SPEC §2.1).
+
+    Parameters
+    ----------
+    wrench : ndarray, shape (S, 6)
+
+    Returns
+    -------
+    ndarray, shape (2,), N
+        The force (f_x, f_y) sampled at index ``sample`` of each bucket, of the bucket with the median
+        magnitude (upper median for an even count); NaN if the wrench was not computed.
+    """
+    idx = np.arange(sample, len(wrench), bucket)
+    f = np.asarray(wrench)[idx, :2]
+    mag = np.linalg.norm(f, axis=1)
+    if not np.all(np.isfinite(mag)):
+        return np.full(2, np.nan)
+    return f[np.argsort(mag, kind="stable")[len(mag) // 2]]
+
+
+def summarize_action(trace: ActionTrace, det: DetectionParams = DetectionParams()) -> dict:
+    """Everything the sim_run table keeps of one action (columns not involving the policy or objects)."""
+    flags = step_in_contact(trace.wrench, det)
+    in_contact = window_in_contact(flags, det.window)
+    steps = np.diff(np.vstack([trace.start[None, :2], trace.pos[:, :2]]), axis=0)
+    cdx = steps[flags].sum(axis=0) if in_contact else None
+    res = step_residual_max(trace.wrench, det)
+    w = slice(len(trace.pos) - WINDOW_STEPS, None)
+    has = np.flatnonzero(trace.truth_first != NO_CONTACT)
+    true_pt = trace.truth_xy[has[-1]] if len(has) else None
+    end = trace.pos[-1]
+    return {
+        "ee_start_x_m": float(trace.start[0]), "ee_start_y_m": float(trace.start[1]),
+        "ee_x_m": float(end[0]), "ee_y_m": float(end[1]), "ee_z_m": float(end[2]),
+        "ee_yaw_rad": gripper_yaw(trace.quat[-1]),
+        "exec_dx_m": float(end[0] - trace.start[0]), "exec_dy_m": float(end[1] - trace.start[1]),
+        "in_contact": in_contact,
+        "contact_dx_m": None if cdx is None else float(cdx[0]),
+        "contact_dy_m": None if cdx is None else float(cdx[1]),
+        "residual_max": res,
+        "win_wrench": trace.wrench[w], "win_pose": np.hstack([trace.pos[w], trace.quat[w]]),
+        "win_true_contact_m": trace.truth_xy[w], "win_true_object": trace.truth_first[w],
+        "true_contact_x_m": None if true_pt is None else float(true_pt[0]),
+        "true_contact_y_m": None if true_pt is None else float(true_pt[1]),
+        "object_id": action_label(trace.truth_last),
+        "force_rep": representative_force(trace.wrench),
+    }
+
+
+def step_residual_max(wrench: np.ndarray, det: DetectionParams) -> float:
+    """Largest residual over the sim steps of an action (NaN if the wrench was not computed)."""
+    e = residual(wrench, det.sigma_inv)
+    return float(np.max(e)) if np.all(np.isfinite(e)) else float("nan")
+
+
+def discard_reason(object_id: np.ndarray, force_rep: np.ndarray) -> str | None:
+    """Why a training run is discarded, or None to keep it (REFERENCE_SPEC §2.4).
+
+    Labels of actions whose representative force is below 0.1 N become -1 and one -1 is appended; the run
+    is rejected with fewer than 2 distinct labels, more than 95 % of -1 labels, or fewer than 2 in-contact
+    actions.
+
+    Parameters
+    ----------
+    object_id : ndarray, shape (A,), int
+    force_rep : ndarray, shape (A, 2), N
+    """
+    labels = np.asarray(object_id, dtype=np.int64).copy()
+    mag = np.linalg.norm(np.asarray(force_rep, dtype=np.float64).reshape(-1, 2), axis=1)
+    labels[~(mag >= MIN_REP_FORCE_N)] = NO_CONTACT
+    labels = np.append(labels, NO_CONTACT)
+    if len(np.unique(labels)) < 2:
+        return "fewer than 2 distinct labels"
+    if np.mean(labels == NO_CONTACT) > MAX_NO_CONTACT_FRACTION:
+        return "in contact less than 5% of the time"
+    if np.sum(labels != NO_CONTACT) < 2:
+        return "fewer than 2 in-contact actions"
+    return None
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# One run
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RunResult:
+    """What one job did (returned to the parent process; the data itself is in ``path``)."""
+
+    scene: str
+    seed: int
+    path: Path | None
+    n_actions: int
+    n_contact: int
+    touched: dict[str, int]
+    discarded: str | None
+    wall_s: float
+    sim_s: float
+
+
+def _fixed_list(a: np.ndarray) -> pa.Array:
+    """Nested fixed-size lists of float64 (or int64) from an (A, d1, ..., dk) array."""
+    a = np.ascontiguousarray(a)
+    arr = pa.array(a.reshape(-1))
+    for size in reversed(a.shape[1:]):
+        arr = pa.FixedSizeListArray.from_arrays(arr, size)
+    return arr
+
+
+def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
+    n = len(rows)
+    name = run_name(scene.name, seed)
+
+    def col(k, typ=pa.float64()):
+        return pa.array([r[k] for r in rows], type=typ)
+
+    nb = len(scene.body_names)
+    data = {
+        "run": pa.array([name] * n, type=pa.string()),
+        "scene": pa.array([scene.name] * n, type=pa.string()),
+        "seed": pa.array([seed] * n, type=pa.int64()),
+        "step": pa.array(np.arange(n), type=pa.int64()),
+    }
+    for k in ("ee_start_x_m", "ee_start_y_m", "ee_x_m", "ee_y_m", "ee_z_m", "ee_yaw_rad", "cmd_ux", "cmd_uy",
+              "cmd_dx_m", "cmd_dy_m", "exec_dx_m", "exec_dy_m"):
+        data[k] = col(k)
+    data["in_contact"] = col("in_contact", pa.bool_())
+    for k in ("contact_dx_m", "contact_dy_m", "residual_max"):
+        data[k] = col(k)
+    data["win_wrench"] = _fixed_list(np.array([r["win_wrench"] for r in rows]).reshape(n, WINDOW_STEPS, 6))
+    data["win_pose"] = _fixed_list(np.array([r["win_pose"] for r in rows]).reshape(n, WINDOW_STEPS, 7))
+    data["win_true_contact_m"] = _fixed_list(
+        np.array([r["win_true_contact_m"] for r in rows]).reshape(n, WINDOW_STEPS, 2))
+    data["win_true_object"] = _fixed_list(
+        np.array([r["win_true_object"] for r in rows], dtype=np.int64).reshape(n, WINDOW_STEPS))
+    data["true_contact_x_m"] = col("true_contact_x_m")
+    data["true_contact_y_m"] = col("true_contact_y_m")
+    data["object_id"] = col("object_id", pa.int64())
+    fr = np.array([r["force_rep"] for r in rows]).reshape(n, 2)
+    data["force_rep_x_n"] = pa.array(fr[:, 0])
+    data["force_rep_y_n"] = pa.array(fr[:, 1])
+    data["obj_pose"] = _fixed_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
+    data["obj_distance_m"] = _fixed_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
+    assert tuple(data) == tuple(c[0] for c in RUN_COLUMNS)
+    return pa.table(data)
+
+
+def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    walk = scene.walk
+    lo, hi = walk.bounds
+    for _ in range(10000):
+        start = rng.uniform(lo, hi, 2)
+        goal = rng.uniform(lo, hi, 2)
+        if np.linalg.norm(start - goal) < walk.min_start_goal_distance:
+            continue
+        if world.touches(*goal) or world.touches(*start):
+            continue
+        return start, goal
+    raise RuntimeError(f"{scene.path}: no collision-free start/goal pair found in 10000 draws")
+
+
+def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "scripted",
+                max_actions: int | None = None, det: DetectionParams = DetectionParams()
+                ) -> tuple[pa.Table, dict, RunResult]:
+    """Simulate one run of a scene.
+
+    Parameters
+    ----------
+    scene : Scene
+    seed : int
+        Run seed.
+    root_seed : int
+        The stage's root seed.
+    policy : {"scripted", "greedy-walk"}
+    max_actions : int, optional
+        Stop after this many actions (short test runs).
+
+    Returns
+    -------
+    table : pyarrow.Table
+        The sim_run table (one row per action).
+    params : dict
+        Metadata for the file (scene, effects, bodies, initial state, discard verdict, ...).
+    result : RunResult
+        Summary (``path`` None).
+    """
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
+    if policy == "scripted" and scene.actions is None:
+        raise SceneError(f"{scene.path}: key 'actions': the scripted policy needs an action sequence")
+    if policy == "greedy-walk" and scene.walk is None:
+        raise SceneError(f"{scene.path}: key 'walk': the greedy-walk policy needs a [walk] table")
+    t0 = time.perf_counter()
+    noise_ss, policy_ss = job_seed_sequence(root_seed, scene.name, seed).spawn(2)
+    noise_rng = np.random.default_rng(noise_ss)
+    policy_rng = np.random.default_rng(policy_ss)
+    eff = scene.effects
+    scale = scene.action_scale
+    rows: list[dict] = []
+    sim_s = 0.0
+    goal = None
+    with World(scene, gripper_start=scene.gripper_start if policy == "scripted" else None) as world:
+        if policy == "greedy-walk":
+            start, goal = _sample_start_goal(world, policy_rng, scene)
+            world.place(*start)
+        pos0, _ = world.gripper_pose()
+        initial = {"ee_xy_m": pos0[:2].tolist(), "obj_pose": world.object_poses().tolist()}
+        if policy == "scripted":
+            seq = np.asarray(scene.actions, dtype=np.float64)
+            if max_actions is not None:
+                seq = seq[:max_actions]
+            # Drawn once for the whole sequence before the run, as the authors do.
+            actions = np.clip(seq + action_noise(noise_rng, len(seq), eff.noise_mm, scale), -1.0, 1.0)
+            n_limit = len(actions)
+        else:
+            walk = scene.walk
+            n_limit = walk.max_actions if max_actions is None else min(max_actions, walk.max_actions)
+            remaining = 0
+        last_contact = False
+        for k in range(n_limit):
+            if policy == "scripted":
+                u = actions[k]
+            else:
+                x = world.gripper_pose()[0][:2]
+                if np.linalg.norm(x - goal) < walk.goal_tolerance:
+                    break
+                if last_contact:
+                    remaining = walk.walk_length
+                if remaining > 0:
+                    u = policy_rng.uniform(-1.0, 1.0, 2)
+                    remaining -= 1
+                else:
+                    cand = policy_rng.uniform(-1.0, 1.0, (walk.n_candidates, 2))
+                    u = cand[np.argmin(np.linalg.norm(x + scale * cand - goal, axis=1))]
+                u = np.clip(u + action_noise(noise_rng, 1, eff.noise_mm, scale)[0], -1.0, 1.0)
+            ts = time.perf_counter()
+            trace = world.act(float(u[0] * scale), float(u[1] * scale))
+            sim_s += time.perf_counter() - ts
+            row = summarize_action(trace, det)
+            last_contact = row["in_contact"]
+            row.update(cmd_ux=float(u[0]), cmd_uy=float(u[1]), cmd_dx_m=float(u[0] * scale),
+                       cmd_dy_m=float(u[1] * scale), obj_pose=world.object_poses(),
+                       obj_distance_m=world.object_distances())
+            rows.append(row)
+    table = _build_table(scene, seed, rows)
+    labels = table.column("object_id").to_numpy()
+    fr = np.column_stack([table.column("force_rep_x_n").to_numpy(), table.column("force_rep_y_n").to_numpy()])
+    discarded = discard_reason(labels, fr) if policy == "greedy-walk" else None
+    touched = {scene.body_names[i]: int(np.sum(labels == i)) for i in sorted(set(labels.tolist())) if i >= 0}
+    params = {
+        "scene": scene.name, "scene_file": scene.path.name, "kind": scene.kind, "policy": policy,
+        "run_seed": int(seed), "seed_sequence": [int(root_seed), scene_hash(scene.name), int(seed)],
+        "effects": eff.as_dict(), "action_scale_m": scale, "max_actions": max_actions,
+        "bodies": list(scene.body_names), "target": scene.target.name if scene.target else None,
+        "initial": initial, "goal_xy_m": None if goal is None else goal.tolist(),
+        "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
+        "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
+    }
+    result = RunResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
+                       n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),
+                       touched=touched, discarded=discarded, wall_s=time.perf_counter() - t0, sim_s=sim_s)
+    return table, params, result
+
+
+def _job(scene: Scene, seed: int, root_seed: int, policy: str, out_dir: Path, max_actions: int | None,
+         keep_discarded: bool) -> RunResult:
+    from pipeline.schema import write_table
+
+    table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions)
+    if result.discarded is None or keep_discarded:
+        path = output_path(out_dir, scene.name, seed)
+        write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
+        result.path = path
+    return result
+
+
+def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str = "scripted", root_seed: int = 0,
+            jobs: int = 1, progress: bool | None = None, max_actions: int | None = None,
+            keep_discarded: bool = False) -> list[RunResult]:
+    """Collect runs of ``scene`` for ``seeds`` into ``out_dir``, ``jobs`` processes in parallel.
+
+    Parameters
+    ----------
+    progress : bool or None
+        tqdm's ``disable`` (True: no bar; None: bar only on a TTY).
+
+    Returns
+    -------
+    list of RunResult, in seed order.
+    """
+    from tqdm import tqdm
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    args = [(scene, s, root_seed, policy, out_dir, max_actions, keep_discarded) for s in seeds]
+    bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
+    results: list[RunResult] = []
+    try:
+        if jobs <= 1 or len(seeds) <= 1:
+            for a in args:
+                results.append(_job(*a))
+                bar.update()
+        else:
+            from joblib import Parallel, delayed
+
+            par = Parallel(n_jobs=min(jobs, len(seeds)), return_as="generator_unordered")
+            for r in par(delayed(_job)(*a) for a in args):
+                results.append(r)
+                bar.update()
+    finally:
+        bar.close()
+    return sorted(results, key=lambda r: r.seed)

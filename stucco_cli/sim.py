@@ -1,0 +1,142 @@
+"""`stucco scenes`, `stucco collect`, `stucco isolate` and `stucco sim-bench`: the simulation stages."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from stucco_cli.main import Settings, cli, pass_settings, user_errors
+
+
+@cli.command()
+def scenes() -> None:
+    """List the scenes (data/scenes/*.toml) with a one-line description each."""
+    from pipeline.scenes import SCENE_DIR, load_all
+
+    with user_errors():
+        for s in load_all(SCENE_DIR):
+            click.echo(f"{s.name:<8} {s.kind:<9} {s.description}")
+
+
+def _load(scene: str):
+    from pipeline.scenes import load_scene
+
+    with user_errors():
+        return load_scene(scene)
+
+
+@cli.command()
+@click.option("--scene", required=True, help="Scene name (see `stucco scenes`) or path to a scene .toml file.")
+@click.option("--seeds", default="0", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--policy", type=click.Choice(["scripted", "greedy-walk"]), default=None,
+              help="How the gripper moves [scripted for retrieval scenes, greedy-walk for training scenes].")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for one <scene>-<seed>.parquet per run.")
+@click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Stop each run after N actions.")
+@click.option("--noise-mm", type=click.FloatRange(min=0.0), default=None,
+              help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
+@click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
+@click.option("--force-overwrite", is_flag=True, help="Replace existing run files.")
+@pass_settings
+def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_dir: Path, max_actions: int | None,
+            noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
+    """Simulate runs of a scene and record one Parquet file per seed (table `sim_run`, docs/simulation.md)."""
+    from pipeline.collect import collect as run_collect, output_path, parse_seeds
+
+    sc = _load(scene)
+    try:
+        seed_list = parse_seeds(seeds)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    if policy is None:
+        policy = "scripted" if sc.kind == "retrieval" else "greedy-walk"
+    if policy == "scripted" and sc.actions is None:
+        raise click.ClickException(f"{sc.path}: key 'actions': scene {sc.name} has no action sequence; "
+                                   f"use --policy greedy-walk")
+    if policy == "greedy-walk" and sc.walk is None:
+        raise click.ClickException(f"{sc.path}: key 'walk': scene {sc.name} has no [walk] table; use --policy "
+                                   f"scripted")
+    if noise_mm is not None:
+        sc = sc.with_effects(noise_mm=noise_mm)
+    if not force_overwrite:
+        for s in seed_list:
+            path = output_path(out_dir, sc.name, s)
+            if path.exists():
+                raise click.ClickException(f"{path}: exists; pass --force-overwrite to replace it")
+    with user_errors():
+        results = run_collect(sc, seed_list, out_dir, policy=policy, root_seed=settings.seed, jobs=settings.jobs,
+                              progress=settings.progress, max_actions=max_actions, keep_discarded=keep_discarded)
+    if settings.verbosity >= 0:
+        for r in results:
+            touched = ", ".join(f"{k} x{v}" for k, v in r.touched.items()) or "nothing"
+            state = f"discarded ({r.discarded})" if r.discarded else ("written" if r.path else "not written")
+            click.echo(f"{r.scene} seed {r.seed}: {r.n_actions} actions, {r.n_contact} in contact, touched "
+                       f"{touched}; {state}; {r.wall_s:.2f} s", err=True)
+
+
+@cli.command()
+@click.option("--in", "in_path", required=True, type=click.Path(path_type=Path),
+              help="Directory of run files from `stucco collect` (or one run file).")
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Contacts table to write (Parquet).")
+@click.option("--report", is_flag=True, help="Print the isolation error (median, 90th percentile) to stdout.")
+@click.option("--force-overwrite", is_flag=True, help="Replace an existing output file.")
+@pass_settings
+def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, force_overwrite: bool) -> None:
+    """Detect contacts from the wrench residual and isolate them on the gripper surface -> contacts table."""
+    from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict, run_files
+    from pipeline.schema import write_table
+
+    if in_path.is_dir():
+        files = run_files(in_path)
+        if not files:
+            raise click.ClickException(f"{in_path}: no *.parquet run files (write them with `stucco collect`)")
+    elif in_path.is_file():
+        files = [in_path]
+    else:
+        raise click.ClickException(f"{in_path}: does not exist")
+    if out_path.exists() and not force_overwrite:
+        raise click.ClickException(f"{out_path}: exists; pass --force-overwrite to replace it")
+    det, iso = DetectionParams(), IsolationParams()
+    with user_errors():
+        res = isolate_runs(files, det, iso)
+        summary = res.error_summary()
+        params = params_dict(det, iso)
+        params["isolation_error"] = summary
+        params["counts"] = {"runs": res.n_runs, "actions": res.n_actions, "in_contact": res.n_contact,
+                            "unisolated": res.n_unisolated}
+        write_table(res.table, out_path, stage="isolate", params=params, seed=settings.seed,
+                    inputs={f.stem: f for f in files}, kind="contacts")
+    if report:
+        if summary["n"]:
+            click.echo(f"isolation error over {summary['n']} contacts: median {summary['median_m'] * 1000:.2f} mm, "
+                       f"p90 {summary['p90_m'] * 1000:.2f} mm, mean {summary['mean_m'] * 1000:.2f} mm "
+                       f"({res.n_runs} runs, {res.n_actions} actions, {res.n_contact} in contact, "
+                       f"{res.n_unisolated} not isolated)")
+        else:
+            click.echo(f"isolation error: no contacts with a known true point ({res.n_runs} runs, "
+                       f"{res.n_actions} actions)")
+
+
+@cli.command("sim-bench")
+@click.option("--scene", default="FB", show_default=True, help="Scene name or .toml path.")
+@click.option("--actions", "n_actions", type=click.IntRange(min=1), default=None,
+              help="Actions per measurement [the whole scripted sequence].")
+@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Measurements per variant (the minimum is reported).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def sim_bench(scene: str, n_actions: int | None, repeat: int, as_json: bool) -> None:
+    """Time one scripted run of a scene with every effect on, then with each effect switched off."""
+    from pipeline.sim.bench import effect_costs
+
+    sc = _load(scene)
+    with user_errors():
+        rows = effect_costs(sc, n_actions=n_actions, repeat=repeat)
+    if as_json:
+        click.echo(json.dumps(rows, indent=1))
+        return
+    click.echo(f"{'variant':<22} {'build s':>8} {'settle s':>9} {'actions s':>10} {'total s':>8} {'delta s':>8}")
+    for r in rows:
+        click.echo(f"{r['variant']:<22} {r['build_s']:>8.3f} {r['settle_s']:>9.3f} {r['actions_s']:>10.3f} "
+                   f"{r['total_s']:>8.3f} {r['delta_s']:>+8.3f}")
