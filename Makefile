@@ -25,15 +25,19 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
+# Until `stucco evaluate` exists: track and segment a stored contact log (FB seed 0, simulated and isolated).
 quick: setup
-	$(BIN)/stucco --seed 0 track --in data/contacts/anchor_T100.parquet --out out/quick/tracks.parquet --robot disc:0.05
+	$(BIN)/stucco --seed 0 track --in data/contacts/FB-000.parquet --out out/quick/tracks.parquet
 	$(BIN)/stucco segment --in out/quick/tracks.parquet --out out/quick/segments.parquet --plot out/quick/segments.png --print
 
 test: setup
 	$(BIN)/python -m pytest -q
 
+# REFERENCE_PYTHON=/path/to/venv/bin/python reruns the authors' tracker side by side (../shared/anchors/README.md).
 bench: setup
-	$(BIN)/stucco bench track --streams $(ANCHORS)
+	$(BIN)/stucco bench track --streams $(ANCHORS) --methods stucco,birch,dbscan,kmeans,gmphd \
+	  $(if $(REFERENCE_PYTHON),--reference-python $(REFERENCE_PYTHON)) --json out/bench/track.json
+	$(BIN)/stucco bench sim --scene FB
 
 clean:
 	rm -rf out .pytest_cache

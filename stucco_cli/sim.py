@@ -1,4 +1,4 @@
-"""`stucco scenes`, `stucco collect`, `stucco isolate` and `stucco sim-bench`: the simulation stages."""
+"""`stucco scenes`, `stucco collect`, `stucco isolate` and `stucco bench sim`: the simulation stages."""
 from __future__ import annotations
 
 import json
@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from stucco_cli.bench import bench
 from stucco_cli.main import Settings, cli, pass_settings, user_errors
 
 
@@ -119,7 +120,7 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
                        f"{res.n_actions} actions)")
 
 
-@cli.command("sim-bench")
+@bench.command("sim")
 @click.option("--scene", default="FB", show_default=True, help="Scene name or .toml path.")
 @click.option("--actions", "n_actions", type=click.IntRange(min=1), default=None,
               help="Actions per measurement [the whole scripted sequence].")
