@@ -229,6 +229,24 @@ def free_space_penetration(P, m, x, values, shape, strides, origin, inv_res, lo,
     return eps
 
 
+@njit(cache=True)
+def _config_terms(P, C, n, configs, skip, m, sign, colpen, npen, zero, values, shape, strides, origin, inv_res,
+                  lo, hi, tol):
+    """Add (sign=+1) or remove (sign=-1) the terms of the given configs of particle n to the sums of every point
+    j < m not flagged in ``skip``."""
+    for b in range(configs.size):
+        i = configs[b]
+        for j in range(m):
+            if skip[j]:
+                continue
+            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+            if c < 0.0:
+                colpen[n, j] += sign * c
+                npen[n, j] += sign
+                if npen[n, j] == 0:
+                    colpen[n, j] = 0.0
+
+
 @njit(cache=True, parallel=True)
 def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
     """Alg. 2 on every particle: each inconsistent point (and its config) becomes a copy of the nearest
@@ -277,16 +295,8 @@ def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, 
                     best = k
             source[b] = best
         # remove the old terms of configs being replaced from the consistent points' sums
-        for b in range(n_bad):
-            i = bad[b]
-            for j in range(m):
-                if not is_bad[j]:
-                    c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
-                    if c < 0.0:
-                        colpen[n, j] -= c
-                        npen[n, j] -= 1
-                        if npen[n, j] == 0:
-                            colpen[n, j] = 0.0
+        _config_terms(P, C, n, bad, is_bad, m, -1, colpen, npen, zero, values, shape, strides, origin, inv_res,
+                      lo, hi, tol)
         for b in range(n_bad):
             j = bad[b]
             k = source[b]
@@ -294,14 +304,8 @@ def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, 
                 P[n, j, d] = P[n, k, d]
                 C[n, j, d] = C[n, k, d]
         # add the new configs' terms to the consistent points, and recompute the replaced points fully
-        for b in range(n_bad):
-            i = bad[b]
-            for j in range(m):
-                if not is_bad[j]:
-                    c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
-                    if c < 0.0:
-                        colpen[n, j] += c
-                        npen[n, j] += 1
+        _config_terms(P, C, n, bad, is_bad, m, 1, colpen, npen, zero, values, shape, strides, origin, inv_res,
+                      lo, hi, tol)
         for b in range(n_bad):
             j = bad[b]
             acc = 0.0

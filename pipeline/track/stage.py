@@ -5,6 +5,7 @@ Every run of the contacts table is tracked independently with its own random str
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import time
 from dataclasses import dataclass, field
@@ -65,10 +66,16 @@ def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
 
 
 def stucco_params(config: TrackConfig) -> dict[str, Any]:
-    """The full parameter set (defaults filled in) recorded in the output metadata."""
+    """The method's full parameter set (defaults filled in), recorded in the output metadata.
+
+    Raises ValueError for an unknown or out-of-range parameter, before any run is tracked.
+    """
     if config.method == "stucco":
         return SoftTrackingParams(**config.params).to_dict()
-    return dict(config.params)
+    from pipeline.track.cluster import make_baseline
+
+    tracker = make_baseline(config.method, config.params, np.random.default_rng(0))
+    return dataclasses.asdict(tracker.params)
 
 
 @dataclass
