@@ -14,6 +14,10 @@ def _progress(settings: Settings, desc: str):
     return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
 
 
+# tracker parameter -> its option name, where they differ
+_STUCCO_OPTIONS = {"n_particles": "particles"}
+
+
 def _parse_sets(values: tuple[str, ...]) -> dict:
     """--set KEY=VALUE pairs -> dict; values parsed as int, float, bool or string."""
     out = {}
@@ -65,7 +69,8 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 
     params = {k: v for k, v in stucco_opts.items() if v is not None}
     if params and method != "stucco":
-        raise click.UsageError(f"--{next(iter(params)).replace('_', '-')} applies to --method stucco only; "
+        option = _STUCCO_OPTIONS.get(next(iter(params)), next(iter(params)).replace("_", "-"))
+        raise click.UsageError(f"--{option} applies to --method stucco only; "
                                "use --set KEY=VALUE for baseline parameters")
     params.update(_parse_sets(sets))
     with user_errors("track"):

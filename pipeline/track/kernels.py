@@ -15,8 +15,8 @@ is what makes the update incremental: a contact step only changes pairs whose re
 side moved by a different displacement than the other), plus the pairs of the new points. Pairs that cannot
 penetrate are skipped with a bounding-box test against the robot's interior (the region where sdf < -tol).
 
-The grid lookup is nearest-cell, ``idx = floor((q - origin) / resolution + 0.5)``, outside the grid = free,
-matching :meth:`pipeline.robot.GridSDF.query`.
+The grid lookup is nearest-cell, ``idx = rint((q - origin) / resolution)`` (ties to even), outside the grid = free,
+exactly as :meth:`pipeline.robot.GridSDF.query` does.
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ def _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv
         q = P[n, j, d] - C[n, i, d] - (disp[b, d] - disp[a, d])
         if q < lo[d] or q > hi[d]:
             return 0.0  # outside the robot's interior box: cannot penetrate deeper than tol
-        k = int(np.floor((q - origin[d]) * inv_res + 0.5))
+        k = int(np.rint((q - origin[d]) * inv_res))
         if k < 0 or k >= shape[d]:
             return 0.0
         flat += k * strides[d]
@@ -216,7 +216,7 @@ def free_space_penetration(P, m, x, values, shape, strides, origin, inv_res, lo,
                 if q < lo[d] or q > hi[d]:
                     inside = False
                     break
-                k = int(np.floor((q - origin[d]) * inv_res + 0.5))
+                k = int(np.rint((q - origin[d]) * inv_res))
                 if k < 0 or k >= shape[d]:
                     inside = False
                     break

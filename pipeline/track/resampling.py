@@ -32,8 +32,10 @@ def normalise(log_w: np.ndarray) -> np.ndarray:
 def effective_sample_size(log_w: np.ndarray) -> float:
     """ESS = 1 / sum(w^2) of normalised weights, as a fraction of the number of particles, in (0, 1]."""
     lw = normalise(log_w)
-    # round-off can put a perfectly even set of weights a hair above 1
-    return float(min(1.0, np.exp(-logsumexp(2.0 * lw)) / lw.size))
+    ess = float(np.exp(-logsumexp(2.0 * lw)) / lw.size)
+    # Round-off puts a perfectly even set of weights a hair above or below 1; "all particles equal" must read
+    # as exactly 1 so that a threshold of 1 does not resample identical weights.
+    return 1.0 if abs(ess - 1.0) < 1e-12 else min(ess, 1.0)
 
 
 def systematic(log_w: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -73,10 +73,16 @@ class SoftTrackingParams:
     weight_floor: float = 1e-15
 
     def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.type == "float" and not (isinstance(value, (int, float, np.number)) and not isinstance(value, bool)):
+                raise ValueError(f"{f.name} must be a number, got {value!r}")
         for name in ("length", "penetration_length"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not math.isfinite(self.alpha):
+            raise ValueError(f"alpha must be a finite number, got {self.alpha!r}")
         if not (isinstance(self.n_particles, (int, np.integer)) and self.n_particles >= 1):
             raise ValueError(f"n_particles must be a positive integer, got {self.n_particles!r}")
         if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
@@ -92,6 +98,16 @@ class SoftTrackingParams:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "SoftTrackingParams":
+        """Build from a mapping, refusing unknown names with a ValueError that lists the accepted ones."""
+        accepted = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(values) - set(accepted))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for method 'stucco'; "
+                             f"accepted: {', '.join(accepted)}")
+        return cls(**values)
 
 
 @dataclass(frozen=True)
@@ -196,6 +212,8 @@ class SoftTracker:
             Contact points at the end of the step; None in free space.
         """
         x = np.asarray(x, dtype=np.float64).reshape(self.dim)
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"x must be finite, got {x}")
         if (dx is None) != (p is None):
             raise ValueError("dx and p must both be given (contact) or both be None (free space)")
         if dx is not None:
@@ -203,8 +221,8 @@ class SoftTracker:
             p = np.asarray(p, dtype=np.float64).reshape(-1, self.dim)
             if dx.shape != p.shape:
                 raise ValueError(f"dx {dx.shape} and p {p.shape} must have the same shape (K, {self.dim})")
-            if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
-                raise ValueError("x, dx and p must be finite")
+            if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(p))):
+                raise ValueError("dx and p must be finite")
         if dx is None or len(dx) == 0:
             if self._m == 0:
                 self.last_step_ = StepDiagnostics(ess=1.0, resampled=False, n_replaced=0)

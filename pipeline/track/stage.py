@@ -22,6 +22,8 @@ METHODS = ("stucco",)  # the baselines register here when available, see make_tr
 
 # Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
 _CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}
+# Columns the tracks table computes; an extra contacts column with one of these names would be ambiguous.
+_PRODUCED = {c.name for c in schema.TRACKS_COLUMNS} - {c.name for c in schema.CONTACTS_COLUMNS}
 
 
 def run_key(run: str) -> int:
@@ -59,7 +61,7 @@ def _baseline_names() -> tuple[str, ...]:
 def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
     """Build a fresh tracker for one run."""
     if config.method == "stucco":
-        return SoftTracker(robot, SoftTrackingParams(**config.params), rng=rng)
+        return SoftTracker(robot, SoftTrackingParams.from_dict(config.params), rng=rng)
     from pipeline.track.cluster import make_baseline
 
     return make_baseline(config.method, config.params, rng)
@@ -71,7 +73,7 @@ def stucco_params(config: TrackConfig) -> dict[str, Any]:
     Raises ValueError for an unknown or out-of-range parameter, before any run is tracked.
     """
     if config.method == "stucco":
-        return SoftTrackingParams(**config.params).to_dict()
+        return SoftTrackingParams.from_dict(config.params).to_dict()
     from pipeline.track.cluster import make_baseline
 
     tracker = make_baseline(config.method, config.params, np.random.default_rng(0))
@@ -165,6 +167,10 @@ def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 
     tracks, diagnostics : pyarrow.Table
         Rows in the order the runs first appear in the input.
     """
+    clash = sorted(set(table.column_names) & _PRODUCED)
+    if clash:
+        raise ValueError(f"the contacts table has column(s) {', '.join(map(repr, clash))}, which the tracks table "
+                         "writes itself; rename them")
     runs = schema.contacts_by_run(table)
     if jobs > 1 and len(runs) > 1:
         from joblib import Parallel, delayed
