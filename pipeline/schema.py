@@ -349,6 +349,11 @@ def _first(mask: np.ndarray) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
+def validate_spec(table: pa.Table, spec: TableSpec, path: str | os.PathLike = "<table>") -> pa.Table:
+    """Validate a table against any :class:`TableSpec` (stages that own their tables use this)."""
+    return _validate(table, spec, path)
+
+
 def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.Table:
     path = str(path)
     if not isinstance(table, pa.Table):

@@ -1,0 +1,394 @@
+"""Blind object retrieval, the grasp: restore a run's final state in pybullet, grasp at the estimated pose, and
+let the simulated contacts decide whether it worked.
+
+The script is the authors' ``grasp_at_pose`` (REFERENCE_SPEC §6.6): an approach offset in the estimated object
+frame (FB (0, -0.25) m with yaw wrapped to [-pi/2, pi/2]; BC and IB (0, -0.25) with yaw in [-pi, 0]; TC
+(0, -0.2) with the yaw forced to -pi/2, approaching along +x), move to the pre-grasp point, turn the hand to
+yaw + pi/2 so the fingers point along the approach, open the fingers (0.055 m each, 30 N), advance 4 x 0.03 m,
+close (30 N) and let it settle one action. The authors judged success by eye (it is not in their code); here
+the rule of the paper is evaluated on the contacts pybullet reports after closing (:func:`judge_box`,
+:func:`judge_can`), see docs/retrieval.md:
+
+* cracker box: each finger touches the box, all of a finger's contacts have their normal within
+  ``face_angle_deg`` of the box's short axis (i.e. on one of the two long faces), the two fingers are on
+  opposite long faces, and the centre of each finger's contacts is at least ``corner_margin`` from the ends of
+  the face (not on a corner);
+* can: both fingers touch it from opposite sides along the closing axis (mean contact normal within
+  ``can_angle_deg`` of it), and the can's centre lies between the finger pads along the approach, i.e. the
+  fingers reach past the can's middle: closed around more than half of it.
+
+The restored state is the poses recorded after the last action (``obj_pose``: x, y, yaw of every body's
+inertial frame; objects upright at rest height, since tilt is not recorded) and the final gripper position,
+settled for ``settle_steps``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.retrieve import Primitive, primitive_of
+
+__all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "judge_box", "judge_can",
+           "restore_world", "FingerContacts", "PLANS"]
+
+OPEN = 0.055  # m per finger (OPEN_ANGLE)
+FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
+#: Finger pads along the hand's approach axis (hand z), from the base: joint at 0.0584, mesh z in [0, 0.0538]
+#: (REFERENCE_SPEC §1.2), i.e. world x in [0.0585, 0.1122] for the default orientation.
+PAD_FROM_BASE = (0.0585, 0.1122)
+
+
+@dataclass(frozen=True)
+class GraspPlan:
+    """How a task approaches its target (REFERENCE_SPEC §6.6).
+
+    Attributes
+    ----------
+    offset : float, metres
+        Pre-grasp point at (0, -offset) in the object frame; the approach is along the object's +y.
+    yaw_range : (float, float) or None
+        Yaw wrapped into [low, low + 2 pi) then, for a pi-symmetric target, into this range (FB [-pi/2, pi/2],
+        BC/IB [-pi, 0]).
+    fixed_yaw : float or None
+        Yaw used whatever the estimate says (TC: -pi/2, approach from -x).
+    """
+
+    offset: float = 0.25
+    yaw_range: tuple[float, float] | None = (-math.pi / 2, math.pi / 2)
+    fixed_yaw: float | None = None
+
+
+PLANS: dict[str, GraspPlan] = {
+    "FB": GraspPlan(0.25, (-math.pi / 2, math.pi / 2)),
+    "BC": GraspPlan(0.25, (-math.pi, 0.0)),
+    "IB": GraspPlan(0.25, (-math.pi, 0.0)),
+    "TC": GraspPlan(0.2, None, -math.pi / 2),
+}
+
+
+def plan_for(scene) -> GraspPlan:
+    """The scene's plan, or by target shape for other scenes (box: FB's, cylinder: TC's)."""
+    if scene.name in PLANS:
+        return PLANS[scene.name]
+    tgt = scene.target
+    if tgt is None:
+        raise ValueError(f"{scene.path}: scene {scene.name} has no target to grasp")
+    return PLANS["TC"] if tgt.shape == "cylinder" else PLANS["FB"]
+
+
+@dataclass(frozen=True)
+class GraspParams:
+    """Grasp script and success rule parameters.
+
+    Attributes
+    ----------
+    settle_steps : int
+        Sim steps at rest after restoring the final state (240 = 1 s).
+    max_moves : int
+        Actions allowed to reach the pre-grasp point (the authors: 5 s of wall time).
+    reach_tolerance : float, metres
+        The pre-grasp point is reached within this distance (0.01).
+    approach_steps : int
+        Actions of 0.03 m along the approach (4).
+    face_angle_deg : float
+        A box contact is on a long face if its normal is within this angle of the box's short axis.
+    corner_margin : float, metres
+        A finger's contacts must be centred at least this far from the ends of the long face.
+    can_angle_deg : float
+        A can contact's mean normal must be within this angle of the closing axis.
+    min_normal_force : float, N
+        Each finger must press with at least this total normal force.
+    """
+
+    settle_steps: int = 240
+    max_moves: int = 30
+    reach_tolerance: float = 0.01
+    approach_steps: int = 4
+    face_angle_deg: float = 25.0
+    corner_margin: float = 0.01
+    can_angle_deg: float = 30.0
+    min_normal_force: float = 1.0
+
+
+@dataclass
+class FingerContacts:
+    """Contacts of one finger with the target after closing.
+
+    Attributes
+    ----------
+    points : ndarray, shape (C, 2), metres
+        Contact positions on the target (world x, y).
+    normals : ndarray, shape (C, 2)
+        Contact normals from the target toward the finger (world x, y, unnormalised horizontal part).
+    force : float, N
+        Total normal force.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    force: float
+
+
+@dataclass
+class GraspResult:
+    """Outcome of one simulated grasp.
+
+    Attributes
+    ----------
+    success : bool
+    outcome : str
+        "ok" or why not (one short phrase).
+    yaw : float, radians
+        Yaw of the plan (the estimate's yaw wrapped, or the plan's fixed yaw).
+    pregrasp : ndarray, shape (2,)
+    reached : bool
+        The pre-grasp point was reached within the tolerance.
+    target_pose : ndarray, shape (3,)
+        The target's COM pose when judged.
+    fingers : list of FingerContacts
+    wall_s : float
+    """
+
+    success: bool
+    outcome: str
+    yaw: float
+    pregrasp: np.ndarray
+    reached: bool
+    target_pose: np.ndarray
+    fingers: list[FingerContacts] = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def _wrap_into(yaw: float, low: float, period: float) -> float:
+    return float((yaw - low) % period + low)
+
+
+def pregrasp(plan: GraspPlan, target: Primitive, estimate: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(grasp yaw, pre-grasp point (2,), approach direction (2,)) for an estimated COM pose (3,).
+
+    The grasp is centred on the estimated primitive centre (the authors used the COM, 2.6 mm away for the box
+    and 11 mm for the TC can, whose COM moves with its arbitrary estimated yaw).
+    """
+    est = np.asarray(estimate, dtype=np.float64)
+    centre = target.centre_world(est)
+    if plan.fixed_yaw is not None:
+        yaw = float(plan.fixed_yaw)
+    else:
+        yaw = float(est[2] + target.yaw)  # the primitive's axes: the long side is its y
+        lo, hi = plan.yaw_range
+        sym = target.symmetry if target.symmetry > 0 else 2 * math.pi
+        yaw = _wrap_into(yaw, lo, sym)
+        if yaw > hi:  # a range narrower than the symmetry period cannot hold every yaw; keep the low end
+            yaw = lo
+    c, s = math.cos(yaw), math.sin(yaw)
+    approach = np.array([-s, c])  # object +y
+    return yaw, centre - plan.offset * approach, approach
+
+
+def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
+    """A :class:`pipeline.sim.World` in a run's final state: every object at its recorded (x, y, yaw), upright at
+    rest height, the gripper at ``ee``; settled for ``settle_steps``. Sensing effects are switched off."""
+    p = _pybullet()
+    from pipeline.sim import World
+
+    eff = dataclasses.replace(scene.effects, settle_steps=0, wrench=False, contact_truth=False, noise_mm=0.0)
+    world = World(scene, effects=eff)
+    try:
+        c = world.client
+        for i, spec in enumerate(scene.objects):
+            x, y, yaw = (float(v) for v in poses[i])
+            if not all(math.isfinite(v) for v in (x, y, yaw)):
+                raise ValueError(f"object {spec.name!r}: final pose {poses[i]} is not finite")
+            body = world.body_of[i]
+            # Recorded poses are of the inertial frame, which sits com_offset[2] above the link frame (upright).
+            z = spec.spawn_z + spec.com_offset[2]
+            p.resetBasePositionAndOrientation(body, (x, y, z), p.getQuaternionFromEuler((0.0, 0.0, yaw)),
+                                              physicsClientId=c)
+            p.resetBaseVelocity(body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=c)
+        world.place(float(ee[0]), float(ee[1]), settle=False)
+        world.settle(settle_steps)
+    except BaseException:
+        world.close()
+        raise
+    return world
+
+
+def _pybullet():
+    """pybullet, imported through :mod:`pipeline.sim` (which swallows its stderr banner)."""
+    import pipeline.sim  # noqa: F401
+    import pybullet
+
+    return pybullet
+
+
+def _set_fingers(world, target: float) -> None:
+    p = _pybullet()
+
+    for j in (0, 1):
+        p.setJointMotorControl2(world.gripper.body, j, p.POSITION_CONTROL, targetPosition=target, force=FINGER_FORCE,
+                                physicsClientId=world.client)
+
+
+def _finger_contacts(world, body: int) -> list[FingerContacts]:
+    p = _pybullet()
+
+    out = []
+    for j in (0, 1):
+        cps = p.getContactPoints(bodyA=world.gripper.body, bodyB=body, linkIndexA=j, physicsClientId=world.client)
+        pts = np.array([cp[6][:2] for cp in cps]).reshape(-1, 2)  # positionOnB (the target)
+        nrm = np.array([cp[7][:2] for cp in cps]).reshape(-1, 2)  # contactNormalOnB: target -> finger
+        out.append(FingerContacts(points=pts, normals=nrm, force=float(sum(cp[9] for cp in cps))))
+    return out
+
+
+def _body_pose(world, body: int) -> np.ndarray:
+    p = _pybullet()
+
+    pos, q = p.getBasePositionAndOrientation(body, physicsClientId=world.client)
+    x, y, z, w = q
+    return np.array([pos[0], pos[1], math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))])
+
+
+def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray, params: GraspParams
+              ) -> tuple[bool, str]:
+    """The box rule: both fingers on the two opposite long faces, and not on a corner.
+
+    Parameters
+    ----------
+    fingers : list of 2 FingerContacts
+    target : Primitive
+        The box (long side along its y).
+    pose : ndarray, shape (3,)
+        The box's COM pose when judged.
+    """
+    pose = np.asarray(pose, dtype=np.float64)
+    ang = float(pose[2]) + target.yaw
+    ax = np.array([math.cos(ang), math.sin(ang)])  # short axis: normal of the long faces
+    ay = np.array([-math.sin(ang), math.cos(ang)])  # long axis
+    centre = target.centre_world(pose)
+    cos_max = math.cos(math.radians(params.face_angle_deg))
+    sides = []
+    for k, f in enumerate(fingers):
+        if len(f.points) == 0:
+            return False, f"finger {k} does not touch the target"
+        if f.force < params.min_normal_force:
+            return False, f"finger {k} presses with {f.force:.2f} N < {params.min_normal_force} N"
+        n = f.normals / np.maximum(np.linalg.norm(f.normals, axis=1, keepdims=True), 1e-12)
+        along = n @ ax
+        if not (np.all(np.abs(along) >= cos_max) and (np.all(along > 0) or np.all(along < 0))):
+            return False, f"finger {k} is not on a long face (contact normals at " \
+                          f"{np.degrees(np.arccos(np.clip(np.abs(along).min(), 0, 1))):.0f} deg from its normal)"
+        y = float(np.mean((f.points - centre) @ ay))
+        if abs(y) > target.half[1] - params.corner_margin:
+            return False, f"finger {k} is on a corner ({abs(y) * 100:.1f} cm from the centre of a " \
+                          f"{target.half[1] * 200:.1f} cm face)"
+        sides.append(np.sign(along[0]))
+    if sides[0] == sides[1]:
+        return False, "both fingers on the same long face"
+    return True, "ok"
+
+
+def judge_can(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray, base: np.ndarray,
+              approach: np.ndarray, params: GraspParams) -> tuple[bool, str]:
+    """The can rule: fingers closed around more than half of it.
+
+    Both fingers touch it from opposite sides along the closing axis (mean normal within ``can_angle_deg``),
+    and the can's centre lies between the finger pads along the approach (the pads reach past its middle).
+
+    Parameters
+    ----------
+    base : ndarray, shape (2,)
+        Gripper base position when judged.
+    approach : ndarray, shape (2,)
+        Unit direction the fingers point (world).
+    """
+    centre = target.centre_world(np.asarray(pose, dtype=np.float64))
+    a = np.asarray(approach, dtype=np.float64) / np.linalg.norm(approach)
+    b = np.array([-a[1], a[0]])
+    cos_max = math.cos(math.radians(params.can_angle_deg))
+    sides = []
+    for k, f in enumerate(fingers):
+        if len(f.points) == 0:
+            return False, f"finger {k} does not touch the target"
+        if f.force < params.min_normal_force:
+            return False, f"finger {k} presses with {f.force:.2f} N < {params.min_normal_force} N"
+        m = f.normals.mean(axis=0)
+        m = m / max(np.linalg.norm(m), 1e-12)
+        if abs(m @ b) < cos_max:
+            return False, f"finger {k} touches the can {np.degrees(np.arccos(min(abs(m @ b), 1))):.0f} deg " \
+                          f"off the closing axis (less than half enclosed)"
+        sides.append(np.sign(m @ b))
+    if sides[0] == sides[1]:
+        return False, "both fingers on the same side of the can"
+    depth = float((centre - np.asarray(base, dtype=np.float64)) @ a)
+    if not (PAD_FROM_BASE[0] <= depth <= PAD_FROM_BASE[1]):
+        return False, f"can centre {depth * 100:.1f} cm ahead of the base, outside the finger pads " \
+                      f"[{PAD_FROM_BASE[0] * 100:.1f}, {PAD_FROM_BASE[1] * 100:.1f}] cm"
+    return True, "ok"
+
+
+def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
+             params: GraspParams = GraspParams()) -> GraspResult:
+    """Restore a run's final state and attempt the scripted grasp at an estimated target pose.
+
+    Parameters
+    ----------
+    scene : pipeline.scenes.Scene
+    poses : ndarray, shape (B, 3)
+        Every body's recorded final (x, y, yaw) (walls' rows are ignored: walls are static).
+    ee : ndarray, shape (2,)
+        Final gripper position.
+    estimate : ndarray, shape (3,)
+        Estimated target COM pose.
+    params : GraspParams
+
+    Returns
+    -------
+    GraspResult
+    """
+    p = _pybullet()
+    t0 = time.perf_counter()
+    plan = plan_for(scene)
+    tid = next(i for i, o in enumerate(scene.objects) if o.target)
+    target = primitive_of(scene.objects[tid])
+    yaw, pre, approach = pregrasp(plan, target, estimate)
+    scale = scene.action_scale
+    world = restore_world(scene, np.asarray(poses, dtype=np.float64), np.asarray(ee, dtype=np.float64),
+                          params.settle_steps)
+    with world:
+        body = world.body_of[tid]
+        reached = False
+        for _ in range(params.max_moves):
+            cur = world.gripper_pose()[0][:2]
+            d = pre - cur
+            if np.linalg.norm(d) < params.reach_tolerance:
+                reached = True
+                break
+            u = np.clip(d / scale, -1.0, 1.0)
+            world.act(float(u[0] * scale), float(u[1] * scale))
+        else:
+            reached = bool(np.linalg.norm(pre - world.gripper_pose()[0][:2]) < params.reach_tolerance)
+        # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
+        world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
+        world.act(0.0, 0.0)
+        _set_fingers(world, OPEN)
+        world.act(0.0, 0.0)
+        for _ in range(params.approach_steps):
+            world.act(float(approach[0] * scale), float(approach[1] * scale))
+        _set_fingers(world, 0.0)
+        world.act(0.0, 0.0)
+        fingers = _finger_contacts(world, body)
+        pose = _body_pose(world, body)
+        base = world.gripper_pose()[0][:2]
+        if target.kind == "cylinder":
+            ok, why = judge_can(fingers, target, pose, base, approach, params)
+        else:
+            ok, why = judge_box(fingers, target, pose, params)
+    if not ok and not reached:
+        why = f"{why}; pre-grasp point not reached"
+    return GraspResult(success=ok, outcome=why, yaw=yaw, pregrasp=pre, reached=reached, target_pose=pose,
+                       fingers=fingers, wall_s=time.perf_counter() - t0)

@@ -1,0 +1,124 @@
+"""The Table II report: grasp success, FMI and contact error per method and scene, beside the paper's figures.
+
+Input is a scores table (one row per scene, seed and method; see :mod:`pipeline.score`). Output is a list of rows
+(one per scene and method) that render as Markdown and CSV.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+METHOD_ORDER = ("stucco", "birch", "dbscan", "kmeans", "gmphd")
+METHOD_TITLE = {"stucco": "ours (STUCCO)", "birch": "BIRCH", "dbscan": "DBSCAN", "kmeans": "k-means", "gmphd": "GM-PHD"}
+
+#: The paper's Table II (20 runs per task in simulation): GS %, FMI mean (std), CE cm mean (std).
+PAPER_TABLE_II = {
+    "FB": {"stucco": (70, 0.69, 0.08, 0.72, 0.25), "birch": (5, 0.62, 0.07, 4.63, 0.53),
+           "dbscan": (5, 0.66, 0.10, 3.52, 1.54), "kmeans": (45, 0.63, 0.05, 1.49, 0.40),
+           "gmphd": (25, 0.56, 0.05, 3.90, 0.61)},
+    "BC": {"stucco": (80, 0.92, 0.05, 1.33, 0.13), "birch": (0, 0.84, 0.09, 6.49, 0.36),
+           "dbscan": (10, 0.89, 0.02, 6.56, 0.31), "kmeans": (5, 0.83, 0.04, 7.04, 0.41),
+           "gmphd": (0, 0.57, 0.04, 7.33, 0.44)},
+    "IB": {"stucco": (65, 0.78, 0.07, 1.04, 0.33), "birch": (0, 0.71, 0.05, 3.27, 0.36),
+           "dbscan": (60, 0.75, 0.06, 2.31, 0.58), "kmeans": (10, 0.47, 0.23, 4.84, 1.81),
+           "gmphd": (0, 0.46, 0.06, 5.62, 0.85)},
+    "TC": {"stucco": (85, 1.00, 0.00, 0.31, 0.90), "birch": (0, 0.79, 0.07, 4.20, 0.22),
+           "dbscan": (0, 1.00, 0.00, 4.14, 0.09), "kmeans": (25, 0.54, 0.17, 6.23, 0.72),
+           "gmphd": (20, 0.54, 0.17, 8.09, 0.22)},
+}
+
+
+@dataclass(frozen=True)
+class ReportRow:
+    """Aggregates of one (scene, method) over its seeds."""
+
+    scene: str
+    method: str
+    runs: int
+    grasp_success_pct: float
+    fmi_mean: float
+    fmi_std: float
+    ce_cm_mean: float
+    ce_cm_std: float
+    position_error_m_median: float
+    wall_s_mean: float
+    paper_gs_pct: float | None
+    paper_fmi_mean: float | None
+    paper_fmi_std: float | None
+    paper_ce_cm_mean: float | None
+    paper_ce_cm_std: float | None
+
+
+def _ordered(values, order):
+    rank = {v: i for i, v in enumerate(order)}
+    return sorted(set(values), key=lambda v: (rank.get(v, len(rank)), v))
+
+
+def table_ii(scores) -> list[ReportRow]:
+    """Aggregate a scores table (pyarrow) into one row per (scene, method), scenes and methods in paper order."""
+    # Nulls (a run with no tracked points, or scored without a grasp) are "not measured": floats become NaN and
+    # drop out of the statistics, and grasp success counts only runs where a grasp was attempted.
+    col = {name: np.array([math.nan if v is None else v for v in scores.column(name).to_pylist()], dtype=float)
+           for name in ("fmi", "contact_error_cm", "position_error_m", "wall_s")}
+    col["grasp_success"] = np.array([math.nan if v is None else float(v)
+                                     for v in scores.column("grasp_success").to_pylist()])
+    for name in ("scene", "method"):
+        col[name] = np.array(scores.column(name).to_pylist(), dtype=object)
+    scene = col["scene"].astype(str)
+    method = col["method"].astype(str)
+    rows = []
+    for sc in _ordered(scene, tuple(PAPER_TABLE_II)):
+        for m in _ordered(method[scene == sc], METHOD_ORDER):
+            sel = (scene == sc) & (method == m)
+
+            def stat(name, fn):
+                v = col[name][sel].astype(float)
+                v = v[np.isfinite(v)]
+                return float(fn(v)) if v.size else math.nan
+
+            paper = PAPER_TABLE_II.get(sc, {}).get(m)
+            rows.append(ReportRow(
+                scene=sc, method=m, runs=int(sel.sum()),
+                grasp_success_pct=100.0 * stat("grasp_success", np.mean),
+                fmi_mean=stat("fmi", np.mean), fmi_std=stat("fmi", np.std),
+                ce_cm_mean=stat("contact_error_cm", np.mean), ce_cm_std=stat("contact_error_cm", np.std),
+                position_error_m_median=stat("position_error_m", np.median), wall_s_mean=stat("wall_s", np.mean),
+                paper_gs_pct=None if paper is None else float(paper[0]),
+                paper_fmi_mean=None if paper is None else paper[1], paper_fmi_std=None if paper is None else paper[2],
+                paper_ce_cm_mean=None if paper is None else paper[3], paper_ce_cm_std=None if paper is None else paper[4],
+            ))
+    return rows
+
+
+def _ms(mean, std, fmt):
+    return "n/a" if mean is None or (isinstance(mean, float) and math.isnan(mean)) else f"{mean:{fmt}} ({std:{fmt}})"
+
+
+def to_markdown(rows: list[ReportRow]) -> str:
+    """Table II layout: one line per scene and method, ours beside the paper's."""
+    head = ("| task | method | runs | GS % | paper GS % | FMI | paper FMI | CE cm | paper CE cm | median pos. err. m "
+            "| s/run |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        paper_gs = "" if r.paper_gs_pct is None else f"{r.paper_gs_pct:.0f}"
+        gs = "n/a" if math.isnan(r.grasp_success_pct) else f"{r.grasp_success_pct:.0f}"
+        lines.append(
+            f"| {r.scene} | {METHOD_TITLE.get(r.method, r.method)} | {r.runs} | {gs} | {paper_gs} "
+            f"| {_ms(r.fmi_mean, r.fmi_std, '.2f')} | {_ms(r.paper_fmi_mean, r.paper_fmi_std, '.2f')} "
+            f"| {_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')} | {_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')} "
+            f"| {r.position_error_m_median:.3f} | {r.wall_s_mean:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(rows: list[ReportRow]) -> str:
+    buf = io.StringIO()
+    fields = list(ReportRow.__dataclass_fields__)
+    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if getattr(r, k) is None else getattr(r, k)) for k in fields})
+    return buf.getvalue()

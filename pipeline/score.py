@@ -1,0 +1,243 @@
+"""The ``score`` stage: one row per (scene, seed, method) with the metrics of the paper's Table II.
+
+* **Contact error** (REFERENCE_SPEC §6.1): for every final tracked point, the signed distance to the nearest
+  true surface among all objects **and walls** at their poses after the last action (negative inside),
+  and CE = mean |distance|, reported in cm. Computed analytically on the horizontal slice of the scene's
+  primitives (boxes and upright cylinders have one cross-section over their height, so this equals the
+  authors' pybullet closest-point query on objects extruded in z; pybullet's 1 mm collision margin is not
+  added).
+* **FMI** (§6.2): ``sklearn.metrics.fowlkes_mallows_score`` between the ground-truth object id and the segment
+  over the final tracked points with a known object (``object_id >= 0``). An unassigned point (segment -1)
+  counts as its own cluster.
+* **Grasp success and pose error**: from the retrieval table (:mod:`pipeline.retrieve`, :mod:`pipeline.grasp`).
+* **Timings**: ``track_s`` (sum of the tracker's per-step update times, from the track diagnostics table when it
+  is found), ``retrieve_s`` (ICP and selection), ``grasp_s`` (grasp simulation); ``wall_s`` is their sum (the
+  collect and isolate stages record no per-run time).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import schema
+from pipeline.retrieve import load_run, primitive_of, run_files_by_name
+
+__all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
+           "validate_scores", "read_scores", "diagnostics_path_for", "summary_lines"]
+
+
+def scene_signed_distance(points: np.ndarray, scene, poses: np.ndarray) -> np.ndarray:
+    """Signed distance (m) of world points to the nearest object or wall of a scene.
+
+    Parameters
+    ----------
+    points : ndarray, shape (M, 2), metres
+    scene : pipeline.scenes.Scene
+    poses : ndarray, shape (B, 3)
+        Every body's (x, y, yaw) in ``scene.body_names`` order (objects: inertial frame; walls: centre). Rows
+        with NaN (bodies not built) are skipped.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        min over bodies of the signed distance (negative inside a body); inf if no body was built.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    specs = list(scene.objects) + list(scene.walls)
+    if len(specs) != len(poses):
+        raise ValueError(f"scene {scene.name} has {len(specs)} bodies but {len(poses)} poses were given")
+    best = np.full(len(pts), np.inf)
+    for spec, pose in zip(specs, poses):
+        if not np.all(np.isfinite(pose)):
+            continue
+        best = np.minimum(best, primitive_of(spec).signed_distance(pts, pose))
+    return best
+
+
+def contact_error_cm(points: np.ndarray, scene, poses: np.ndarray) -> float | None:
+    """Mean |signed distance| of the points to the scene's surfaces, in cm; None without points."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) == 0:
+        return None
+    return float(np.mean(np.abs(scene_signed_distance(pts, scene, poses))) * 100.0)
+
+
+def fmi(truth: np.ndarray, segment: np.ndarray) -> float | None:
+    """Fowlkes-Mallows index over points with a known object (truth >= 0); None if there are none.
+
+    Unassigned points (segment -1) are each given a cluster of their own.
+    """
+    from sklearn.metrics import fowlkes_mallows_score
+
+    truth = np.asarray(truth, dtype=np.int64)
+    seg = np.asarray(segment, dtype=np.int64).copy()
+    lone = seg < 0
+    seg[lone] = seg.max(initial=0) + 1 + np.arange(int(lone.sum()))
+    known = truth >= 0
+    if not known.any():
+        return None
+    return float(fowlkes_mallows_score(truth[known], seg[known]))
+
+
+def diagnostics_path_for(segments_path: str | Path) -> Path | None:
+    """The track diagnostics file next to a segments file, found through the segments' recorded input
+    (``inputs.tracks.file``) and ``stucco track``'s default name; None if there is none."""
+    segments_path = Path(segments_path)
+    try:
+        meta = schema.read_metadata(segments_path)
+    except schema.SchemaError:
+        return None
+    tracks = ((meta.get("inputs") or {}).get("tracks") or {}).get("file")
+    if not tracks:
+        return None
+    cand = segments_path.parent / (tracks.removesuffix(".parquet") + ".diagnostics.parquet")
+    return cand if cand.is_file() else None
+
+
+def _track_seconds(diagnostics: pa.Table | None) -> dict[str, float]:
+    if diagnostics is None or diagnostics.num_rows == 0:
+        return {}
+    run = np.asarray(diagnostics.column("run").to_pylist(), dtype=object)
+    ms = diagnostics.column("update_ms").to_numpy()
+    out: dict[str, float] = {}
+    for r in dict.fromkeys(run):
+        out[r] = float(ms[run == r].sum() / 1e3)
+    return out
+
+
+def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagnostics: pa.Table | None = None,
+          segments_path: str = "<segments>", retrieval_path: str = "<retrieval>") -> pa.Table:
+    """Score every run of a retrieval table.
+
+    Parameters
+    ----------
+    segments : pyarrow.Table
+        The segments table the retrieval was made from (final estimate per run is scored).
+    retrieval : pyarrow.Table
+        A validated retrieval table (one row per run).
+    run_dir : path
+        Directory of the collected run files (final object poses for the contact error).
+    diagnostics : pyarrow.Table, optional
+        The track diagnostics table (per-run tracking time).
+
+    Returns
+    -------
+    pyarrow.Table
+        The scores table (:data:`SCORES_COLUMNS`), one row per run of ``retrieval``, in its order.
+    """
+    from pipeline.segment import final_estimates
+
+    files = run_files_by_name(run_dir)
+    final = final_estimates(segments)
+    run = np.asarray(final.column("run").to_pylist(), dtype=object)
+    xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()]) if final.num_rows \
+        else np.zeros((0, 2))
+    seg = final.column("segment").to_numpy() if final.num_rows else np.zeros(0, np.int64)
+    truth = final.column("object_id").to_numpy() if "object_id" in final.column_names else None
+    rrun = retrieval.column("run").to_pylist()
+    extra = sorted(set(run.tolist()) - set(rrun))
+    if extra:
+        raise ValueError(f"{segments_path}: run {extra[0]!r} has no row in {retrieval_path}; were they made from "
+                         f"the same segments?")
+    track_s = _track_seconds(diagnostics)
+    rows: list[dict[str, Any]] = []
+    R = retrieval.to_pylist()
+    for r in R:
+        name = r["run"]
+        if name not in files:
+            raise ValueError(f"{retrieval_path}: run {name!r} has no collected run file in {run_dir}")
+        info = load_run(files[name])
+        m = run == name
+        ce = contact_error_cm(xy[m], info.scene, info.final_poses)
+        f = fmi(truth[m], seg[m]) if truth is not None and m.any() else None
+        ts = track_s.get(name)
+        parts = [v for v in (ts, r["icp_s"], r["grasp_s"]) if v is not None]
+        rows.append(dict(scene=r["scene"], seed=r["seed"], method=r["method"], run=name,
+                         grasp_success=r["grasp_success"], fmi=f, contact_error_cm=ce,
+                         position_error_m=r["position_error_m"], yaw_error_rad=r["yaw_error_rad"],
+                         low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
+                         track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts))))
+    arrays = {c.name: pa.array([row[c.name] for row in rows], type=c.type) for c in SCORES_COLUMNS}
+    return validate_scores(pa.table(arrays))
+
+
+_C = schema.Column
+
+SCORES_COLUMNS: tuple[schema.Column, ...] = (
+    _C("scene", pa.string(), "", False, "Scene of the run."),
+    _C("seed", pa.int64(), "", False, "Run seed."),
+    _C("method", pa.string(), "", False, "Tracking method."),
+    _C("run", pa.string(), "", False, "Run id '<scene>/<seed>'."),
+    _C("grasp_success", pa.bool_(), "", True, "Simulated grasp succeeded (null: grasp not simulated)."),
+    _C("fmi", pa.float64(), "", True, "Fowlkes-Mallows index of segments vs ground-truth objects over points with "
+                                      "a known object; null if none.", minimum=0.0, maximum=1.0),
+    _C("contact_error_cm", pa.float64(), "cm", True, "Mean |distance| of final tracked points to the nearest true "
+                                                     "surface (objects and walls); null without points.",
+       minimum=0.0),
+    _C("position_error_m", pa.float64(), "m", False, "Distance between estimated and true target centres.",
+       finite=True, minimum=0.0),
+    _C("yaw_error_rad", pa.float64(), "rad", False, "Target yaw error modulo its symmetry.", finite=True,
+       minimum=0.0),
+    _C("low_confidence", pa.bool_(), "", False, "The pose estimate was flagged (see the retrieval table)."),
+    _C("n_points", pa.int64(), "", False, "Final tracked points of the run.", minimum=0),
+    _C("n_segments", pa.int64(), "", False, "Segments of the final segmentation.", minimum=0),
+    _C("track_s", pa.float64(), "s", True, "Tracking time (sum of update times); null if no diagnostics.",
+       minimum=0.0),
+    _C("retrieve_s", pa.float64(), "s", False, "Pose estimation time.", finite=True, minimum=0.0),
+    _C("grasp_s", pa.float64(), "s", True, "Grasp simulation time; null if not simulated.", minimum=0.0),
+    _C("wall_s", pa.float64(), "s", False, "Sum of the known stage times of the run.", finite=True, minimum=0.0),
+)
+
+
+SCORES = schema.TableSpec("scores", SCORES_COLUMNS, rules=("One row per (scene, seed, method).",))
+
+
+def validate_scores(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
+    """Validate a scores table (one-line SchemaError)."""
+    out = schema.validate_spec(table, SCORES, path)
+    keys = list(zip(out.column("scene").to_pylist(), out.column("seed").to_pylist(), out.column("method").to_pylist()))
+    seen: dict[tuple, int] = {}
+    for i, k in enumerate(keys):
+        if k in seen:
+            raise schema.SchemaError(path, "seed", i, f"(scene, seed, method) = {k} repeats row {seen[k]}; "
+                                                      f"expected one row per (scene, seed, method)")
+        seen[k] = i
+    return out
+
+
+def read_scores(path: str | Path) -> pa.Table:
+    return validate_scores(schema._read_parquet(path), path)
+
+
+def summary_lines(scores: pa.Table) -> list[str]:
+    """Human-readable per (scene, method) summary: GS %, FMI and CE mean (std), pose errors (median)."""
+    lines = []
+    scene = np.asarray(scores.column("scene").to_pylist(), dtype=object)
+    method = np.asarray(scores.column("method").to_pylist(), dtype=object)
+    gs = np.array([np.nan if v is None else float(v) for v in scores.column("grasp_success").to_pylist()])
+
+    def col(n):
+        return np.array([np.nan if v is None else v for v in scores.column(n).to_pylist()], dtype=np.float64)
+
+    f, ce, pe, ye = col("fmi"), col("contact_error_cm"), col("position_error_m"), col("yaw_error_rad")
+    for key in dict.fromkeys(zip(scene.tolist(), method.tolist())):
+        m = (scene == key[0]) & (method == key[1])
+
+        def ms(a):
+            a = a[m]
+            a = a[np.isfinite(a)]
+            return "  -  " if not len(a) else f"{a.mean():.2f} ({a.std():.2f})"
+
+        g = gs[m]
+        g = g[np.isfinite(g)]
+        gtxt = "  -" if not len(g) else f"{100 * g.mean():3.0f}"
+        pem = np.nanmedian(pe[m]) if np.isfinite(pe[m]).any() else math.nan
+        yem = np.nanmedian(ye[m]) if np.isfinite(ye[m]).any() else math.nan
+        lines.append(f"{key[0]:<6} {key[1]:<8} runs {int(m.sum()):>3}  GS {gtxt} %  FMI {ms(f)}  CE {ms(ce)} cm  "
+                     f"pos err median {pem * 100:.1f} cm  yaw err median {yem:.2f} rad")
+    return lines

@@ -1,0 +1,116 @@
+"""`stucco retrieve` (pose estimation + simulated grasp) and `stucco score` (Table II metrics)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stucco_cli.main import Settings, cli, pass_settings, user_errors
+
+
+def _progress(settings: Settings, desc: str):
+    from tqdm import tqdm
+
+    return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
+
+
+def _side_path(out_path: Path, suffix: str) -> Path:
+    return out_path.with_name(out_path.name.removesuffix(".parquet") + suffix)
+
+
+@cli.command()
+@click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
+              help="Segments table (Parquet) from `stucco segment`.")
+@click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
+              help="Directory of the collected run files (`stucco collect --out`).")
+@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path),
+              help="Retrieval table to write (one row per run).")
+@click.option("--candidates", "cand_path", type=click.Path(path_type=Path), default=None,
+              help="Candidates table (one row per run, segment, restart) [default: OUT with suffix "
+                   ".candidates.parquet].")
+@click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
+@click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
+@click.option("--grasp/--no-grasp", default=True, show_default=True,
+              help="Simulate the grasp at each estimate (pybullet).")
+@click.option("--print", "print_table", is_flag=True, help="Print one line per run to stdout.")
+@pass_settings
+def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: Path, cand_path: Path | None,
+             restarts: int | None, method: str | None, grasp: bool, print_table: bool) -> None:
+    """Estimate the target pose of every run from its segments (ICP, 30 restarts) and grasp it in simulation."""
+    from pipeline import schema
+    from pipeline.grasp import GraspParams
+    from pipeline.retrieve import RetrievalParams
+    from pipeline.retrieve import retrieve as run_retrieve
+
+    with user_errors():
+        segments = schema.read_segments(segments_path)
+        meta = schema.read_metadata(segments_path)
+    method = method or str((meta.get("params") or {}).get("method", "stucco"))
+    with user_errors("retrieve"):
+        params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
+        gparams = GraspParams()
+        table, candidates = run_retrieve(segments, run_dir, method=method, root_seed=settings.seed, params=params,
+                                         grasp=grasp, grasp_params=gparams, jobs=settings.jobs,
+                                         progress=_progress(settings, "retrieve"),
+                                         segments_path=str(segments_path))
+    cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
+    meta_out = dict(params.to_dict(), method=method, grasp=grasp,
+                    grasp_params=gparams.__dict__ if grasp else None)
+    inputs = {"segments": str(segments_path)}
+    schema.write_table(table, out_path, stage="retrieve", params=meta_out, seed=settings.seed, inputs=inputs,
+                       kind="retrieval")
+    schema.write_table(candidates, cand_path, stage="retrieve", params=meta_out, seed=settings.seed,
+                       inputs=inputs, kind="candidates")
+    if print_table:
+        click.echo(f"{'run':<10} {'x_m':>7} {'y_m':>7} {'yaw':>6} {'seg':>4} {'pts':>4} {'pos_err_cm':>10} "
+                   f"{'yaw_err':>7} {'grasp':>6}  notes / outcome")
+        for r in table.to_pylist():
+            g = "-" if r["grasp_success"] is None else ("yes" if r["grasp_success"] else "no")
+            click.echo(f"{r['run']:<10} {r['x_m']:7.3f} {r['y_m']:7.3f} {r['yaw_rad']:6.2f} {r['segment']:>4} "
+                       f"{r['n_points']:>4} {r['position_error_m'] * 100:10.2f} {r['yaw_error_rad']:7.3f} {g:>6}  "
+                       f"{r['notes'] or '-'} / {r['grasp_outcome'] or '-'}")
+    if settings.verbosity >= 0:
+        icp = sum(table.column("icp_s").to_pylist())
+        gs = [v for v in table.column("grasp_s").to_pylist() if v is not None]
+        ok = [v for v in table.column("grasp_success").to_pylist() if v is not None]
+        click.echo(f"retrieved {table.num_rows} run(s) -> {out_path} (candidates -> {cand_path}); ICP {icp:.2f} s"
+                   + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""), err=True)
+
+
+@cli.command()
+@click.option("--retrieval", "retrieval_path", required=True, type=click.Path(path_type=Path),
+              help="Retrieval table from `stucco retrieve`.")
+@click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
+              help="The segments table the retrieval was made from.")
+@click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
+              help="Directory of the collected run files.")
+@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Scores table to write.")
+@click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
+              help="Track diagnostics table for tracking times [default: found next to the segments file].")
+@click.option("--print", "print_table", is_flag=True, help="Print a summary per (scene, method) to stdout.")
+@pass_settings
+def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir: Path, out_path: Path,
+          diag_path: Path | None, print_table: bool) -> None:
+    """Score runs: grasp success, FMI, contact error (cm), pose error and stage timings (scores.parquet)."""
+    from pipeline import schema
+    from pipeline.retrieve import read_retrieval
+    from pipeline.score import diagnostics_path_for, score as run_score, summary_lines
+
+    with user_errors():
+        retrieval = read_retrieval(retrieval_path)
+        segments = schema.read_segments(segments_path)
+        diag_path = diag_path or diagnostics_path_for(segments_path)
+        diagnostics = schema.read_diagnostics(diag_path) if diag_path is not None else None
+    with user_errors("score"):
+        table = run_score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
+                          retrieval_path=str(retrieval_path))
+    inputs = {"retrieval": str(retrieval_path), "segments": str(segments_path)}
+    if diag_path is not None:
+        inputs["diagnostics"] = str(diag_path)
+    schema.write_table(table, out_path, stage="score", params={"runs": str(run_dir)}, seed=settings.seed,
+                       inputs=inputs, kind="scores")
+    if print_table:
+        for line in summary_lines(table):
+            click.echo(line)
+    if settings.verbosity >= 0:
+        click.echo(f"scored {table.num_rows} run(s) -> {out_path}", err=True)

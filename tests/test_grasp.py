@@ -1,0 +1,183 @@
+"""grasp: the success rule on hand-made contacts, the restored final state, and simulated grasps at hand-placed
+true and false poses (a box in the stored FB run's final state, a can in a clear TC scene)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.grasp import (PAD_FROM_BASE, PLANS, FingerContacts, GraspParams, grasp_at, judge_box, judge_can,
+                            plan_for, pregrasp, restore_world)
+from pipeline.retrieve import load_run, target_primitive
+from pipeline.scenes import load_scene
+
+REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression" / "FB-000.parquet"
+P = GraspParams()
+
+
+@pytest.fixture(scope="module")
+def fb_run():
+    return load_run(REGRESSION)
+
+
+def _box():
+    return target_primitive(load_scene("FB"))[1]
+
+
+def _can():
+    return target_primitive(load_scene("TC"))[1]
+
+
+def _finger(points, normals, force=30.0):
+    return FingerContacts(np.asarray(points, float).reshape(-1, 2), np.asarray(normals, float).reshape(-1, 2), force)
+
+
+# ------------------------------------------------------------------------------------------------ rule (no sim)
+
+
+def test_judge_box_accepts_both_long_faces():
+    box = _box()
+    pose = np.zeros(3)
+    c = box.centre
+    f = [_finger(c + [box.half[0], 0.02], [1, 0]), _finger(c + [-box.half[0], 0.03], [-1, 0])]
+    assert judge_box(f, box, pose, P) == (True, "ok")
+
+
+@pytest.mark.parametrize("case, why", [
+    ("corner", "on a corner"),
+    ("short_face", "not on a long face"),
+    ("same_side", "same long face"),
+    ("missing", "finger 1 does not touch"),
+    ("weak", "presses with"),
+])
+def test_judge_box_rejects(case, why):
+    box = _box()
+    c = box.centre
+    hx, hy = box.half
+    a = _finger(c + [hx, 0.0], [1, 0])
+    b = _finger(c + [-hx, 0.0], [-1, 0])
+    if case == "corner":
+        b = _finger(c + [-hx, hy - 0.004], [-1, 0])
+    elif case == "short_face":
+        b = _finger(c + [0.0, hy], [0, 1])
+    elif case == "same_side":
+        b = _finger(c + [hx, 0.03], [1, 0])
+    elif case == "missing":
+        b = _finger(np.zeros((0, 2)), np.zeros((0, 2)), 0.0)
+    else:
+        b = _finger(c + [-hx, 0.0], [-1, 0], force=0.2)
+    ok, got = judge_box([a, b], box, np.zeros(3), P)
+    assert not ok and why in got
+
+
+def test_judge_box_is_rotation_invariant():
+    box = _box()
+    pose = np.array([0.3, -0.1, 2.0])
+    R = np.array([[math.cos(2.0), -math.sin(2.0)], [math.sin(2.0), math.cos(2.0)]])
+    c = box.centre_world(pose)
+    f = [_finger(c + R @ [box.half[0], 0.0], R @ [1, 0]), _finger(c + R @ [-box.half[0], 0.01], R @ [-1, 0])]
+    assert judge_box(f, box, pose, P)[0]
+
+
+def test_judge_can_needs_opposite_sides_and_the_centre_between_the_pads():
+    can = _can()
+    r = can.half[0]
+    c = can.centre
+    a = np.array([1.0, 0.0])
+    base = c - a * 0.08  # centre 8 cm ahead of the base: inside the pads [5.85, 11.22] cm
+    left = _finger(c + [0, r], [0, 1])
+    right = _finger(c - [0, r], [0, -1])
+    assert judge_can([left, right], can, np.zeros(3), base, a, P) == (True, "ok")
+    ok, why = judge_can([left, right], can, np.zeros(3), c - a * 0.13, a, P)  # pads short of the centre
+    assert not ok and "outside the finger pads" in why
+    front = _finger(c + r * np.array([-math.cos(0.6), math.sin(0.6)]), [-math.cos(0.6), math.sin(0.6)])
+    ok, why = judge_can([front, right], can, np.zeros(3), base, a, P)
+    assert not ok and "off the closing axis" in why
+    ok, why = judge_can([left, left], can, np.zeros(3), base, a, P)
+    assert not ok and "same side" in why
+    assert PAD_FROM_BASE[0] < 0.08 < PAD_FROM_BASE[1]
+
+
+def test_plans_follow_the_reference_grasp_offsets():
+    box = _box()
+    est = np.array([0.3, 0.0, 3.0])  # yaw 3.0 wraps to 3.0 - pi in FB's [-pi/2, pi/2]
+    yaw, pre, approach = pregrasp(PLANS["FB"], box, est)
+    assert yaw == pytest.approx(3.0 - math.pi)
+    np.testing.assert_allclose(pre, box.centre_world(est) - 0.25 * approach)
+    np.testing.assert_allclose(approach, [-math.sin(yaw), math.cos(yaw)])
+    yaw, _, _ = pregrasp(PLANS["BC"], box, np.array([0.0, 0.0, 1.0]))
+    assert yaw == pytest.approx(1.0 - math.pi)
+    yaw, pre, approach = pregrasp(PLANS["TC"], _can(), np.array([0.18, 0.05, 2.0]))
+    assert yaw == pytest.approx(-math.pi / 2)
+    np.testing.assert_allclose(approach, [1.0, 0.0], atol=1e-12)
+    assert plan_for(load_scene("IB")) is PLANS["IB"]
+
+
+# ------------------------------------------------------------------------------------------------ simulation
+
+
+def test_restore_world_puts_objects_at_their_recorded_final_poses(fb_run):
+    with restore_world(fb_run.scene, fb_run.final_poses, fb_run.final_ee, P.settle_steps) as world:
+        got = world.object_poses()
+        pos = world.gripper_pose()[0]
+    n = len(fb_run.scene.objects)
+    np.testing.assert_allclose(got[:n, :2], fb_run.final_poses[:n, :2], atol=0.01)
+    dyaw = (got[:n, 2] - fb_run.final_poses[:n, 2] + math.pi) % (2 * math.pi) - math.pi
+    assert np.abs(dyaw).max() < 0.05
+    np.testing.assert_allclose(pos[:2], fb_run.final_ee, atol=0.01)
+
+
+def _shift_across(pose, d):
+    """The box pose moved by d along its short axis (across the grasp)."""
+    return pose + np.array([d * math.cos(pose[2]), d * math.sin(pose[2]), 0.0])
+
+
+@pytest.mark.parametrize("name, make, success", [
+    ("true pose", lambda t: t, True),
+    ("true pose turned by pi (symmetric)", lambda t: t + [0.0, 0.0, math.pi], True),
+    ("shifted 5 cm across", lambda t: _shift_across(t, 0.05), False),
+    ("shifted 5 cm in x", lambda t: t + [0.05, 0.0, 0.0], False),
+    ("rotated 90 deg", lambda t: t + [0.0, 0.0, math.pi / 2], False),
+])
+def test_box_grasp_in_stored_final_state(fb_run, name, make, success):
+    est = make(fb_run.true_pose.copy())
+    g = grasp_at(fb_run.scene, fb_run.final_poses, fb_run.final_ee, est, P)
+    assert g.success is success, (name, g.outcome)
+    assert g.reached
+    assert math.isfinite(g.wall_s) and g.wall_s > 0
+
+
+def _clear_tc_state():
+    """TC with the target can where the scene puts it and the clutter moved far away (a hand-made state)."""
+    scene = load_scene("TC")
+    poses = []
+    for i, o in enumerate(scene.objects):
+        c, s = math.cos(o.yaw), math.sin(o.yaw)
+        com = np.array(o.position) + np.array([[c, -s], [s, c]]) @ np.array(o.com_offset[:2])
+        xy = com if o.target else np.array([2.0 + 0.5 * i, 2.0])
+        poses.append([xy[0], xy[1], o.yaw + o.com_yaw])
+    poses += [[w.position[0], w.position[1], w.yaw] for w in scene.walls]
+    return scene, np.array(poses)
+
+
+@pytest.mark.parametrize("name, delta, success", [
+    ("true pose", [0.0, 0.0, 0.0], True),
+    ("rotated 90 deg (a can has no yaw)", [0.0, 0.0, math.pi / 2], True),
+    ("shifted 5 cm across", [0.0, 0.05, 0.0], False),
+    ("shifted 5 cm short", [-0.05, 0.0, 0.0], False),
+])
+def test_can_grasp_at_hand_placed_poses(name, delta, success):
+    scene, poses = _clear_tc_state()
+    tid = next(i for i, o in enumerate(scene.objects) if o.target)
+    truth = poses[tid]
+    # The rotated estimate keeps the can's axis: rotate the COM about it.
+    can = _can()
+    est = truth + np.asarray(delta)
+    if delta[2]:
+        axis = can.centre_world(truth)
+        c, s = math.cos(est[2]), math.sin(est[2])
+        est[:2] = axis - np.array([[c, -s], [s, c]]) @ can.centre
+    g = grasp_at(scene, poses, np.array(scene.gripper_start), est, P)
+    assert g.success is success, (name, g.outcome)
