@@ -90,10 +90,11 @@ def worker(T: int, N: int, method: str = "stucco", seed: int = 0, weighting: str
 
 
 def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighting: str = "reference",
-               streams: str | Path | None = None) -> dict:
+               streams: str | Path | None = None, threads: int = 1) -> dict:
     cmd = [sys.executable, "-m", "pipeline.bench", "worker", str(T), str(N), method, str(seed), weighting,
            str(streams or ANCHOR_DIR)]
-    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    env = dict(os.environ, STUCCO_THREADS=str(threads))
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     if res.returncode != 0:
         raise RuntimeError(f"benchmark worker failed: {res.stderr.strip().splitlines()[-1:]}")
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -120,34 +121,34 @@ def recorded_reference() -> dict:
 
 def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int = 3, acc_seeds: int = 5,
                 streams: str | Path | None = None, reference_python: str | None = None,
-                methods=("stucco",), echo=print) -> dict:
+                methods=("stucco",), threads=(1, 2), echo=print) -> dict:
     """Print the speed table, the accuracy table and the weighting comparison; return every figure."""
     ref = recorded_reference()
     results: dict = {"speed": [], "accuracy": [], "weighting": [], "methods": []}
     echo("SPEED: STUCCO soft tracking on the anchor streams (disc robot r=0.05 m, 1 mm grid, seed 0); median of "
-         f"{repeats} runs, each in a fresh process.\nReference = the authors' stucco 1.2.1 "
+         f"{repeats} runs, each in a fresh process; thr = threads of the particle loops.\nReference = the authors' stucco 1.2.1 "
          + ("rerun on this machine now." if reference_python else "as recorded in data/anchors/reference.json "
             "(../shared/anchors/ref_tracker_bench.txt, 2-core Xeon, torch 2 threads)."))
-    hdr = (f"{'T':>4} {'N':>4} {'L':>5} {'total_s':>8} {'ms/contact':>10} {'last10%ms':>9} {'ms/free':>8} "
+    hdr = (f"{'T':>4} {'N':>4} {'thr':>3} {'L':>5} {'total_s':>8} {'ms/contact':>10} {'last10%ms':>9} {'ms/free':>8} "
            f"{'peakMB':>7} {'FMI':>6} {'CE_cm':>6} | {'ref_s':>7} {'ref_ms/c':>8} {'ref_last10':>10} {'ref_MB':>6} "
            f"{'speedup':>8}")
     echo(hdr)
     for N in N_list:
         for T in T_list:
-            runs = sorted((run_worker(T, N, streams=streams) for _ in range(repeats)), key=lambda r: r["total_s"])
-            r = runs[len(runs) // 2]
             key = f"T{T}_N{N}"
-            if reference_python:
-                rr = run_reference_worker(T, N, reference_python)
-            else:
-                rr = ref["timing"].get(key)
-            speedup = (rr["total_s"] / r["total_s"]) if rr else float("nan")
-            cut = ">" if rr and rr.get("truncated") else ""
-            rs = (f"{cut + format(rr['total_s'], '.2f'):>7} {rr['ms_contact']:>8.1f} {rr['last10_ms']:>10.1f} "
-                  f"{rr['peak_rss_mb']:>6.0f} {cut + format(speedup, '.1f') + 'x':>8}") if rr else "(no reference)"
-            echo(f"{T:>4} {N:>4} {r['L']:>5} {r['total_s']:>8.3f} {r['ms_contact']:>10.2f} {r['last10_ms']:>9.2f} "
-                 f"{r['ms_free']:>8.3f} {r['peak_rss_mb']:>7.0f} {r['fmi']:>6.3f} {r['ce_cm']:>6.2f} | {rs}")
-            results["speed"].append(dict(ours=r, reference=rr, speedup=speedup))
+            rr = run_reference_worker(T, N, reference_python) if reference_python else ref["timing"].get(key)
+            for thr in threads:
+                runs = sorted((run_worker(T, N, streams=streams, threads=thr) for _ in range(repeats)),
+                              key=lambda r: r["total_s"])
+                r = dict(runs[len(runs) // 2], threads=thr)
+                speedup = (rr["total_s"] / r["total_s"]) if rr else float("nan")
+                cut = ">" if rr and rr.get("truncated") else ""
+                rs = (f"{cut + format(rr['total_s'], '.2f'):>7} {rr['ms_contact']:>8.1f} {rr['last10_ms']:>10.1f} "
+                      f"{rr['peak_rss_mb']:>6.0f} {cut + format(speedup, '.1f') + 'x':>8}") if rr else "(no reference)"
+                echo(f"{T:>4} {N:>4} {thr:>3} {r['L']:>5} {r['total_s']:>8.3f} {r['ms_contact']:>10.2f} "
+                     f"{r['last10_ms']:>9.2f} {r['ms_free']:>8.3f} {r['peak_rss_mb']:>7.0f} {r['fmi']:>6.3f} "
+                     f"{r['ce_cm']:>6.2f} | {rs}")
+                results["speed"].append(dict(ours=r, reference=rr, speedup=speedup))
     if acc_seeds:
         echo(f"\nACCURACY of the final MAP particle over tracker seeds 0..{acc_seeds - 1} (N=100; mean ± std; "
              "FMI of Alg. 3 vs true objects; CE = mean distance to the nearest true surface at the end)")

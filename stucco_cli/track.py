@@ -59,13 +59,21 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Any other tracker parameter (e.g. baselines: --set eps=0.05).")
 @click.option("--every-step", is_flag=True, help="Also write the estimate after every step.")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="Threads of STUCCO's particle loops [1, or $STUCCO_THREADS]; results do not depend on it. "
+                   "More than one only pays on otherwise idle cores.")
 @pass_settings
 def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
-          sets: tuple[str, ...], every_step: bool, **stucco_opts) -> None:
+          sets: tuple[str, ...], every_step: bool, threads: int | None, **stucco_opts) -> None:
     """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
     from pipeline import schema
     from pipeline.robot import load_robot
     from pipeline.track.stage import TrackConfig, stucco_params, track_table
+
+    if threads is not None:
+        from pipeline.track.kernels import set_threads
+
+        set_threads(threads)
 
     params = {k: v for k, v in stucco_opts.items() if v is not None}
     if params and method != "stucco":

@@ -155,7 +155,10 @@ def test_point_inside_a_later_contact_config_is_replaced(disc):
     x2, p2 = np.array([0.02, 0.0]), np.array([0.07, 0.0])
     assert disc.query(np.array([0.0, 0.0]) - x2) + TOL < 0  # A is 3 cm inside the robot at x2
     tracker.update(x2, [[0.001, 0.0]], [p2])
-    assert disc.query(tracker.points_ - x2).min() + TOL >= 0.0
+    # points_ is the MAP particle as weighted, before replacement (the authors' convention); the particles
+    # themselves carry the replacement into the next step.
+    assert disc.query(tracker.points_ - x2).min() + TOL < 0.0
+    assert disc.query(tracker.particle_points_[0] - x2).min() + TOL >= 0.0
     assert tracker.last_step_.n_replaced == 6  # one point in each particle
     np.testing.assert_array_equal(tracker.particle_points_, np.broadcast_to(p2, (6, 2, 2)))
     np.testing.assert_array_equal(tracker.particle_configs_, np.broadcast_to(x2, (6, 2, 2)))
