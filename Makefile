@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 ANCHORS ?= data/anchors
 
-.PHONY: setup syslibs quick test bench clean
+.PHONY: setup syslibs quick reproduce test bench clean
 
 setup: syslibs $(STAMP)
 
@@ -25,10 +25,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
-# Until `stucco evaluate` exists: track and segment a stored contact log (FB seed 0, simulated and isolated).
+# FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
 quick: setup
-	$(BIN)/stucco --seed 0 track --in data/contacts/FB-000.parquet --out out/quick/tracks.parquet
-	$(BIN)/stucco segment --in out/quick/tracks.parquet --out out/quick/segments.parquet --plot out/quick/segments.png --print
+	$(BIN)/stucco --seed 0 evaluate --quick --jobs 2
+
+# The paper's Table II: 4 tasks x 20 seeds x 5 methods into out/reproduce (resumes if interrupted).
+reproduce: setup
+	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC --seeds 0-19 --methods all --jobs 2 --out out/reproduce
 
 test: setup
 	$(BIN)/python -m pytest -q

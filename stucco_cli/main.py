@@ -66,6 +66,7 @@ def cli(ctx: click.Context, seed: int, jobs: int, verbose: int, quiet: bool) -> 
 def _register() -> None:
     # Imported here so that `stucco --help` stays fast and each command module can import its stage lazily.
     from stucco_cli import bench as _bench  # noqa: F401
+    from stucco_cli import evaluate as _evaluate  # noqa: F401
     from stucco_cli import retrieve as _retrieve  # noqa: F401
     from stucco_cli import sim as _sim  # noqa: F401
     from stucco_cli import track as _track  # noqa: F401

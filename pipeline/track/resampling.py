@@ -6,7 +6,18 @@ configs and every per-particle cache.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import logsumexp
+
+
+def logsumexp(log_w: np.ndarray) -> float:
+    """log(sum(exp(log_w))) with the max shifted out, so no term overflows and the largest never underflows.
+
+    The same arithmetic as ``scipy.special.logsumexp`` on a 1-D array, without its array-API dispatch, which
+    measured half of the whole replay time of the T=200 anchor stream (2592 calls, 0.32 of 0.63 s).
+    """
+    top = np.max(log_w)
+    if not np.isfinite(top):
+        return float(top)  # all -inf (nothing to normalise) or a +inf entry
+    return float(top + np.log(np.sum(np.exp(log_w - top))))
 
 
 def normalise(log_w: np.ndarray) -> np.ndarray:

@@ -263,20 +263,32 @@ class SoftTracker:
                                    self.params.tolerance)
         self._m = m_old + len(dx)
 
+    def _snapshot_map(self, index: int) -> None:
+        # The estimate is the MAP particle as weighted now, before resampling and replacement (as the authors'
+        # code takes it): replacement can only move its points onto other points, and measured over 42 seeds of
+        # the T=400 anchor stream reading it afterwards cost 0.009 FMI and 0.17 cm CE.
+        self._map = index
+        self._map_points = self._P[index, : self._m].copy()
+        self._map_configs = self._C[index, : self._m].copy()
+
     def _reweight_and_resample(self, eps: np.ndarray) -> StepDiagnostics:
         prm = self.params
+        if np.ptp(eps) == 0.0 and prm.replace != "every-step" and self.last_step_ is not None:
+            # Every particle explains the step equally well (typically free space with no point near the robot):
+            # the normalised weights and the ESS are unchanged, and the ESS was at or above the threshold after the
+            # previous step, so there is nothing to resample or replace. The estimate is still refreshed: a
+            # contact step has moved and added points.
+            self._snapshot_map(int(np.argmax(self.log_weights_)))
+            self.last_step_ = StepDiagnostics(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
+                                              resampled=False, n_replaced=0)
+            return self.last_step_
         if prm.weighting == "reference":
             eps = eps - eps.max()
         log_lik = -(eps * eps) / prm.penetration_length
         log_w = normalise(self.log_weights_ + log_lik)
         if prm.weight_floor > 0:
             log_w = normalise(np.maximum(log_w, np.log(prm.weight_floor)))
-        self._map = int(np.argmax(log_w))
-        # The estimate is the MAP particle as weighted now, before resampling and replacement (as the authors'
-        # code takes it): replacement can only move its points onto other points, and measured over 42 seeds of
-        # the T=400 anchor stream reading it afterwards cost 0.009 FMI and 0.17 cm CE.
-        self._map_points = self._P[self._map, : self._m].copy()
-        self._map_configs = self._C[self._map, : self._m].copy()
+        self._snapshot_map(int(np.argmax(log_w)))
         ess = effective_sample_size(log_w)
         resampled = ess < prm.ess_threshold
         n_replaced = 0

@@ -1,0 +1,94 @@
+"""`stucco evaluate`: the whole (scene, seed, method) grid of Table II, resumable, with its report."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stucco_cli.main import Settings, cli, pass_settings, user_errors
+
+
+@cli.command()
+@click.option("--scenes", default=None, help="Comma-separated retrieval tasks, or 'all' [FB,BC,IB,TC].")
+@click.option("--seeds", default=None, help="Run seeds: N, N-M, or a comma-separated list [0-19].")
+@click.option("--methods", default="all", show_default=True,
+              help="Comma-separated: stucco, birch, dbscan, kmeans, gmphd; or 'all'.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Evaluation directory (hive-partitioned stage tables, report, figures) [out/evaluate; "
+                   "out/quick with --quick].")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+              help="Worker processes over jobs [the group's -j].")
+@click.option("--quick", is_flag=True, help="A couple of seeds of one scene (FB 0-1), all methods, into out/quick.")
+@click.option("--from-runs", "from_runs", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Replay the stored run files of this directory instead of simulating (scenes and seeds "
+                   "default to all found there).")
+@click.option("--max-actions", type=click.IntRange(min=1), default=None,
+              help="Cut every simulated run after N actions (small test grids).")
+@click.option("--restarts", type=click.IntRange(min=2), default=30, show_default=True,
+              help="ICP restarts per segment.")
+@click.option("--figures/--no-figures", default=True, show_default=True,
+              help="Draw a figure per run and the summary figure.")
+@click.option("--snapshot", "snapshot_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also write the regression snapshot (contacts, segments, scores) to this directory.")
+@pass_settings
+def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
+             jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
+             figures: bool, snapshot_dir: Path | None) -> None:
+    """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
+    where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes
+
+    try:
+        if scenes is not None:
+            scene_list = parse_scenes(scenes)
+        elif from_runs is not None:
+            scene_list = None
+        else:
+            scene_list = QUICK_SCENES if quick else parse_scenes("all")
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--scenes") from None
+    try:
+        if seeds is not None:
+            seed_list = parse_seeds(seeds)
+        elif from_runs is not None:
+            seed_list = None
+        else:
+            seed_list = list(QUICK_SEEDS) if quick else parse_seeds("0-19")
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    try:
+        method_list = parse_methods(methods)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--methods") from None
+    if from_runs is not None and max_actions is not None:
+        raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
+    out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
+    jobs = jobs or settings.jobs
+    with user_errors("evaluate"):
+        cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
+                         source=None if from_runs is None else str(from_runs))
+    _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir)
+
+
+def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: int, figures: bool,
+         snapshot_dir: Path | None) -> None:
+    from pipeline.evaluate import evaluate as run_evaluate, write_snapshot
+    from pipeline.report import claims, table_ii, to_markdown
+
+    with user_errors("evaluate"):
+        ev = run_evaluate(out_dir, scenes, seeds, methods, cfg, jobs=jobs, progress=settings.progress,
+                          figures=figures)
+        if snapshot_dir is not None:
+            written = write_snapshot(out_dir, ev.jobs, snapshot_dir, cfg)
+    rows = table_ii(ev.scores)
+    if settings.verbosity >= 0:
+        click.echo(to_markdown(rows), nl=False)
+        for line in claims(rows):
+            click.echo(line)
+        ran = len(ev.results) - ev.skipped
+        click.echo(f"{len(ev.jobs)} job(s): {ran} run, {ev.skipped} already done; {ev.wall_s:.1f} s wall "
+                   f"(-j {jobs}) -> {out_dir}/report.md, report.csv" + (", figures/, summary.png" if figures else ""),
+                   err=True)
+        if snapshot_dir is not None:
+            click.echo(f"snapshot -> {', '.join(str(p) for p in written)}", err=True)

@@ -1,0 +1,156 @@
+"""`stucco evaluate` on a tiny grid: every stage file, the report, skipping finished jobs, resuming, errors.
+
+One evaluation (IB seed 0 cut to 12 actions, STUCCO and GM-PHD, 5 ICP restarts) is made once per module; tests
+that change files work on a copy.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pyarrow.dataset as ds
+import pytest
+from click.testing import CliRunner
+
+from pipeline import schema
+from pipeline.evaluate import (KINDS, STAGE_COLUMNS, STAGES, EvalConfig, Job, evaluate, parse_methods,
+                               parse_scenes, partition, read_kind, stale_stages)
+from pipeline.figures import figure_path
+
+CFG = EvalConfig(root_seed=0, max_actions=12, restarts=5)
+METHODS = ("stucco", "gmphd")
+
+
+def _run(out: Path, cfg: EvalConfig = CFG):
+    return evaluate(out, ["IB"], [0], METHODS, cfg, jobs=1, progress=True)
+
+
+@pytest.fixture(scope="module")
+def evaluated(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("eval") / "ev"
+    ev = _run(out)
+    # collect and isolate run once for both methods, before the jobs.
+    assert ev.prepared == [("IB", 0, ("collect", "isolate"))]
+    assert [r.ran for r in ev.results] == [STAGES[2:], STAGES[2:]]
+    return out
+
+
+@pytest.fixture
+def copy(evaluated, tmp_path) -> Path:
+    dst = tmp_path / "ev"
+    shutil.copytree(evaluated, dst)
+    return dst
+
+
+def _mtimes(out: Path) -> dict[Path, int]:
+    return {p: p.stat().st_mtime_ns for p in out.rglob("*.parquet")}
+
+
+def test_every_stage_file_report_and_figure_are_written(evaluated):
+    for m in METHODS:
+        for kind in KINDS:
+            path = partition(evaluated, kind, "IB", 0, m)
+            assert path.is_file(), path
+    assert partition(evaluated, "tracks", "IB", 0, "stucco") == \
+        evaluated / "tracks" / "scene=IB" / "seed=0" / "method=stucco" / "part.parquet"
+    md = (evaluated / "report.md").read_text()
+    assert "| IB | ours (STUCCO) | 1 |" in md and "| IB | GM-PHD | 1 |" in md
+    assert (evaluated / "report.csv").read_text().startswith("scene,method,runs,grasp_success_pct")
+    assert figure_path(evaluated, "IB", 0).is_file() and (evaluated / "summary.png").is_file()
+    assert json.loads((evaluated / "evaluation.json").read_text())["max_actions"] == 12
+
+
+def test_scores_carry_stage_wall_times_and_their_sum(evaluated):
+    scores = read_kind(evaluated, "scores")
+    assert scores.num_rows == 2 and sorted(scores.column("method").to_pylist()) == ["gmphd", "stucco"]
+    for row in scores.to_pylist():
+        walls = [row[c] for c in STAGE_COLUMNS]
+        assert all(w is not None and w >= 0 for w in walls)
+        assert row["wall_s"] == pytest.approx(sum(walls))
+
+
+def test_methods_share_one_collected_run_and_contacts(evaluated):
+    runs = read_kind(evaluated, "runs")
+    assert runs.num_rows == 12 and set(runs.column("run").to_pylist()) == {"IB/0"}
+    tracks = read_kind(evaluated, "tracks", filter=ds.field("method") == "gmphd")
+    assert set(tracks.column("method").to_pylist()) == {"gmphd"}
+    for m in METHODS:
+        meta = schema.read_metadata(partition(evaluated, "tracks", "IB", 0, m))
+        assert meta["inputs"]["contacts"]["sha256"] == schema.file_digest(partition(evaluated, "contacts", "IB", 0))
+        assert meta["params"]["method"] == m and meta["seed"] == 0
+
+
+def test_rerun_skips_finished_jobs(copy):
+    before = _mtimes(copy)
+    ev = _run(copy)
+    assert [r.ran for r in ev.results] == [(), ()] and ev.skipped == 2 and ev.prepared == []
+    assert _mtimes(copy) == before
+    assert ev.scores.num_rows == 2
+
+
+def test_interrupted_job_resumes_from_the_missing_stage(copy):
+    partition(copy, "retrieval", "IB", 0, "stucco").unlink()
+    before = _mtimes(copy)
+    assert stale_stages(copy, Job("IB", 0, "stucco")) == ("retrieve", "score")
+    ev = _run(copy)
+    assert {r.job.method: r.ran for r in ev.results} == {"stucco": ("retrieve", "score"), "gmphd": ()}
+    after = _mtimes(copy)
+    unchanged = [k for k in ("runs", "contacts", "tracks", "segments")]
+    for kind in unchanged:
+        p = partition(copy, kind, "IB", 0, "stucco")
+        assert after[p] == before[p], kind
+    assert after[partition(copy, "scores", "IB", 0, "stucco")] > before[partition(copy, "scores", "IB", 0, "stucco")]
+
+
+def test_a_stage_rewritten_with_different_content_reruns_what_follows(copy):
+    # Contacts rewritten (here: one row dropped) -> every method's track and later stages are out of date.
+    path = partition(copy, "contacts", "IB", 0)
+    t = schema.read_contacts(path)
+    schema.write_table(t.slice(0, t.num_rows - 1), path, stage="isolate", params={}, seed=0,
+                       inputs={"part": partition(copy, "runs", "IB", 0)}, kind="contacts")
+    assert stale_stages(copy, Job("IB", 0, "gmphd")) == STAGES[2:]
+    ev = _run(copy)
+    assert [r.ran for r in ev.results] == [STAGES[2:], STAGES[2:]]
+
+
+def test_same_directory_with_another_config_is_refused(copy):
+    with pytest.raises(ValueError, match=r"was made with max_actions=12, this evaluation asks for max_actions=13"):
+        _run(copy, EvalConfig(root_seed=0, max_actions=13, restarts=5))
+
+
+def test_cli_prints_the_table_of_a_finished_grid(copy):
+    from stucco_cli.main import cli
+
+    res = CliRunner().invoke(cli, ["evaluate", "--scenes", "IB", "--seeds", "0", "--methods", "stucco,gmphd",
+                                   "--max-actions", "12", "--restarts", "5", "--out", str(copy)])
+    assert res.exit_code == 0, res.output
+    assert "| IB | ours (STUCCO) | 1 |" in res.stdout
+    assert "2 job(s): 0 run, 2 already done" in res.stderr
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--scenes", "FB,XX"], r"Invalid value for --scenes: unknown scene 'XX'; expected some of"),
+    (["--scenes", "SELECT1"], r"Invalid value for --scenes: scene 'SELECT1' is a training scene"),
+    (["--methods", "stucco,kmean"], r"Invalid value for --methods: unknown method 'kmean'; expected some of "
+                                    r"stucco, birch, dbscan, kmeans, gmphd or 'all'"),
+    (["--methods", ","], r"Invalid value for --methods: no method given"),
+    (["--seeds", "3-1"], r"Invalid value for --seeds: seed range '3-1': end before start"),
+])
+def test_bad_options_fail_with_one_line(tmp_path, args, match):
+    from stucco_cli.main import cli
+
+    res = CliRunner().invoke(cli, ["evaluate", *args, "--out", str(tmp_path / "x")])
+    assert res.exit_code == 2
+    last = [line for line in res.output.splitlines() if line.strip()][-1]
+    assert last.startswith("Error: ")
+    assert re.search(match, last), last
+    assert not (tmp_path / "x").exists()
+
+
+def test_parsers_keep_table_ii_order():
+    assert parse_methods("gmphd,stucco") == ("stucco", "gmphd")
+    assert parse_methods("all") == ("stucco", "birch", "dbscan", "kmeans", "gmphd")
+    assert parse_scenes("TC,FB,TC") == ("TC", "FB")
+    assert parse_scenes("all") == ("FB", "BC", "IB", "TC")
