@@ -273,10 +273,9 @@ def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
     cos_max = math.cos(math.radians(params.face_angle_deg))
     sides = []
     for k, f in enumerate(fingers):
-        if len(f.points) == 0:
-            return False, f"finger {k} does not touch the target"
-        if f.force < params.min_normal_force:
-            return False, f"finger {k} presses with {f.force:.2f} N < {params.min_normal_force} N"
+        problem = _finger_problem(k, f, params)
+        if problem:
+            return False, problem
         n = f.normals / np.maximum(np.linalg.norm(f.normals, axis=1, keepdims=True), 1e-12)
         along = n @ ax
         if not (np.all(np.abs(along) >= cos_max) and (np.all(along > 0) or np.all(along < 0))):
@@ -290,6 +289,15 @@ def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
     if sides[0] == sides[1]:
         return False, "both fingers on the same long face"
     return True, "ok"
+
+
+def _finger_problem(k: int, f: "FingerContacts", params: "GraspParams") -> str | None:
+    """Why finger k cannot hold anything (no contact with the target, or too weak a push), or None."""
+    if len(f.points) == 0:
+        return f"finger {k} does not touch the target"
+    if f.force < params.min_normal_force:
+        return f"finger {k} presses with {f.force:.2f} N < {params.min_normal_force} N"
+    return None
 
 
 def judge_can(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray, base: np.ndarray,
@@ -312,10 +320,9 @@ def judge_can(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
     cos_max = math.cos(math.radians(params.can_angle_deg))
     sides = []
     for k, f in enumerate(fingers):
-        if len(f.points) == 0:
-            return False, f"finger {k} does not touch the target"
-        if f.force < params.min_normal_force:
-            return False, f"finger {k} presses with {f.force:.2f} N < {params.min_normal_force} N"
+        problem = _finger_problem(k, f, params)
+        if problem:
+            return False, problem
         m = f.normals.mean(axis=0)
         m = m / max(np.linalg.norm(m), 1e-12)
         if abs(m @ b) < cos_max:

@@ -199,3 +199,26 @@ def plot_segments(segments, path, max_runs: int = 6) -> None:
     import os
 
     os.replace(tmp, path)
+
+
+def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,
+                 by: str = "auto"):
+    """The `segment` stage on files: segment a tracks table and write the segments table.
+
+    ``length`` and ``alpha`` default to the values the tracks were made with (their metadata), then to Table I;
+    the tracking method recorded there decides what ``by="auto"`` means. Returns the segments table.
+    """
+    from pipeline import schema
+    from pipeline.track.soft import SoftTrackingParams
+
+    tracks = schema.read_tracks(in_path)
+    tparams = schema.read_metadata(in_path).get("params") or {}
+    defaults = SoftTrackingParams()
+    length = float(length if length is not None else tparams.get("length", defaults.length))
+    alpha = float(alpha if alpha is not None else tparams.get("alpha", defaults.alpha))
+    method = str(tparams.get("method", "stucco"))
+    segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
+    schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,
+                                                                        method=method),
+                       seed=seed, inputs={"tracks": str(in_path)}, kind="segments")
+    return segments

@@ -66,38 +66,24 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
 def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
           sets: tuple[str, ...], every_step: bool, threads: int | None, **stucco_opts) -> None:
     """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
-    from pipeline import schema
-    from pipeline.robot import load_robot
-    from pipeline.track.stage import TrackConfig, stucco_params, track_table
+    from pipeline.track.stage import TrackConfig, diagnostics_path_for, track_file
 
     if threads is not None:
         from pipeline.track.kernels import set_threads
 
         set_threads(threads)
-
     params = {k: v for k, v in stucco_opts.items() if v is not None}
     if params and method != "stucco":
         option = _STUCCO_OPTIONS.get(next(iter(params)), next(iter(params)).replace("_", "-"))
         raise click.UsageError(f"--{option} applies to --method stucco only; "
                                "use --set KEY=VALUE for baseline parameters")
     params.update(_parse_sets(sets))
+    diag_path = diag_path or diagnostics_path_for(out_path)
     with user_errors("track"):
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
-        grid = load_robot(robot)
-        full_params = stucco_params(config)
-    with user_errors():
-        contacts = schema.read_contacts(in_path)
-    with user_errors(f"{in_path}"):
-        tracks, diagnostics = track_table(contacts, config, seed=settings.seed, jobs=settings.jobs,
-                                          progress=_progress(settings, "track"))
-    meta = dict(method=method, robot=robot, robot_digest=grid.digest, every_step=every_step, **full_params)
-    inputs = {"contacts": str(in_path)}
-    diag_path = diag_path or out_path.with_name(out_path.name.removesuffix(".parquet") + ".diagnostics.parquet")
-    schema.write_table(tracks, out_path, stage="track", params=meta, seed=settings.seed, inputs=inputs,
-                       kind="tracks")
-    # The diagnostics hold wall times, so unlike the tracks they differ between two identical runs.
-    schema.write_table(diagnostics, diag_path, stage="track", params=meta, seed=settings.seed, inputs=inputs,
-                       kind="diagnostics")
+    with user_errors("track"):
+        tracks, diagnostics = track_file(in_path, out_path, config, seed=settings.seed, jobs=settings.jobs,
+                                         diagnostics_path=diag_path, progress=_progress(settings, "track"))
     if settings.verbosity >= 0:
         n_runs = len(set(tracks.column("run").to_pylist()))
         ms = diagnostics.column("update_ms").to_numpy()
@@ -119,23 +105,10 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: float | None, alpha: float | None,
             plot_path: Path | None, print_table: bool) -> None:
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
-    from pipeline import schema
-    from pipeline.segment import plot_segments, segment_table, summarise
-    from pipeline.track.soft import SoftTrackingParams
+    from pipeline.segment import plot_segments, segment_file, summarise
 
-    with user_errors():
-        tracks = schema.read_tracks(in_path)
-        meta = schema.read_metadata(in_path)
-    tparams = meta.get("params") or {}
-    defaults = SoftTrackingParams()
-    length = length if length is not None else float(tparams.get("length", defaults.length))
-    alpha = alpha if alpha is not None else float(tparams.get("alpha", defaults.alpha))
-    method = str(tparams.get("method", "stucco"))
     with user_errors("segment"):
-        segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
-    params = dict(length=length, alpha=alpha, by=by, method=method)
-    schema.write_table(segments, out_path, stage="segment", params=params, seed=settings.seed,
-                       inputs={"tracks": str(in_path)}, kind="segments")
+        segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by)
     if plot_path is not None:
         plot_segments(segments, plot_path)
     if print_table:

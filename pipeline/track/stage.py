@@ -210,3 +210,37 @@ def _diagnostics_table(results: list[RunResult]) -> pa.Table:
     for name in ("step", "in_contact", "n_contacts", "ess", "resampled", "n_replaced", "update_ms"):
         cols[name] = pa.array(np.concatenate([r.diagnostics[name] for r in results]) if results else [])
     return pa.table(cols)
+
+
+def diagnostics_path_for(out_path: "str | Path") -> "Path":
+    """Where the diagnostics side table of a tracks file goes by default: ``<name>.diagnostics.parquet``."""
+    from pathlib import Path
+
+    out_path = Path(out_path)
+    return out_path.with_name(out_path.name.removesuffix(".parquet") + ".diagnostics.parquet")
+
+
+def track_file(in_path, out_path, config: TrackConfig, *, seed: int, jobs: int = 1, diagnostics_path=None,
+               progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
+    """The `track` stage on files: read and validate a contacts table, track it, write the tracks table and its
+    diagnostics side table (atomically, with provenance metadata). Returns both tables.
+
+    Parameter errors (unknown method, robot or parameter) raise ValueError before anything is read; input errors
+    raise :class:`pipeline.schema.SchemaError`.
+    """
+    grid = load_robot(config.robot)
+    full_params = stucco_params(config)
+    contacts = schema.read_contacts(in_path)
+    try:
+        tracks, diagnostics = track_table(contacts, config, seed=seed, jobs=jobs, progress=progress)
+    except ValueError as e:  # a problem with this file's contents: say which file
+        raise ValueError(f"{in_path}: {e}") from e
+    meta = dict(method=config.method, robot=config.robot, robot_digest=grid.digest, every_step=config.every_step,
+                **full_params)
+    inputs = {"contacts": str(in_path)}
+    # The tracks are written last: an existing tracks file means the stage finished.
+    # The diagnostics hold wall times, so unlike the tracks they differ between two identical runs.
+    schema.write_table(diagnostics, diagnostics_path or diagnostics_path_for(out_path), stage="track", params=meta,
+                       seed=seed, inputs=inputs, kind="diagnostics")
+    schema.write_table(tracks, out_path, stage="track", params=meta, seed=seed, inputs=inputs, kind="tracks")
+    return tracks, diagnostics
