@@ -57,7 +57,7 @@ from pipeline.report import METHOD_ORDER
 __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGE_COLUMNS", "EvalConfig", "Job",
            "JobResult", "Evaluation", "parse_scenes", "parse_methods", "partition", "stale_stages",
            "prepare_run", "run_job", "evaluate", "read_kind", "gather_scores", "write_report", "snapshot",
-           "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded"]
+           "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded", "BACKENDS", "parallel_backend"]
 
 #: The paper's Table II tasks, in its order.
 SCENES = ("FB", "BC", "IB", "TC")
@@ -524,13 +524,46 @@ def _check_config(out: Path, cfg: EvalConfig) -> None:
     os.replace(tmp, path)
 
 
+BACKENDS = ("loky", "dask")
+
+
+@contextmanager
+def parallel_backend(backend: str = "loky", scheduler: str | None = None):
+    """Where :func:`_map` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's Dask backend on the
+    ``distributed`` scheduler at ``scheduler``, e.g. ``tcp://10.0.0.5:8786``; the optional extra
+    ``stucco[dask]``). Job functions write their own files under the evaluation directory, so Dask workers
+    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`_map` for Dask (-1: every
+    worker of the cluster), or None for loky."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    if backend == "loky":
+        if scheduler is not None:
+            raise ValueError("--scheduler applies to --backend dask only")
+        yield None
+        return
+    if not scheduler:
+        raise ValueError("--backend dask needs --scheduler ADDRESS (e.g. tcp://127.0.0.1:8786)")
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ValueError("--backend dask needs the optional extra: pip install 'stucco[dask]'") from None
+    from joblib import parallel_config
+
+    with Client(scheduler) as client, parallel_config(backend="dask", wait_for_workers_timeout=60):
+        client.wait_for_workers(1, timeout=60)
+        yield -1
+
+
 def _map(fn: Callable, args: list[tuple], jobs: int, bar) -> list:
-    """fn(*a) for every a, in ``jobs`` processes (joblib/loky) or in this one; results in completion order."""
+    """fn(*a) for every a, in ``jobs`` processes (joblib/loky) or in this one; results in completion order.
+
+    ``jobs == -1``: the active joblib backend decides (the Dask cluster's workers, :func:`parallel_backend`).
+    """
     out = []
-    if jobs > 1 and len(args) > 1:
+    if (jobs > 1 or jobs == -1) and len(args) > 1:
         from joblib import Parallel, delayed
 
-        par = Parallel(n_jobs=min(jobs, len(args)), return_as="generator_unordered")
+        par = Parallel(n_jobs=-1 if jobs == -1 else min(jobs, len(args)), return_as="generator_unordered")
         for r in par(delayed(fn)(*a) for a in args):
             out.append(r)
             bar.update()
@@ -556,7 +589,7 @@ def _runs_in(source: Path) -> list[tuple[str, int]]:
 
 def evaluate(out: str | Path, scenes: Sequence[str] | None, seeds: Sequence[int] | None, methods: Sequence[str],
              cfg: EvalConfig = EvalConfig(), *, jobs: int = 1, progress: bool | None = None,
-             figures: bool = True) -> Evaluation:
+             figures: bool = True, backend: str = "loky", scheduler: str | None = None) -> Evaluation:
     """Run (or resume) the grid and write the report.
 
     Parameters
@@ -574,11 +607,20 @@ def evaluate(out: str | Path, scenes: Sequence[str] | None, seeds: Sequence[int]
         tqdm's ``disable`` (True: no bars; None: bars on a TTY).
     figures : bool
         Draw a figure per (scene, seed) and the summary figure.
+    backend, scheduler : str
+        ``"loky"`` (``jobs`` local processes) or ``"dask"`` with the scheduler's address (every worker of the
+        cluster; ``jobs`` is ignored): :func:`parallel_backend`.
 
     Returns
     -------
     Evaluation
     """
+    with parallel_backend(backend, scheduler) as cluster_jobs:
+        return _evaluate(out, scenes, seeds, methods, cfg, jobs=jobs if cluster_jobs is None else cluster_jobs,
+                         progress=progress, figures=figures)
+
+
+def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> Evaluation:
     from tqdm import tqdm
 
     t0 = time.perf_counter()

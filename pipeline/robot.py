@@ -623,7 +623,8 @@ def surface_points(
 # CLI strings
 # ---------------------------------------------------------------------------------------------------------------
 
-_ROBOT_FORMS = "expected 'panda' or 'disc:RADIUS' with RADIUS a positive number of metres (e.g. 'disc:0.05')"
+_ROBOT_FORMS = ("expected 'panda' or 'disc:RADIUS' with RADIUS a positive number of metres (e.g. 'disc:0.05'), "
+                "or 'panda:RES' for the Panda grid at RES metres per cell (e.g. 'panda:0.002')")
 
 
 def load_robot(spec: str) -> GridSDF:
@@ -632,7 +633,8 @@ def load_robot(spec: str) -> GridSDF:
     Parameters
     ----------
     spec : str
-        ``"panda"`` -> :func:`panda_sdf` (cached); ``"disc:RADIUS"`` (metres, e.g. ``"disc:0.05"``) ->
+        ``"panda"`` -> :func:`panda_sdf` (cached); ``"panda:RES"`` -> :func:`panda_sdf` at RES metres per cell;
+        ``"disc:RADIUS"`` (metres, e.g. ``"disc:0.05"``) ->
         :func:`disc_sdf`.
 
     Returns
@@ -648,6 +650,16 @@ def load_robot(spec: str) -> GridSDF:
     text = str(spec).strip()
     if text == "panda":
         return panda_sdf()
+    if text.startswith("panda:"):
+        # SDF resolution as an accuracy knob (`stucco bench accuracy`): 'panda:0.002' = 2 mm cells.
+        raw = text[len("panda:"):]
+        try:
+            res = float(raw)
+        except ValueError:
+            raise ValueError(f"robot {spec!r}: resolution {raw!r} is not a number; {_ROBOT_FORMS}") from None
+        if not (0 < res <= 0.05 and math.isfinite(res)):
+            raise ValueError(f"robot {spec!r}: resolution must be in (0, 0.05] metres; {_ROBOT_FORMS}")
+        return panda_sdf(resolution=res)
     if text.startswith("disc:"):
         raw = text[len("disc:"):]
         try:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import cli
+from stucco_cli.main import cli, pass_settings
 
 
 @cli.group()
@@ -43,3 +43,56 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
     if json_path:
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(res, indent=1))
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {text!r}") from None
+
+
+@bench.command("accuracy")
+@click.option("--scenes", default="all", show_default=True, help="Comma-separated retrieval tasks, or 'all'.")
+@click.option("--seeds", default="0-4", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--N", "n_list", default="10,30,100,300,1000", show_default=True, help="STUCCO particle counts.")
+@click.option("--restarts", "restart_list", default="5,10,30", show_default=True, help="ICP restarts (N = 100).")
+@click.option("--sdf-mm", "sdf_list", default="1,2,4", show_default=True, help="Gripper SDF cell sizes, mm.")
+@click.option("--baselines", default="birch,dbscan,kmeans,gmphd", show_default=True,
+              help="Baselines at their defaults ('' for none).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
+              show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes over (scene, seed).")
+@pass_settings
+def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, baselines, out_dir, jobs) -> None:
+    """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
+    PNG of time per run against CE, FMI and grasp success."""
+    import pyarrow as pa
+
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes
+    from pipeline.study import (_write_csv, accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
+                                summary_markdown)
+    from stucco_cli.main import user_errors
+
+    try:
+        scene_list = parse_scenes(scenes)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--scenes") from None
+    try:
+        seed_list = parse_seeds(seeds)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    sweep = accuracy_settings(_ints(n_list), _ints(restart_list), _floats(sdf_list),
+                              tuple(b for b in baselines.split(",") if b.strip()))
+    with user_errors("bench accuracy"):
+        table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
+                               jobs=jobs or settings.jobs, progress=settings.progress)
+        rows = summarise_settings(table)
+        _write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
+        png = pareto_figure(rows, out_dir / "pareto.png")
+    click.echo(summary_markdown(rows), nl=False)
+    k = [r["setting"] for r in rows if r.get("knee")]
+    if k:
+        click.echo(f"knee (cheapest N within 10% of the best median CE of the N sweep): {k[0]}")
+    click.echo(f"-> {out_dir / 'accuracy.csv'}, {out_dir / 'summary.csv'}, {png}", err=True)

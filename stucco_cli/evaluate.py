@@ -30,15 +30,31 @@ from stucco_cli.main import Settings, cli, pass_settings, user_errors
               help="Draw a figure per run and the summary figure.")
 @click.option("--snapshot", "snapshot_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also write the regression snapshot (contacts, segments, scores) to this directory.")
+@click.option("--suite", type=click.Choice(["bor", "training"]), default="bor", show_default=True,
+              help="bor: the retrieval grid (Table II); training: the training-set study of Fig. 5 "
+                   "(= `stucco study training`, SELECT1-4 seeds 7-46 by default, into out/training).")
+@click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True,
+              help="loky: -j local processes; dask: joblib's Dask backend on --scheduler (pip install "
+                   "'stucco[dask]'; workers must see --out at the same path).")
+@click.option("--scheduler", default=None, help="Dask scheduler address for --backend dask (tcp://HOST:8786).")
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
-             figures: bool, snapshot_dir: Path | None) -> None:
+             figures: bool, snapshot_dir: Path | None, suite: str, backend: str, scheduler: str | None) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes
 
+    if suite == "training":
+        if backend != "loky" or quick or from_runs or snapshot_dir:
+            raise click.UsageError("--suite training takes --scenes, --seeds, --methods, --out, -j, --max-actions")
+        from stucco_cli.study import training
+
+        ctx = click.get_current_context()
+        ctx.invoke(training, scenes=scenes or "SELECT1,SELECT2,SELECT3,SELECT4", seeds=seeds or "7-46",
+                   out_dir=out_dir or Path("out/training"), jobs=jobs, max_actions=max_actions, methods=methods)
+        return
     try:
         if scenes is not None:
             scene_list = parse_scenes(scenes)
@@ -68,17 +84,17 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     with user_errors("evaluate"):
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs))
-    _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir)
+    _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 
 def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: int, figures: bool,
-         snapshot_dir: Path | None) -> None:
+         snapshot_dir: Path | None, backend: str = "loky", scheduler: str | None = None) -> None:
     from pipeline.evaluate import evaluate as run_evaluate, write_snapshot
     from pipeline.report import claims, table_ii, to_markdown
 
     with user_errors("evaluate"):
         ev = run_evaluate(out_dir, scenes, seeds, methods, cfg, jobs=jobs, progress=settings.progress,
-                          figures=figures)
+                          figures=figures, backend=backend, scheduler=scheduler)
         if snapshot_dir is not None:
             written = write_snapshot(out_dir, ev.jobs, snapshot_dir, cfg)
     rows = table_ii(ev.scores)

@@ -69,6 +69,7 @@ def _register() -> None:
     from stucco_cli import evaluate as _evaluate  # noqa: F401
     from stucco_cli import retrieve as _retrieve  # noqa: F401
     from stucco_cli import sim as _sim  # noqa: F401
+    from stucco_cli import study as _study  # noqa: F401
     from stucco_cli import track as _track  # noqa: F401
 
 

@@ -1,0 +1,171 @@
+"""pipeline/study.py and its commands: Pareto front, knee, ambiguity, the tuning rule, tiny end-to-end grids."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline.study import accuracy_settings, choose, knee, pareto_front, run_ambiguity
+from stucco_cli.main import cli
+
+
+def test_pareto_front_hand_made_points():
+    # (time, error), both minimised: (1, 5), (2, 3), (4, 1) are the front; (3, 4) is dominated by (2, 3),
+    # (4, 2) by (4, 1); the NaN row is never on the front.
+    pts = np.array([[1, 5], [2, 3], [3, 4], [4, 1], [4, 2], [np.nan, 0]])
+    assert pareto_front(pts).tolist() == [True, True, False, True, False, False]
+
+
+def test_pareto_front_maximised_column():
+    # time minimised, FMI maximised: (1, 0.5) and (2, 0.9) on the front, (3, 0.8) dominated.
+    pts = np.array([[1, 0.5], [2, 0.9], [3, 0.8]])
+    assert pareto_front(pts, [True, False]).tolist() == [True, True, False]
+
+
+def test_pareto_front_equal_points_both_kept():
+    assert pareto_front(np.array([[1.0, 1.0], [1.0, 1.0]])).tolist() == [True, True]
+
+
+def test_knee_is_cheapest_within_tolerance_of_best():
+    cost = [0.1, 0.3, 1.0, 3.0, 10.0]
+    error = [3.0, 1.5, 1.05, 1.0, 0.99]
+    assert knee(cost, error, tolerance=0.1) == 2  # 1.05 <= 0.99 * 1.1; 1.5 is not
+
+
+def test_ambiguity_hand_computed():
+    # Bodies 0, 1, 2; the run touches 0 and 2 (body 1 is never contacted, so its distance is ignored).
+    ids = np.array([-1, 0, 2, -1, 0])
+    dist = np.array([[0.30, 0.00, 0.20],   # d2 over {0, 2} = 0.30 -> 0
+                     [0.00, 0.00, 0.06],   # 0.06 -> (0.15 - 0.06) / 0.15 = 0.6
+                     [0.03, 0.00, 0.00],   # 0.03 -> 0.8
+                     [0.50, 0.00, 0.50],   # 0.50 -> 0
+                     [0.00, 0.00, 0.15]])  # 0.15 -> 0 (last end never used)
+    # prepended 0: actions 0..4 get [0, 0, 0.6, 0.8, 0]; contact at actions 1, 2, 4 -> (0 + 0.6 + 0) / 3 = 0.2
+    assert run_ambiguity(ids, dist) == pytest.approx(0.2)
+
+
+def test_ambiguity_single_object_is_zero():
+    assert run_ambiguity(np.array([0, 0, -1]), np.zeros((3, 2))) == 0.0
+
+
+def test_choose_picks_known_best_of_synthetic_objective():
+    # median FMI peaks at value 0.04 (1 - (v - 0.04)^2 * 100), CE is lowest at 0.02 but FMI there is 0.04 lower.
+    values = [0.005, 0.01, 0.02, 0.04, 0.08]
+    stats = [dict(fmi=1 - (v - 0.04) ** 2 * 100, ce_cm=1 + abs(v - 0.02) * 10) for v in values]
+    assert values[choose(stats)] == 0.04
+
+
+def test_choose_breaks_fmi_near_ties_by_ce():
+    stats = [dict(fmi=0.900, ce_cm=2.0), dict(fmi=0.895, ce_cm=1.0), dict(fmi=0.5, ce_cm=0.1)]
+    assert choose(stats) == 1
+
+
+def test_accuracy_settings_have_the_default_once():
+    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), ("kmeans",))]
+    assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "kmeans"]
+
+
+def test_bench_accuracy_cli_tiny_grid(tmp_path):
+    out = tmp_path / "acc"
+    res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
+                                   "--restarts", "5", "--sdf-mm", "1,4", "--baselines", "dbscan", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "knee" in res.output
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert [r["setting"] for r in rows] == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=4mm",
+                                            "dbscan"]
+    assert (out / "pareto.png").stat().st_size > 0
+
+
+def test_bench_accuracy_rejects_training_scene(tmp_path):
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--scenes", "SELECT1", "--out", str(tmp_path)])
+    assert res.exit_code == 2
+    assert "training scene" in res.output
+
+
+@pytest.fixture(scope="module")
+def training_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("training")
+    res = CliRunner().invoke(cli, ["-q", "study", "training", "--scenes", "SELECT1", "--seeds", "7-9",
+                                   "--methods", "stucco,dbscan", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    return out, res.output
+
+
+def test_study_training_tiny_grid(training_dir):
+    out, output = training_dir
+    assert "of 3 trajectories kept by the discard rule" in output
+    rows = list(csv.DictReader(open(out / "training.csv")))
+    assert {r["method"] for r in rows} == {"stucco", "dbscan"}
+    assert all(0.0 <= float(r["ambiguity"]) <= 1.0 for r in rows)
+    assert (out / "fig5.png").stat().st_size > 0
+
+
+def test_study_tune_tiny_grid_reuses_training_runs(training_dir):
+    out, _ = training_dir
+    res = CliRunner().invoke(cli, ["-q", "study", "tune", "--scenes", "SELECT1", "--seeds", "7-9", "--methods",
+                                   "stucco", "--values", '{"stucco": ["length", [0.01, 0.02]]}', "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "stucco: length = " in res.output
+    rows = list(csv.DictReader(open(out / "tune.csv")))
+    assert [float(r["value"]) for r in rows] == [0.01, 0.02]
+    assert sum(r["chosen"].lower() == "true" for r in rows) == 1
+
+
+def test_study_rejects_retrieval_scene(tmp_path):
+    res = CliRunner().invoke(cli, ["study", "training", "--scenes", "FB", "--out", str(tmp_path)])
+    assert res.exit_code == 2
+    assert "not a training scene" in res.output
+
+
+def test_evaluate_dask_backend_on_local_cluster(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from pipeline.evaluate import evaluate as run_evaluate, EvalConfig
+
+    cfg = EvalConfig(max_actions=4, grasp=False, restarts=2)
+    local = run_evaluate(tmp_path / "loky", ["FB"], [0], ["stucco", "dbscan"], cfg, jobs=1, progress=True,
+                         figures=False)
+    # Worker threads in this process: worker processes would each import Open3D and compile numba's kernels
+    # (tens of seconds); the scheduler, joblib's Dask backend and the job transport are the same.
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        res = CliRunner().invoke(cli, ["-q", "evaluate", "--scenes", "FB", "--seeds", "0", "--methods",
+                                       "stucco,dbscan", "--max-actions", "4", "--restarts", "2", "--no-figures",
+                                       "--backend", "dask", "--scheduler", lc.scheduler_address,
+                                       "--out", str(tmp_path / "dask")])
+    assert res.exit_code == 0, res.output
+    from pipeline.evaluate import Job, gather_scores
+
+    jobs = [Job("FB", 0, m) for m in ("dbscan", "stucco")]
+    dask_scores = gather_scores(tmp_path / "dask", jobs)
+    assert dask_scores.num_rows == 2
+    # the same jobs, the same seeds: tracking results do not depend on where a job ran
+    assert dask_scores.column("fmi").to_pylist() == local.scores.column("fmi").to_pylist()
+    assert dask_scores.column("n_points").to_pylist() == local.scores.column("n_points").to_pylist()
+
+
+def test_evaluate_backend_errors(tmp_path):
+    res = CliRunner().invoke(cli, ["evaluate", "--scenes", "FB", "--seeds", "0", "--backend", "dask",
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 1
+    assert "needs --scheduler" in res.output
+
+
+def test_evaluate_suite_training_tiny(tmp_path):
+    res = CliRunner().invoke(cli, ["-q", "evaluate", "--suite", "training", "--scenes", "SELECT2", "--seeds", "7",
+                                   "--methods", "stucco", "--max-actions", "20", "--out", str(tmp_path)])
+    assert res.exit_code in (0, 1), res.output
+    assert "trajectories kept" in res.output or "every training run was discarded" in res.output
+
+
+def test_toppled_cylinder_contact_error_uses_mean_half_extent_circle():
+    from pipeline.scenes import load_scene
+    from pipeline.study import _training_primitive
+
+    scene = load_scene("SELECT2")
+    spec = next(o for o in scene.objects if o.name == "topple_cylinder")
+    prim = _training_primitive(spec)
+    assert prim.kind == "cylinder" and prim.half == pytest.approx((0.1225,))
+    d = prim.signed_distance(np.array([[0.2225, 0.0]]), np.array([0.1, 0.0, 0.3]))
+    assert d == pytest.approx([0.0], abs=1e-9)
