@@ -340,39 +340,19 @@ def _isolate(runs: Path, dest: Path, cfg: EvalConfig) -> None:
 
 
 def _track(p: dict[str, Path], method: str, cfg: EvalConfig) -> None:
-    from pipeline.robot import load_robot
-    from pipeline.track.stage import TrackConfig, stucco_params, track_table
+    from pipeline.track.stage import TrackConfig, track_file
 
     t0 = time.perf_counter()
     config = TrackConfig(method=method, robot=cfg.robot, params={}, every_step=False)
-    grid_ = load_robot(cfg.robot)
-    full = stucco_params(config)
-    contacts = schema.read_contacts(p["contacts"])
-    tracks, diagnostics = track_table(contacts, config, seed=cfg.root_seed, jobs=1)
-    meta = dict(method=method, robot=cfg.robot, robot_digest=grid_.digest, every_step=False, **full)
-    inputs = {"contacts": p["contacts"]}
-    schema.write_table(diagnostics, p["diagnostics"], stage="track", params=meta, seed=cfg.root_seed,
-                       inputs=inputs, kind="diagnostics")
-    schema.write_table(tracks, p["tracks"], stage="track", params=meta, seed=cfg.root_seed, inputs=inputs,
-                       kind="tracks")
+    track_file(p["contacts"], p["tracks"], config, seed=cfg.root_seed, jobs=1, diagnostics_path=p["diagnostics"])
     _write_wall(p["tracks"], time.perf_counter() - t0)
 
 
 def _segment(p: dict[str, Path], cfg: EvalConfig) -> None:
-    from pipeline.segment import segment_table
-    from pipeline.track.soft import SoftTrackingParams
+    from pipeline.segment import segment_file
 
     t0 = time.perf_counter()
-    tracks = schema.read_tracks(p["tracks"])
-    tparams = schema.read_metadata(p["tracks"]).get("params") or {}
-    defaults = SoftTrackingParams()
-    length = float(tparams.get("length", defaults.length))
-    alpha = float(tparams.get("alpha", defaults.alpha))
-    method = str(tparams.get("method", "stucco"))
-    segments = segment_table(tracks, length=length, alpha=alpha, by="auto", method=method)
-    schema.write_table(segments, p["segments"], stage="segment",
-                       params=dict(length=length, alpha=alpha, by="auto", method=method), seed=cfg.root_seed,
-                       inputs={"tracks": p["tracks"]}, kind="segments")
+    segment_file(p["tracks"], p["segments"], seed=cfg.root_seed, by="auto")
     _write_wall(p["segments"], time.perf_counter() - t0)
 
 
