@@ -163,7 +163,6 @@ class SoftTracker:
         self._colpen = np.zeros((n, 0))
         self._npen = np.zeros((n, 0), np.int32)
         self.log_weights_ = np.full(n, -np.log(n))
-        self._map = 0
         self._map_points = np.zeros((0, self.dim))
         self._map_configs = np.zeros((0, self.dim))
         self.last_step_: StepDiagnostics | None = None
@@ -267,7 +266,6 @@ class SoftTracker:
         # The estimate is the MAP particle as weighted now, before resampling and replacement (as the authors'
         # code takes it): replacement can only move its points onto other points, and measured over 42 seeds of
         # the T=400 anchor stream reading it afterwards cost 0.009 FMI and 0.17 cm CE.
-        self._map = index
         self._map_points = self._P[index, : self._m].copy()
         self._map_configs = self._C[index, : self._m].copy()
 
