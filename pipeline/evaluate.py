@@ -9,8 +9,8 @@ directory, one file per partition::
     DIR/contacts/scene=FB/seed=3/part.parquet               isolate   (shared too)
     DIR/tracks/scene=FB/seed=3/method=stucco/part.parquet   track     (+ DIR/diagnostics/...)
     DIR/segments/scene=FB/seed=3/method=stucco/part.parquet segment
-    DIR/retrieval/scene=FB/seed=3/method=stucco/part.parquet retrieve (+ DIR/candidates/...)
-    DIR/scores/scene=FB/seed=3/method=stucco/part.parquet   score     (a finished job)
+    DIR/retrieval/scene=FB/seed=3/method=stucco/estimator=plausible/part.parquet  retrieve (+ DIR/candidates/...)
+    DIR/scores/scene=FB/seed=3/method=stucco/estimator=plausible/part.parquet     score (a finished job)
     DIR/figures/FB-003.png, DIR/summary.png, DIR/report.md, DIR/report.csv
 
 Each kind directory is a Parquet dataset: :func:`read_kind` (``pyarrow.dataset`` with an explicit hive
@@ -53,6 +53,7 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.report import METHOD_ORDER
+from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS
 
 __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGE_COLUMNS", "EvalConfig", "Job",
            "JobResult", "Evaluation", "parse_scenes", "parse_methods", "partition", "stale_stages",
@@ -66,6 +67,8 @@ METHODS = METHOD_ORDER
 #: Table kinds kept under DIR, in pipeline order; the first two are per (scene, seed), the rest per method too.
 KINDS = ("runs", "contacts", "tracks", "diagnostics", "segments", "retrieval", "candidates", "scores")
 _SHARED = ("runs", "contacts")
+#: Kinds kept per pose estimator too (``estimator=`` partition level).
+_PER_ESTIMATOR = ("retrieval", "candidates", "scores")
 PART = "part.parquet"
 WALL = "_wall_s.json"
 CONFIG = "evaluation.json"
@@ -98,6 +101,9 @@ class EvalConfig:
         Gripper grid for tracking and retrieval.
     source : str or None
         Directory of stored run files replayed instead of simulating (``--from-runs``); None = simulate.
+    estimators : tuple of str
+        Pose estimators run on every job's segments (:data:`pipeline.retrieve.ESTIMATORS`), each into its own
+        ``estimator=`` partition; the report shows them side by side.
     """
 
     root_seed: int = 0
@@ -106,15 +112,20 @@ class EvalConfig:
     grasp: bool = True
     robot: str = "panda"
     source: str | None = None
+    estimators: tuple[str, ...] = ESTIMATORS
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "estimators", tuple(self.estimators))
+        bad = [e for e in self.estimators if e not in ESTIMATORS]
+        if not self.estimators or bad:
+            raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
         if self.max_actions is not None and self.max_actions < 1:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
         if self.restarts < 2:
             raise ValueError(f"restarts must be at least 2, got {self.restarts!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return dict(asdict(self), estimators=list(self.estimators))
 
 
 @dataclass(frozen=True, order=True)
@@ -203,8 +214,9 @@ def parse_methods(text: str) -> tuple[str, ...]:
     return tuple(m for m in METHODS if m in names)
 
 
-def partition(out: str | Path, kind: str, scene: str, seed: int, method: str | None = None) -> Path:
-    """The file of one partition: ``out/kind/scene=S/seed=N[/method=M]/part.parquet``."""
+def partition(out: str | Path, kind: str, scene: str, seed: int, method: str | None = None,
+              estimator: str = DEFAULT_ESTIMATOR) -> Path:
+    """The file of one partition: ``out/kind/scene=S/seed=N[/method=M[/estimator=E]]/part.parquet``."""
     if kind not in KINDS:
         raise ValueError(f"unknown kind {kind!r}; expected one of {', '.join(KINDS)}")
     p = Path(out) / kind / f"scene={scene}" / f"seed={int(seed)}"
@@ -212,11 +224,14 @@ def partition(out: str | Path, kind: str, scene: str, seed: int, method: str | N
         if method is None:
             raise ValueError(f"{kind} is per method; pass method=")
         p = p / f"method={method}"
+    if kind in _PER_ESTIMATOR:
+        p = p / f"estimator={estimator}"
     return p / PART
 
 
-def _paths(out: Path, job: Job) -> dict[str, Path]:
-    return {k: partition(out, k, job.scene, job.seed, None if k in _SHARED else job.method) for k in KINDS}
+def _paths(out: Path, job: Job, estimator: str = DEFAULT_ESTIMATOR) -> dict[str, Path]:
+    return {k: partition(out, k, job.scene, job.seed, None if k in _SHARED else job.method, estimator)
+            for k in KINDS}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -266,17 +281,23 @@ def _stage_inputs(p: dict[str, Path]) -> dict[str, tuple[tuple[str, dict[str, Pa
     }
 
 
-def stale_stages(out: str | Path, job: Job) -> tuple[str, ...]:
-    """The stages of ``job`` to (re)run: the first whose outputs are missing or out of date, and all after it.
+def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT_ESTIMATOR,)) -> tuple[str, ...]:
+    """The stages of ``job`` to (re)run: the first whose outputs (for any of ``estimators``) are missing or out
+    of date, and all after it.
 
-    Empty when the job is finished (its scores are up to date with the whole chain).
+    Empty when the job is finished (its scores are up to date with the whole chain, for every estimator).
     """
-    p = _paths(Path(out), job)
     digest = _Digests()
-    for i, (stage, outputs) in enumerate(_stage_inputs(p).items()):
-        if not all(_up_to_date(p[kind], inputs, digest) for kind, inputs in outputs):
-            return STAGES[i:]
-    return ()
+    first = len(STAGES)
+    for est in estimators:
+        p = _paths(Path(out), job, est)
+        for i, (stage, outputs) in enumerate(_stage_inputs(p).items()):
+            if i >= first:
+                break
+            if not all(_up_to_date(p[kind], inputs, digest) for kind, inputs in outputs):
+                first = i
+                break
+    return STAGES[first:]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -356,18 +377,19 @@ def _segment(p: dict[str, Path], cfg: EvalConfig) -> None:
     _write_wall(p["segments"], time.perf_counter() - t0)
 
 
-def _retrieve(p: dict[str, Path], method: str, cfg: EvalConfig) -> None:
+def _retrieve(p: dict[str, Path], method: str, cfg: EvalConfig, estimator: str) -> None:
     from pipeline.grasp import GraspParams
-    from pipeline.retrieve import RetrievalParams, retrieve
+    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieval_metadata, retrieve
 
     t0 = time.perf_counter()
     segments = schema.read_segments(p["segments"])
     params = RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot)
+    plausible = PlausibleParams()
     gparams = GraspParams()
     table, candidates = retrieve(segments, p["runs"].parent, method=method, root_seed=cfg.root_seed, params=params,
-                                 grasp=cfg.grasp, grasp_params=gparams, jobs=1, segments_path=str(p["segments"]))
-    meta = dict(params.to_dict(), method=method, grasp=cfg.grasp,
-                grasp_params=asdict(gparams) if cfg.grasp else None)
+                                 grasp=cfg.grasp, grasp_params=gparams, jobs=1, segments_path=str(p["segments"]),
+                                 estimator=estimator, plausible_params=plausible)
+    meta = retrieval_metadata(estimator, params, plausible, method=method, grasp=cfg.grasp, grasp_params=gparams)
     inputs = {"segments": p["segments"]}
     schema.write_table(candidates, p["candidates"], stage="retrieve", params=meta, seed=cfg.root_seed,
                        inputs=inputs, kind="candidates")
@@ -458,7 +480,7 @@ def run_job(out: str | Path, job: Job, cfg: EvalConfig) -> JobResult:
     """Bring one job up to date: run its stale stages in order (:func:`stale_stages`)."""
     out = Path(out)
     t0 = time.perf_counter()
-    todo = stale_stages(out, job)
+    todo = stale_stages(out, job, cfg.estimators)
     if not todo:
         return JobResult(job, (), 0.0)
     p = _paths(out, job)
@@ -475,9 +497,11 @@ def run_job(out: str | Path, job: Job, cfg: EvalConfig) -> JobResult:
                 elif stage == "segment":
                     _segment(p, cfg)
                 elif stage == "retrieve":
-                    _retrieve(p, job.method, cfg)
+                    for est in cfg.estimators:
+                        _retrieve(_paths(out, job, est), job.method, cfg, est)
                 else:
-                    _score(p, cfg)
+                    for est in cfg.estimators:
+                        _score(_paths(out, job, est), cfg)
     except Exception as e:
         e.add_note(f"in evaluation job {job} ({out})")
         raise
@@ -621,19 +645,20 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
     need = [(out, sc, s, cfg) for sc, s in pairs if _run_stale(out, sc, s)]
     with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
         prepared = _map(_prepare_one, need, jobs, bar)
-    todo = [(out, j, cfg) for j in job_list if stale_stages(out, j)]
+    todo = [(out, j, cfg) for j in job_list if stale_stages(out, j, cfg.estimators)]
     pending = {t[1] for t in todo}
     done = [JobResult(j, (), 0.0) for j in job_list if j not in pending]
     with tqdm(total=len(todo), desc="jobs", unit="job", disable=progress or not todo) as bar:
         results = done + _map(run_job, todo, jobs, bar)
     results.sort(key=lambda r: r.job)
-    scores = gather_scores(out, job_list)
+    scores = gather_scores(out, job_list, cfg.estimators)
     write_report(out, scores)
     if figures:
         from pipeline.figures import figure_path, run_figure, summary_figure
 
-        stale_figs = [(out, sc, s, methods) for sc, s in pairs
-                      if _figure_stale(figure_path(out, sc, s), [partition(out, "scores", sc, s, m) for m in methods])]
+        stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
+                      if _figure_stale(figure_path(out, sc, s),
+                                       [partition(out, "scores", sc, s, m, cfg.estimators[0]) for m in methods])]
         with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
             _map(run_figure, stale_figs, jobs, bar)
         from pipeline.report import table_ii
@@ -674,13 +699,16 @@ def _partitioning(kind: str):
     fields = [("scene", pa.string()), ("seed", pa.int64())]
     if kind not in _SHARED:
         fields.append(("method", pa.string()))
+    if kind in _PER_ESTIMATOR:
+        fields.append(("estimator", pa.string()))
     return ds.partitioning(pa.schema(fields), flavor="hive")
 
 
 def read_kind(out: str | Path, kind: str, filter=None) -> pa.Table:
     """Every partition of one kind under an evaluation directory as one table (``pyarrow.dataset``).
 
-    Partition keys (scene, seed[, method]) are columns of the result (they already are of runs and scores).
+    Partition keys (scene, seed[, method[, estimator]]) are columns of the result (they already are of runs,
+    retrieval and scores).
     ``filter`` is a ``pyarrow.dataset`` expression, e.g. ``ds.field("method") == "stucco"``.
     """
     import pyarrow.dataset as ds
@@ -693,15 +721,17 @@ def read_kind(out: str | Path, kind: str, filter=None) -> pa.Table:
     return ds.dataset(root, format="parquet", partitioning=_partitioning(kind)).to_table(filter=filter)
 
 
-def gather_scores(out: str | Path, job_list: Sequence[Job]) -> pa.Table:
-    """The scores of the given jobs (those finished), one row each, in grid order."""
+def gather_scores(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str] = (DEFAULT_ESTIMATOR,)
+                  ) -> pa.Table:
+    """The scores of the given jobs (those finished), one row per job and estimator, in grid order."""
     from pipeline.score import read_scores
 
     tables = []
     for j in sorted(job_list):
-        path = partition(out, "scores", j.scene, j.seed, j.method)
-        if path.is_file():
-            tables.append(read_scores(path))
+        for est in estimators:
+            path = partition(out, "scores", j.scene, j.seed, j.method, est)
+            if path.is_file():
+                tables.append(read_scores(path))
     if not tables:
         from pipeline.score import SCORES_COLUMNS
 
@@ -732,11 +762,12 @@ def write_report(out: str | Path, scores: pa.Table) -> tuple[Path, Path]:
 # ---------------------------------------------------------------------------------------------------------------
 
 #: Score columns compared by the regression test (the others are wall times).
-SNAPSHOT_SCORE_COLUMNS = ("scene", "seed", "method", "run", "grasp_success", "fmi", "contact_error_cm",
+SNAPSHOT_SCORE_COLUMNS = ("scene", "seed", "method", "estimator", "run", "grasp_success", "fmi", "contact_error_cm",
                           "position_error_m", "yaw_error_rad", "low_confidence", "n_points", "n_segments")
 
 
-def snapshot(out: str | Path, job_list: Sequence[Job]) -> dict[str, pa.Table]:
+def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str] = ESTIMATORS
+             ) -> dict[str, pa.Table]:
     """What the regression test compares, as one table per kind, rows in grid order.
 
     ``contacts``: the isolate output of every (scene, seed); ``segments``: the track + segment output of every
@@ -751,7 +782,7 @@ def snapshot(out: str | Path, job_list: Sequence[Job]) -> dict[str, pa.Table]:
         t = schema.read_segments(partition(out, "segments", j.scene, j.seed, j.method))
         segs.append(t.add_column(0, "method", pa.array([j.method] * t.num_rows, pa.string())))
     segments = pa.concat_tables(segs)
-    scores = gather_scores(out, jobs_).select(list(SNAPSHOT_SCORE_COLUMNS))
+    scores = gather_scores(out, jobs_, estimators).select(list(SNAPSHOT_SCORE_COLUMNS))
     return {"contacts": contacts, "segments": segments, "scores": scores}
 
 
@@ -759,7 +790,7 @@ def write_snapshot(out: str | Path, job_list: Sequence[Job], dest: str | Path, c
     """Write :func:`snapshot` to ``dest/<kind>.parquet`` (the expected results of ``data/regression``)."""
     dest = Path(dest)
     written = []
-    for kind, table in snapshot(out, job_list).items():
+    for kind, table in snapshot(out, job_list, cfg.estimators).items():
         path = dest / f"{kind}.parquet"
         schema.write_table(table, path, stage="evaluate", params=dict(cfg.to_dict(), snapshot=kind),
                            seed=cfg.root_seed, kind=f"regression-{kind}")

@@ -59,18 +59,21 @@ def _plt():
     return plt
 
 
-def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], path: str | Path | None = None) -> Path:
-    """Draw the run (scene, seed) of an evaluation directory, one panel per method with a scores file.
+def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], estimator: str | None = None,
+               path: str | Path | None = None) -> Path:
+    """Draw the run (scene, seed) of an evaluation directory, one panel per method with a scores file, with the
+    estimate of ``estimator`` (default: :data:`pipeline.retrieve.DEFAULT_ESTIMATOR`).
 
     Returns the PNG path (:func:`figure_path` unless ``path`` is given).
     """
     from pipeline import schema
     from pipeline.evaluate import partition
     from pipeline.report import METHOD_TITLE
-    from pipeline.retrieve import load_run, primitive_of, read_retrieval
+    from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, primitive_of, read_retrieval
     from pipeline.score import read_scores
     from pipeline.segment import final_estimates
 
+    estimator = estimator or DEFAULT_ESTIMATOR
     plt = _plt()
     out = Path(out)
     path = Path(path) if path is not None else figure_path(out, scene, seed)
@@ -89,7 +92,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], p
     near = [xy for xy, _, is_wall in shapes if not is_wall] + [info.ee]
     lo = np.min([a.min(axis=0) for a in near], axis=0) - 0.06
     hi = np.max([a.max(axis=0) for a in near], axis=0) + 0.06
-    methods = [m for m in methods if partition(out, "scores", scene, seed, m).is_file()] or list(methods)[:1]
+    methods = [m for m in methods if partition(out, "scores", scene, seed, m, estimator).is_file()] or list(methods)[:1]
     fig, axes = plt.subplots(1, len(methods), figsize=(3.6 * len(methods), 3.9), squeeze=False)
     cmap = plt.get_cmap("tab10")
     for ax, m in zip(axes[0], methods):
@@ -102,7 +105,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], p
         ax.plot(info.ee[0, 0], info.ee[0, 1], "o", color="tab:blue", ms=3, zorder=2)
         title = METHOD_TITLE.get(m, m)
         seg_path = partition(out, "segments", scene, seed, m)
-        ret_path = partition(out, "retrieval", scene, seed, m)
+        ret_path = partition(out, "retrieval", scene, seed, m, estimator)
         chosen = None
         if ret_path.is_file():
             r = read_retrieval(ret_path).to_pylist()[0]
@@ -118,7 +121,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], p
                 seg = final.column("segment").to_numpy()
                 ax.scatter(x, y, c=[cmap(s % 10) if s >= 0 else (0.5, 0.5, 0.5, 1.0) for s in seg], s=9,
                            linewidths=0.6, edgecolors=["k" if s == chosen else "none" for s in seg], zorder=3)
-        sc_path = partition(out, "scores", scene, seed, m)
+        sc_path = partition(out, "scores", scene, seed, m, estimator)
         if sc_path.is_file():
             s = read_scores(sc_path).to_pylist()[0]
             gs = {True: "GS yes", False: "GS no", None: "GS -"}[s["grasp_success"]]
@@ -131,7 +134,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], p
         ax.set_aspect("equal")
         ax.tick_params(labelsize=6)
     fig.suptitle(f"{scene} seed {seed}: objects after the last action (target shaded), gripper trail (blue), "
-                 f"tracked points by segment (chosen ringed), estimate (red dashed)", fontsize=8)
+                 f"tracked points by segment (chosen ringed), {estimator} estimate (red dashed)", fontsize=8)
     fig.tight_layout()
     _save(fig, path)
     return path
@@ -146,7 +149,9 @@ def summary_figure(rows, path: str | Path) -> Path:
     scenes = list(dict.fromkeys(r.scene for r in rows))
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rows)]
     methods += sorted({r.method for r in rows} - set(methods))
-    by = {(r.scene, r.method): r for r in rows}
+    by: dict = {}
+    for r in rows:
+        by.setdefault((r.scene, r.method), r)  # the first pose estimator's grasp success (report order)
     panels = (("grasp success %", "grasp_success_pct", None, "paper_gs_pct", None),
               ("FMI", "fmi_mean", "fmi_std", "paper_fmi_mean", "paper_fmi_std"),
               ("contact error cm", "ce_cm_mean", "ce_cm_std", "paper_ce_cm_mean", "paper_ce_cm_std"))

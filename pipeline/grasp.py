@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.retrieve import Primitive, primitive_of
+from pipeline.retrieve.model import Primitive, primitive_of
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "judge_box", "judge_can",
            "restore_world", "FingerContacts", "PLANS"]

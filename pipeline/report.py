@@ -1,8 +1,9 @@
 """The Table II report: grasp success, FMI and contact error per method and scene, beside the paper's figures.
 
-Input is a scores table (one row per scene, seed and method; see :mod:`pipeline.score`). Output is a list of rows
-(one per scene and method) that render as Markdown and CSV, and :func:`claims`, the paper's two claims about
-STUCCO (grasp success of at least 65 % and the lowest contact error on every task) checked against the rows.
+Input is a scores table (one row per scene, seed, method and pose estimator; see :mod:`pipeline.score`). Output
+is a list of rows (one per scene, method and estimator) that render as CSV, and as Markdown with one line per
+scene and method and the grasp success of every estimator side by side; :func:`claims` checks the paper's two
+claims about STUCCO (grasp success of at least 65 % and the lowest contact error on every task).
 
 Statistics: GS % = 100 x successes / runs with a grasp attempt; FMI and CE are the mean and the population
 standard deviation (``numpy.std``, ddof 0) over runs with a value; null values (no labelled points, no points,
@@ -39,10 +40,11 @@ PAPER_TABLE_II = {
 
 @dataclass(frozen=True)
 class ReportRow:
-    """Aggregates of one (scene, method) over its seeds."""
+    """Aggregates of one (scene, method, estimator) over its seeds ("" estimator: scores without the column)."""
 
     scene: str
     method: str
+    estimator: str
     runs: int
     grasp_success_pct: float
     fmi_mean: float
@@ -65,7 +67,8 @@ def _ordered(values, order):
 
 
 def table_ii(scores) -> list[ReportRow]:
-    """Aggregate a scores table (pyarrow) into one row per (scene, method), scenes and methods in paper order."""
+    """Aggregate a scores table (pyarrow) into one row per (scene, method, estimator), scenes and methods in paper
+    order, estimators in order of first appearance."""
     # Nulls (a run with no tracked points, or scored without a grasp) are "not measured": floats become NaN and
     # drop out of the statistics, and grasp success counts only runs where a grasp was attempted.
     col = {name: np.array([math.nan if v is None else v for v in scores.column(name).to_pylist()], dtype=float)
@@ -76,28 +79,32 @@ def table_ii(scores) -> list[ReportRow]:
         col[name] = np.array(scores.column(name).to_pylist(), dtype=object)
     scene = col["scene"].astype(str)
     method = col["method"].astype(str)
+    estimator = (np.array(scores.column("estimator").to_pylist(), dtype=object).astype(str)
+                 if "estimator" in scores.column_names else np.full(scores.num_rows, "", dtype=object))
+    est_order = tuple(dict.fromkeys(estimator))
     rows = []
-    for sc in _ordered(scene, tuple(PAPER_TABLE_II)):
-        for m in _ordered(method[scene == sc], METHOD_ORDER):
-            sel = (scene == sc) & (method == m)
+    for sc, m, e in ((sc, m, e) for sc in _ordered(scene, tuple(PAPER_TABLE_II))
+                     for m in _ordered(method[scene == sc], METHOD_ORDER)
+                     for e in _ordered(estimator[(scene == sc) & (method == m)], est_order)):
+        sel = (scene == sc) & (method == m) & (estimator == e)
 
-            def stat(name, fn):
-                v = col[name][sel].astype(float)
-                v = v[np.isfinite(v)]
-                return float(fn(v)) if v.size else math.nan
+        def stat(name, fn):
+            v = col[name][sel].astype(float)
+            v = v[np.isfinite(v)]
+            return float(fn(v)) if v.size else math.nan
 
-            paper = PAPER_TABLE_II.get(sc, {}).get(m)
-            rows.append(ReportRow(
-                scene=sc, method=m, runs=int(sel.sum()),
-                grasp_success_pct=100.0 * stat("grasp_success", np.mean),
-                fmi_mean=stat("fmi", np.mean), fmi_std=stat("fmi", np.std),
-                ce_cm_mean=stat("contact_error_cm", np.mean), ce_cm_std=stat("contact_error_cm", np.std),
-                position_error_m_median=stat("position_error_m", np.median), wall_s_mean=stat("wall_s", np.mean),
-                track_s_mean=stat("track_s", np.mean),
-                paper_gs_pct=None if paper is None else float(paper[0]),
-                paper_fmi_mean=None if paper is None else paper[1], paper_fmi_std=None if paper is None else paper[2],
-                paper_ce_cm_mean=None if paper is None else paper[3], paper_ce_cm_std=None if paper is None else paper[4],
-            ))
+        paper = PAPER_TABLE_II.get(sc, {}).get(m)
+        rows.append(ReportRow(
+            scene=sc, method=m, estimator=e, runs=int(sel.sum()),
+            grasp_success_pct=100.0 * stat("grasp_success", np.mean),
+            fmi_mean=stat("fmi", np.mean), fmi_std=stat("fmi", np.std),
+            ce_cm_mean=stat("contact_error_cm", np.mean), ce_cm_std=stat("contact_error_cm", np.std),
+            position_error_m_median=stat("position_error_m", np.median), wall_s_mean=stat("wall_s", np.mean),
+            track_s_mean=stat("track_s", np.mean),
+            paper_gs_pct=None if paper is None else float(paper[0]),
+            paper_fmi_mean=None if paper is None else paper[1], paper_fmi_std=None if paper is None else paper[2],
+            paper_ce_cm_mean=None if paper is None else paper[3], paper_ce_cm_std=None if paper is None else paper[4],
+        ))
     return rows
 
 
@@ -112,17 +119,26 @@ def _num(v: float, fmt: str) -> str:
 def to_markdown(rows: list[ReportRow]) -> str:
     """Table II layout: one line per scene and method, ours beside the paper's.
 
-    GS %, FMI mean (std), CE cm mean (std) and the paper's; median position error of the target estimate (cm);
-    mean tracking time (the tracker's updates) and mean wall time per run (every stage, collect and isolate
-    included) in seconds.
+    GS % (one column per pose estimator when there are several, the first one's estimator listed first), FMI
+    mean (std), CE cm mean (std) and the paper's; median position error of the first estimator's target
+    estimate (cm); mean tracking time (the tracker's updates) and mean wall time per run (every stage, collect
+    and isolate included) in seconds.
     """
-    head = ("| task | method | runs | GS % | paper GS % | FMI | paper FMI | CE cm | paper CE cm | median pos. err. cm "
-            "| track s/run | s/run |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    estimators = list(dict.fromkeys(r.estimator for r in rows))
+    gs_head = " | ".join(f"GS % {e}" for e in estimators) if len(estimators) > 1 else "GS %"
+    n_cols = 11 + max(1, len(estimators))
+    head = (f"| task | method | runs | {gs_head} | paper GS % | FMI | paper FMI | CE cm | paper CE cm "
+            f"| median pos. err. cm | track s/run | s/run |\n|" + "---|" * n_cols)
     lines = [head]
+    by = {(r.scene, r.method, r.estimator): r for r in rows}
     for r in rows:
+        if r.estimator != next(e for e in estimators if (r.scene, r.method, e) in by):
+            continue  # one line per (scene, method): the first estimator's row carries the line
         paper_gs = "" if r.paper_gs_pct is None else f"{r.paper_gs_pct:.0f}"
+        gs = " | ".join(_num(by[(r.scene, r.method, e)].grasp_success_pct, '.0f') if (r.scene, r.method, e) in by
+                        else "" for e in estimators)
         lines.append(
-            f"| {r.scene} | {METHOD_TITLE.get(r.method, r.method)} | {r.runs} | {_num(r.grasp_success_pct, '.0f')} "
+            f"| {r.scene} | {METHOD_TITLE.get(r.method, r.method)} | {r.runs} | {gs} "
             f"| {paper_gs} | {_ms(r.fmi_mean, r.fmi_std, '.2f')} | {_ms(r.paper_fmi_mean, r.paper_fmi_std, '.2f')} "
             f"| {_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')} | {_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')} "
             f"| {_num(r.position_error_m_median * 100, '.1f')} | {_num(r.track_s_mean, '.2f')} "
@@ -134,26 +150,35 @@ def to_markdown(rows: list[ReportRow]) -> str:
 MIN_GS_PCT = 65.0
 
 
+def _gs_claim(r: ReportRow, several: bool) -> str:
+    tag = f" ({r.estimator} estimator)" if several else ""
+    if math.isnan(r.grasp_success_pct):
+        return f"GS{tag} not measured"
+    if r.grasp_success_pct >= MIN_GS_PCT:
+        return f"GS {r.grasp_success_pct:.0f} %{tag} >= {MIN_GS_PCT:.0f} %: holds"
+    return (f"GS {r.grasp_success_pct:.0f} %{tag} < {MIN_GS_PCT:.0f} %: short by "
+            f"{MIN_GS_PCT - r.grasp_success_pct:.0f} points")
+
+
 def claims(rows: list[ReportRow], method: str = "stucco") -> list[str]:
-    """The paper's two claims checked per scene: ``method`` reaches at least 65 % GS, and has the lowest mean CE.
+    """The paper's two claims checked per scene: ``method`` reaches at least 65 % GS (with each pose estimator),
+    and has the lowest mean CE.
 
     One line per scene where ``method`` was evaluated (nothing when it was not), saying "holds" or by how much it
     falls short.
     """
     out = []
+    several = len({r.estimator for r in rows}) > 1
     for sc in dict.fromkeys(r.scene for r in rows):
-        here = {r.method: r for r in rows if r.scene == sc}
+        here: dict[str, ReportRow] = {}
+        for r in rows:
+            if r.scene == sc:
+                here.setdefault(r.method, r)  # CE does not depend on the estimator: the first row of each method
         ours = here.get(method)
         if ours is None:
             continue
         name = METHOD_TITLE.get(method, method)
-        if math.isnan(ours.grasp_success_pct):
-            gs = "GS not measured"
-        elif ours.grasp_success_pct >= MIN_GS_PCT:
-            gs = f"GS {ours.grasp_success_pct:.0f} % >= {MIN_GS_PCT:.0f} %: holds"
-        else:
-            gs = (f"GS {ours.grasp_success_pct:.0f} % < {MIN_GS_PCT:.0f} %: short by "
-                  f"{MIN_GS_PCT - ours.grasp_success_pct:.0f} points")
+        gs = "; ".join(_gs_claim(r, several) for r in rows if r.scene == sc and r.method == method)
         others = {m: r.ce_cm_mean for m, r in here.items() if m != method and not math.isnan(r.ce_cm_mean)}
         if math.isnan(ours.ce_cm_mean) or not others:
             ce = "lowest CE: not measurable"

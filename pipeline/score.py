@@ -157,7 +157,7 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
         f = fmi(truth[m], seg[m]) if truth is not None and m.any() else None
         ts = track_s.get(name)
         parts = [v for v in (ts, r["icp_s"], r["grasp_s"]) if v is not None]
-        rows.append(dict(scene=r["scene"], seed=r["seed"], method=r["method"], run=name,
+        rows.append(dict(scene=r["scene"], seed=r["seed"], method=r["method"], estimator=r["estimator"], run=name,
                          grasp_success=r["grasp_success"], fmi=f, contact_error_cm=ce,
                          position_error_m=r["position_error_m"], yaw_error_rad=r["yaw_error_rad"],
                          low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
@@ -172,6 +172,7 @@ SCORES_COLUMNS: tuple[schema.Column, ...] = (
     _C("scene", pa.string(), "", False, "Scene of the run."),
     _C("seed", pa.int64(), "", False, "Run seed."),
     _C("method", pa.string(), "", False, "Tracking method."),
+    _C("estimator", pa.string(), "", False, "Pose estimator of the retrieval (plausible, paper)."),
     _C("run", pa.string(), "", False, "Run id '<scene>/<seed>'."),
     _C("grasp_success", pa.bool_(), "", True, "Simulated grasp succeeded (null: grasp not simulated)."),
     _C("fmi", pa.float64(), "", True, "Fowlkes-Mallows index of segments vs ground-truth objects over points with "
@@ -194,18 +195,19 @@ SCORES_COLUMNS: tuple[schema.Column, ...] = (
 )
 
 
-SCORES = schema.TableSpec("scores", SCORES_COLUMNS, rules=("One row per (scene, seed, method).",))
+SCORES = schema.TableSpec("scores", SCORES_COLUMNS, rules=("One row per (scene, seed, method, estimator).",))
 
 
 def validate_scores(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
     """Validate a scores table (one-line SchemaError)."""
     out = schema.validate_spec(table, SCORES, path)
-    keys = list(zip(out.column("scene").to_pylist(), out.column("seed").to_pylist(), out.column("method").to_pylist()))
+    keys = list(zip(*(out.column(c).to_pylist() for c in ("scene", "seed", "method", "estimator"))))
     seen: dict[tuple, int] = {}
     for i, k in enumerate(keys):
         if k in seen:
-            raise schema.SchemaError(path, "seed", i, f"(scene, seed, method) = {k} repeats row {seen[k]}; "
-                                                      f"expected one row per (scene, seed, method)")
+            raise schema.SchemaError(path, "seed", i, f"(scene, seed, method, estimator) = {k} repeats row "
+                                                      f"{seen[k]}; expected one row per (scene, seed, method, "
+                                                      f"estimator)")
         seen[k] = i
     return out
 
@@ -225,8 +227,9 @@ def summary_lines(scores: pa.Table) -> list[str]:
         return np.array([np.nan if v is None else v for v in scores.column(n).to_pylist()], dtype=np.float64)
 
     f, ce, pe, ye = col("fmi"), col("contact_error_cm"), col("position_error_m"), col("yaw_error_rad")
-    for key in dict.fromkeys(zip(scene.tolist(), method.tolist())):
-        m = (scene == key[0]) & (method == key[1])
+    est = np.asarray(scores.column("estimator").to_pylist(), dtype=object)
+    for key in dict.fromkeys(zip(scene.tolist(), method.tolist(), est.tolist())):
+        m = (scene == key[0]) & (method == key[1]) & (est == key[2])
 
         def ms(a):
             a = a[m]
@@ -238,6 +241,6 @@ def summary_lines(scores: pa.Table) -> list[str]:
         gtxt = "  -" if not len(g) else f"{100 * g.mean():3.0f}"
         pem = np.nanmedian(pe[m]) if np.isfinite(pe[m]).any() else math.nan
         yem = np.nanmedian(ye[m]) if np.isfinite(ye[m]).any() else math.nan
-        lines.append(f"{key[0]:<6} {key[1]:<8} runs {int(m.sum()):>3}  GS {gtxt} %  FMI {ms(f)}  CE {ms(ce)} cm  "
+        lines.append(f"{key[0]:<6} {key[1]:<8} {key[2]:<9} runs {int(m.sum()):>3}  GS {gtxt} %  FMI {ms(f)}  CE {ms(ce)} cm  "
                      f"pos err median {pem * 100:.1f} cm  yaw err median {yem:.2f} rad")
     return lines

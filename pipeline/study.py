@@ -1,7 +1,8 @@
 """Studies over many runs: what accuracy costs in time, the training-set study (paper Fig. 5) and tuning.
 
 * :func:`accuracy_bench` (``stucco bench accuracy``): the accuracy knobs (particles N, ICP restarts, the gripper
-  SDF's resolution) and the baselines over a (scene, seed) grid of the BOR tasks. Runs are collected and
+  SDF's resolution, the plausible estimator's hypotheses and free-space lattice, the paper's estimator) and the
+  baselines over a (scene, seed) grid of the BOR tasks. Runs are collected and
   isolated once per (scene, seed) into ``DIR/runs`` and ``DIR/contacts`` with :func:`pipeline.evaluate.prepare_run`
   (the same files as ``stucco evaluate``); every setting then tracks, segments, retrieves and scores them in
   memory. Time per run (``compute_s``) = track + segment + ICP (the grasp simulation stands in for the robot's
@@ -88,7 +89,8 @@ def knee(cost: Sequence[float], error: Sequence[float], tolerance: float = 0.1) 
 
 @dataclass(frozen=True)
 class Setting:
-    """One point of the accuracy sweep: a method with its tracker parameters, ICP restarts and robot grid."""
+    """One point of the accuracy sweep: a method with its tracker parameters, ICP restarts, robot grid and pose
+    estimator (with the plausible estimator's hypotheses and free-space lattice spacing in metres)."""
 
     name: str
     method: str
@@ -97,18 +99,23 @@ class Setting:
     params: tuple[tuple[str, Any], ...] = ()
     restarts: int = 30
     robot: str = "panda"
+    estimator: str = "plausible"
+    hypotheses: int = 64
+    free_resolution: float = 0.005
 
 
 def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts: Sequence[int] = (5, 10, 30),
-                      sdf_mm: Sequence[float] = (1, 2, 4),
+                      sdf_mm: Sequence[float] = (1, 2, 4), hypotheses: Sequence[int] = (16, 32, 64, 128),
+                      free_mm: Sequence[float] = (2.5, 5, 10), paper_estimator: bool = True,
                       baselines: Sequence[str] = ("birch", "dbscan", "kmeans", "gmphd")) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
-    I), then the baselines at their defaults. The default STUCCO setting appears once (knob ``default``)."""
+    I), the plausible estimator's hypotheses and free-space lattice spacing, the paper's estimator, then the
+    baselines at their defaults. The default STUCCO setting appears once."""
     out: list[Setting] = []
     seen: set[tuple] = set()
 
     def add(s: Setting) -> None:
-        key = (s.method, s.params, s.restarts, s.robot)
+        key = (s.method, s.params, s.restarts, s.robot, s.estimator, s.hypotheses, s.free_resolution)
         if key not in seen:
             seen.add(key)
             out.append(s)
@@ -120,6 +127,12 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
     for mm in sdf_mm:
         spec = "panda" if float(mm) == 1.0 else f"panda:{float(mm) / 1000:g}"
         add(Setting(f"stucco sdf={mm:g}mm", "stucco", "sdf_mm", float(mm), (), robot=spec))
+    for h in hypotheses:
+        add(Setting(f"stucco hypotheses={h}", "stucco", "hypotheses", h, (), hypotheses=int(h)))
+    for mm in free_mm:
+        add(Setting(f"stucco free={mm:g}mm", "stucco", "free_mm", float(mm), (), free_resolution=float(mm) / 1000))
+    if paper_estimator:
+        add(Setting("stucco paper estimator", "stucco", "estimator", math.nan, (), estimator="paper"))
     for b in baselines:
         add(Setting(b, b, "method", math.nan))
     return out
@@ -128,7 +141,7 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
 def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> dict[str, Any]:
     """Track, segment, retrieve (with the grasp) and score one (scene, seed) with one setting."""
     from pipeline.grasp import GraspParams
-    from pipeline.retrieve import RetrievalParams, retrieve
+    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieve
     from pipeline.score import score
     from pipeline.segment import segment_table
     from pipeline.track.soft import SoftTrackingParams
@@ -143,7 +156,9 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> 
     t2 = time.perf_counter()
     retrieval, _ = retrieve(segments, runs.parent, method=s.method, root_seed=root_seed,
                             params=RetrievalParams(n_restarts=s.restarts, robot=s.robot), grasp=True,
-                            grasp_params=GraspParams(), jobs=1)
+                            grasp_params=GraspParams(), jobs=1, estimator=s.estimator,
+                            plausible_params=PlausibleParams(n_hypotheses=s.hypotheses,
+                                                             free_resolution=s.free_resolution))
     table = score(segments, retrieval, runs.parent, diagnostics=diagnostics).to_pylist()[0]
     track_s, segment_s = t1 - t0, t2 - t1
     return dict(setting=s.name, method=s.method, knob=s.knob, value=s.value, scene=table["scene"],
@@ -249,7 +264,7 @@ def summarise_settings(table: pa.Table) -> list[dict[str, Any]]:
 
 
 def summary_markdown(rows: list[dict[str, Any]]) -> str:
-    head = "| setting | runs | time/run s | track s | ICP s | CE cm | FMI | GS | front (CE/FMI/GS) |\n"
+    head = "| setting | runs | time/run s | track s | pose s | CE cm | FMI | GS | front (CE/FMI/GS) |\n"
     head += "|---|---|---|---|---|---|---|---|---|\n"
     body = ""
     for r in rows:
@@ -286,7 +301,7 @@ def pareto_figure(rows: list[dict[str, Any]], path: str | Path) -> Path:
         ax.step(t[m][o], y[m][o], where="post", color="grey", lw=1, zorder=2)
         ax.set_xscale("log")
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        ax.set_xlabel("median time per run (s): track + segment + ICP")
+        ax.set_xlabel("median time per run (s): track + segment + pose estimation")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_title("blue: STUCCO settings, orange: baselines; grey: Pareto front; red ring: knee", fontsize=8)

@@ -58,13 +58,20 @@ def _floats(text: str) -> tuple[float, ...]:
 @click.option("--N", "n_list", default="10,30,100,300,1000", show_default=True, help="STUCCO particle counts.")
 @click.option("--restarts", "restart_list", default="5,10,30", show_default=True, help="ICP restarts (N = 100).")
 @click.option("--sdf-mm", "sdf_list", default="1,2,4", show_default=True, help="Gripper SDF cell sizes, mm.")
+@click.option("--hypotheses", "hyp_list", default="16,32,64,128", show_default=True,
+              help="Pose hypotheses of the plausible estimator ('' for none).")
+@click.option("--free-mm", "free_list", default="2.5,5,10", show_default=True,
+              help="Free-space lattice spacings of the plausible estimator, mm ('' for none).")
+@click.option("--paper-estimator/--no-paper-estimator", default=True, show_default=True,
+              help="Also run the paper's pose estimator at the defaults.")
 @click.option("--baselines", default="birch,dbscan,kmeans,gmphd", show_default=True,
               help="Baselines at their defaults ('' for none).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes over (scene, seed).")
 @pass_settings
-def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, baselines, out_dir, jobs) -> None:
+def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
+                   baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     import pyarrow as pa
@@ -84,7 +91,10 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, base
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--seeds") from None
     sweep = accuracy_settings(_ints(n_list), _ints(restart_list), _floats(sdf_list),
-                              tuple(b for b in baselines.split(",") if b.strip()))
+                              hypotheses=_ints(hyp_list) if hyp_list.strip() else (),
+                              free_mm=_floats(free_list) if free_list.strip() else (),
+                              paper_estimator=paper_estimator,
+                              baselines=tuple(b for b in baselines.split(",") if b.strip()))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
                                jobs=jobs or settings.jobs, progress=settings.progress)
@@ -96,3 +106,56 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, base
     if k:
         click.echo(f"knee (cheapest N within 10% of the best median CE of the N sweep): {k[0]}")
     click.echo(f"-> {out_dir / 'accuracy.csv'}, {out_dir / 'summary.csv'}, {png}", err=True)
+
+
+@bench.command("retrieval")
+@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
+              help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
+@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="0-19", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--estimators", default="plausible,paper", show_default=True,
+              help="Pose estimators of the estimator rungs (plausible, paper).")
+@click.option("--method", default="stucco", show_default=True, help="Tracking method of the tracker rung.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/retrieval"), show_default=True,
+              help="ladder.csv, ladder_summary.csv, ladder.png.")
+@pass_settings
+def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_dir) -> None:
+    """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
+    the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
+    from tqdm import tqdm
+
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import METHODS, parse_scenes, partition
+    from pipeline.retrieve.estimators import ESTIMATORS
+    from pipeline.retrieve.ladder import ladder_rows, summarise, summary_markdown, write_outputs
+    from stucco_cli.main import user_errors
+
+    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
+        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
+                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
+    try:
+        scene_list = parse_scenes(scenes)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--scenes") from None
+    try:
+        seed_list = parse_seeds(seeds)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    est = tuple(e.strip() for e in estimators.split(",") if e.strip())
+    if not est or any(e not in ESTIMATORS for e in est):
+        raise click.BadParameter(f"expected some of {', '.join(ESTIMATORS)}, got {estimators!r}",
+                                 param_hint="--estimators")
+    if method not in METHODS:
+        raise click.BadParameter(f"expected one of {', '.join(METHODS)}, got {method!r}", param_hint="--method")
+    pairs = [(sc, s) for sc in scene_list for s in seed_list]
+    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
+    if missing:
+        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
+                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    bar = lambda it, total: tqdm(it, total=total, desc="ladder", unit="run", disable=settings.progress)  # noqa: E731
+    with user_errors("bench retrieval"):
+        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs, progress=bar)
+        paths = write_outputs(rows, out_dir)
+    click.echo(summary_markdown(summarise(rows)), nl=False)
+    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)

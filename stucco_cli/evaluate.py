@@ -26,6 +26,9 @@ from stucco_cli.main import Settings, cli, pass_settings, user_errors
               help="Cut every simulated run after N actions (small test grids).")
 @click.option("--restarts", type=click.IntRange(min=2), default=30, show_default=True,
               help="ICP restarts per segment.")
+@click.option("--estimators", default="plausible,paper", show_default=True,
+              help="Pose estimators to run on every job (comma-separated: plausible, paper); the report shows "
+                   "their grasp success side by side, the first one's figures.")
 @click.option("--figures/--no-figures", default=True, show_default=True,
               help="Draw a figure per run and the summary figure.")
 @click.option("--snapshot", "snapshot_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -40,7 +43,7 @@ from stucco_cli.main import Settings, cli, pass_settings, user_errors
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
-             figures: bool, snapshot_dir: Path | None, suite: str, backend: str, scheduler: str | None) -> None:
+             estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str, scheduler: str | None) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     from pipeline.collect import parse_seeds
@@ -77,13 +80,21 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         method_list = parse_methods(methods)
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--methods") from None
+    from pipeline.retrieve.estimators import ESTIMATORS
+
+    estimator_list = tuple(e.strip() for e in estimators.split(",") if e.strip())
+    bad = [e for e in estimator_list if e not in ESTIMATORS]
+    if bad or not estimator_list:
+        raise click.BadParameter(f"unknown estimator {bad[0] if bad else ''!r}; expected some of "
+                                 f"{', '.join(ESTIMATORS)}", param_hint="--estimators")
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
     jobs = jobs or settings.jobs
     with user_errors("evaluate"):
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
-                         source=None if from_runs is None else str(from_runs))
+                         source=None if from_runs is None else str(from_runs),
+                         estimators=estimator_list)
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 

@@ -28,18 +28,24 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--candidates", "cand_path", type=click.Path(path_type=Path), default=None,
               help="Candidates table (one row per run, segment, restart) [default: OUT with suffix "
                    ".candidates.parquet].")
+@click.option("--estimator", type=click.Choice(["plausible", "paper"]), default="plausible", show_default=True,
+              help="plausible: the paper's segment choice, then the best pose of a plausible set fitted to the "
+                   "target's shape, the contacts and the gripper's free space; paper: the paper's ICP procedure.")
 @click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
+@click.option("--hypotheses", type=click.IntRange(min=1), default=None,
+              help="Pose hypotheses of the plausible estimator [64].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
 @click.option("--grasp/--no-grasp", default=True, show_default=True,
               help="Simulate the grasp at each estimate (pybullet).")
 @click.option("--print", "print_table", is_flag=True, help="Print one line per run to stdout.")
 @pass_settings
 def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: Path, cand_path: Path | None,
-             restarts: int | None, method: str | None, grasp: bool, print_table: bool) -> None:
-    """Estimate the target pose of every run from its segments (ICP, 30 restarts) and grasp it in simulation."""
+             estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
+             print_table: bool) -> None:
+    """Estimate the target pose of every run from its segments and grasp it in simulation."""
     from pipeline import schema
     from pipeline.grasp import GraspParams
-    from pipeline.retrieve import RetrievalParams
+    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieval_metadata
     from pipeline.retrieve import retrieve as run_retrieve
 
     with user_errors():
@@ -48,14 +54,16 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     method = method or str((meta.get("params") or {}).get("method", "stucco"))
     with user_errors("retrieve"):
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
+        plausible = PlausibleParams(**({} if hypotheses is None else {"n_hypotheses": hypotheses}))
         gparams = GraspParams()
         table, candidates = run_retrieve(segments, run_dir, method=method, root_seed=settings.seed, params=params,
                                          grasp=grasp, grasp_params=gparams, jobs=settings.jobs,
                                          progress=_progress(settings, "retrieve"),
-                                         segments_path=str(segments_path))
+                                         segments_path=str(segments_path), estimator=estimator,
+                                         plausible_params=plausible)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
-    meta_out = dict(params.to_dict(), method=method, grasp=grasp,
-                    grasp_params=gparams.__dict__ if grasp else None)
+    meta_out = retrieval_metadata(estimator, params, plausible, method=method, grasp=grasp,
+                                  grasp_params=gparams if grasp else None)
     inputs = {"segments": str(segments_path)}
     schema.write_table(table, out_path, stage="retrieve", params=meta_out, seed=settings.seed, inputs=inputs,
                        kind="retrieval")
@@ -73,7 +81,8 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         icp = sum(table.column("icp_s").to_pylist())
         gs = [v for v in table.column("grasp_s").to_pylist() if v is not None]
         ok = [v for v in table.column("grasp_success").to_pylist() if v is not None]
-        click.echo(f"retrieved {table.num_rows} run(s) -> {out_path} (candidates -> {cand_path}); ICP {icp:.2f} s"
+        click.echo(f"retrieved {table.num_rows} run(s) with the {estimator} estimator -> {out_path} "
+                   f"(candidates -> {cand_path}); estimation {icp:.2f} s"
                    + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""), err=True)
 
 

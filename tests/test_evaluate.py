@@ -57,14 +57,15 @@ def test_every_stage_file_report_and_figure_are_written(evaluated):
         evaluated / "tracks" / "scene=IB" / "seed=0" / "method=stucco" / "part.parquet"
     md = (evaluated / "report.md").read_text()
     assert "| IB | ours (STUCCO) | 1 |" in md and "| IB | GM-PHD | 1 |" in md
-    assert (evaluated / "report.csv").read_text().startswith("scene,method,runs,grasp_success_pct")
+    assert (evaluated / "report.csv").read_text().startswith("scene,method,estimator,runs,grasp_success_pct")
     assert figure_path(evaluated, "IB", 0).is_file() and (evaluated / "summary.png").is_file()
     assert json.loads((evaluated / "evaluation.json").read_text())["max_actions"] == 12
 
 
 def test_scores_carry_stage_wall_times_and_their_sum(evaluated):
     scores = read_kind(evaluated, "scores")
-    assert scores.num_rows == 2 and sorted(scores.column("method").to_pylist()) == ["gmphd", "stucco"]
+    assert scores.num_rows == 4 and sorted(scores.column("method").to_pylist()) == ["gmphd", "gmphd", "stucco", "stucco"]
+    assert sorted(scores.column("estimator").to_pylist()) == ["paper", "paper", "plausible", "plausible"]
     for row in scores.to_pylist():
         walls = [row[c] for c in STAGE_COLUMNS]
         assert all(w is not None and w >= 0 for w in walls)
@@ -87,7 +88,7 @@ def test_rerun_skips_finished_jobs(copy):
     ev = _run(copy)
     assert [r.ran for r in ev.results] == [(), ()] and ev.skipped == 2 and ev.prepared == []
     assert _mtimes(copy) == before
-    assert ev.scores.num_rows == 2
+    assert ev.scores.num_rows == 4  # two jobs, two pose estimators each
 
 
 def test_interrupted_job_resumes_from_the_missing_stage(copy):
@@ -137,6 +138,8 @@ def test_cli_prints_the_table_of_a_finished_grid(copy):
                                     r"stucco, birch, dbscan, kmeans, gmphd or 'all'"),
     (["--methods", ","], r"Invalid value for --methods: no method given"),
     (["--seeds", "3-1"], r"Invalid value for --seeds: seed range '3-1': end before start"),
+    (["--estimators", "plausible,icp"], r"Invalid value for --estimators: unknown estimator 'icp'; expected some of "
+                                        r"plausible, paper"),
 ])
 def test_bad_options_fail_with_one_line(tmp_path, args, match):
     from stucco_cli.main import cli

@@ -52,7 +52,7 @@ def fb_run():
 
 
 def _rngs(k=0):
-    return retrieval_rng(k, "test/0")
+    return retrieval_rng(k, "test/0")[:2]
 
 
 # ------------------------------------------------------------------------------------------------ geometry
@@ -291,7 +291,7 @@ def test_retrieve_on_ground_truth_contacts_of_stored_run(fb_run, panda):
     assert len(pts) >= 15
     assert np.max(np.abs(fb_run.target.signed_distance(pts, fb_run.true_pose))) < 0.004
     for seed in range(3):
-        est = estimate_run([(0, pts)], fb_run.target, fb_run.ee, panda, PARAMS, *retrieval_rng(seed, fb_run.run))
+        est = estimate_run([(0, pts)], fb_run.target, fb_run.ee, panda, PARAMS, *retrieval_rng(seed, fb_run.run)[:2])
         pos, yaw = pose_error(fb_run.target, est.pose, fb_run.true_pose)
         assert pos < 0.01 and yaw < 0.1, (seed, est.pose, fb_run.true_pose)
         assert est.segment == 0 and est.n_points == len(pts)
@@ -306,7 +306,7 @@ def test_retrieve_on_surface_samples_picks_the_box_over_the_can(fb_run, panda):
     can_prim = primitive_of(can_spec)
     can_pts = _posed(fb_run.final_poses[1], model_points(can_prim, PARAMS, rng)[10:30])
     est = estimate_run([(0, can_pts), (1, box_pts)], fb_run.target, fb_run.ee, panda, PARAMS,
-                       *retrieval_rng(0, fb_run.run))
+                       *retrieval_rng(0, fb_run.run)[:2])
     assert est.segment == 1
     pos, yaw = pose_error(fb_run.target, est.pose, fb_run.true_pose)
     assert pos < 0.01 and yaw < 0.1
@@ -319,7 +319,7 @@ def test_retrieve_on_surface_samples_picks_the_box_over_the_can(fb_run, panda):
 
 
 def _est(segs, target, panda, ee=np.array([[0.0, 0.1]]), seed=0):
-    return estimate_run(segs, target, ee, panda, PARAMS, *retrieval_rng(seed, "hard/0"))
+    return estimate_run(segs, target, ee, panda, PARAMS, *retrieval_rng(seed, "hard/0")[:2])
 
 
 def _finite(est):
@@ -374,7 +374,7 @@ def test_symmetric_can_position_found_yaw_reported_as_zero(can, panda):
 
 
 def test_segment_far_from_target_is_not_chosen(box, panda):
-    rm, _ = retrieval_rng(9, "hard/0")
+    rm = retrieval_rng(9, "hard/0")[0]
     truth = np.array([0.28, 0.04, 0.2])
     near = _posed(truth, model_points(box, PARAMS, rm)[::3])
     far = np.column_stack([np.linspace(1.0, 1.0, 20), np.linspace(-0.6, 0.6, 20)])  # points on a far wall
@@ -437,12 +437,13 @@ def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
     tmp, seg, runs = stage_inputs
     out = tmp / "retrieval.parquet"
     r = _invoke(["-q", "--seed", "0", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out),
-                 "--no-grasp", "--print"])
+                 "--no-grasp", "--print", "--estimator", "paper"])
     assert r.exit_code == 0, r.output
     t = read_retrieval(out)
     assert t.column_names[:len(RETRIEVAL_COLUMNS)] == [c.name for c in RETRIEVAL_COLUMNS]
     row = t.to_pylist()[0]
     assert row["run"] == "FB/0" and row["scene"] == "FB" and row["seed"] == 0 and row["method"] == "stucco"
+    assert row["estimator"] == "paper"
     assert row["position_error_m"] < 0.01 and row["yaw_error_rad"] < 0.1
     assert row["grasp_success"] is None and row["grasp_s"] is None
     assert "FB/0" in r.output  # --print goes to stdout
@@ -451,13 +452,31 @@ def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
     assert cand.num_rows == 30 and sum(cand.column("chosen").to_pylist()) == 1
     meta = read_metadata(out)
     assert meta["stage"] == "retrieve" and meta["schema"] == "retrieval" and meta["params"]["n_restarts"] == 30
+    assert meta["params"]["estimator"] == "paper" and "plausible" not in meta["params"]
     assert meta["inputs"]["segments"]["file"] == "segments.parquet"
     # Same seed, same estimate (timings aside).
     out2 = tmp / "again.parquet"
     assert _invoke(["-q", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out2),
-                    "--no-grasp"]).exit_code == 0
+                    "--no-grasp", "--estimator", "paper"]).exit_code == 0
     a, b = read_retrieval(out).drop(["icp_s"]), read_retrieval(out2).drop(["icp_s"])
     assert a.equals(b)
+
+
+def test_cli_retrieve_plausible_estimator_is_the_default(stage_inputs):
+    tmp, seg, runs = stage_inputs
+    out = tmp / "plausible.parquet"
+    r = _invoke(["-q", "--seed", "0", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out),
+                 "--no-grasp", "--hypotheses", "16"])
+    assert r.exit_code == 0, r.output
+    row = read_retrieval(out).to_pylist()[0]
+    assert row["estimator"] == "plausible" and row["position_error_m"] < 0.02
+    meta = read_metadata(out)
+    assert meta["params"]["estimator"] == "plausible" and meta["params"]["plausible"]["n_hypotheses"] == 16
+    cand = pq.read_table(tmp / "plausible.candidates.parquet")
+    assert sum(cand.column("chosen").to_pylist()) == 1 and all(cand.column("segment_chosen").to_pylist())
+    bad = _invoke(["-q", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(tmp / "x.parquet"),
+                   "--estimator", "mean"])
+    assert bad.exit_code == 2 and "--estimator" in bad.output
 
 
 def test_cli_retrieve_empty_segmentation_run_gets_a_flagged_row(tmp_path, stage_inputs):
@@ -509,7 +528,7 @@ def test_retrieval_table_rejects_duplicate_runs():
     from pipeline.retrieve import retrieval_table
 
     row = {c.name: None for c in RETRIEVAL_COLUMNS}
-    row.update(run="FB/0", scene="FB", seed=0, method="stucco", target="cracker_box", x_m=0.0, y_m=0.0, yaw_rad=0.0,
+    row.update(run="FB/0", scene="FB", seed=0, method="stucco", estimator="paper", target="cracker_box", x_m=0.0, y_m=0.0, yaw_rad=0.0,
                segment=0, n_points=3, n_segments=1, penetration_m=0.0, low_confidence=False, notes="",
                true_x_m=0.0, true_y_m=0.0, true_yaw_rad=0.0, position_error_m=0.0, yaw_error_rad=0.0,
                grasp_outcome="", icp_s=0.01)

@@ -63,19 +63,22 @@ def test_choose_breaks_fmi_near_ties_by_ce():
 
 
 def test_accuracy_settings_have_the_default_once():
-    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), ("kmeans",))]
-    assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "kmeans"]
+    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (32, 64), (5, 10), baselines=("kmeans",))]
+    assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "stucco hypotheses=32",
+                     "stucco free=10mm", "stucco paper estimator", "kmeans"]
 
 
 def test_bench_accuracy_cli_tiny_grid(tmp_path):
     out = tmp_path / "acc"
     res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
-                                   "--restarts", "5", "--sdf-mm", "1,4", "--baselines", "dbscan", "--out", str(out)])
+                                   "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
+                                   "--free-mm", "", "--no-paper-estimator", "--baselines", "dbscan", "--out",
+                                   str(out)])
     assert res.exit_code == 0, res.output
     assert "knee" in res.output
     rows = list(csv.DictReader(open(out / "summary.csv")))
     assert [r["setting"] for r in rows] == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=4mm",
-                                            "dbscan"]
+                                            "stucco hypotheses=16", "dbscan"]
     assert (out / "pareto.png").stat().st_size > 0
 
 
@@ -138,8 +141,8 @@ def test_evaluate_dask_backend_on_local_cluster(tmp_path):
     from pipeline.evaluate import Job, gather_scores
 
     jobs = [Job("FB", 0, m) for m in ("dbscan", "stucco")]
-    dask_scores = gather_scores(tmp_path / "dask", jobs)
-    assert dask_scores.num_rows == 2
+    dask_scores = gather_scores(tmp_path / "dask", jobs, cfg.estimators)
+    assert dask_scores.num_rows == 4  # two jobs, two pose estimators each
     # the same jobs, the same seeds: tracking results do not depend on where a job ran
     assert dask_scores.column("fmi").to_pylist() == local.scores.column("fmi").to_pylist()
     assert dask_scores.column("n_points").to_pylist() == local.scores.column("n_points").to_pylist()

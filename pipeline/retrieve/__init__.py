@@ -1,0 +1,37 @@
+"""Blind object retrieval, pose estimation: segments of tracked contact points -> the target's planar pose.
+
+The paper's §V-C and our plausible-set estimator, one role per module (docs/retrieval.md):
+
+* :mod:`~pipeline.retrieve.params`: the paper's estimation parameters;
+* :mod:`~pipeline.retrieve.model`: the target's primitive, model points and normals, planar rotations, pose error;
+* :mod:`~pipeline.retrieve.icp`: planar ICP from many restarts (Open3D), never mirrored;
+* :mod:`~pipeline.retrieve.paper`: the paper's choice of segment and pose;
+* :mod:`~pipeline.retrieve.plausible`: SE(2) hypotheses fitted to the shape, the contacts and the free space;
+* :mod:`~pipeline.retrieve.estimators`: the estimators behind ``--estimator``, one call per run;
+* :mod:`~pipeline.retrieve.runs`: collected run files and the per-run random streams;
+* :mod:`~pipeline.retrieve.tables`: the ``retrieval`` and ``candidates`` tables;
+* :mod:`~pipeline.retrieve.stage`: the ``retrieve`` stage.
+"""
+from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, estimate_plausible,
+                                          plausible_notes, retrieval_metadata)
+from pipeline.retrieve.icp import IcpResult, icp_error, icp_restarts, initial_transforms, layer_height
+from pipeline.retrieve.model import (Primitive, apply_pose, model_normals, model_points, outline_point, pose_error,
+                                     primitive_of, project_to_outline, rot2, rots2, target_primitive, wrap_angle)
+from pipeline.retrieve.paper import Choice, Estimate, choose, confidence_notes, estimate_run, min_clearance
+from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
+from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
+from pipeline.retrieve.stage import final_segments_by_run, retrieve
+from pipeline.retrieve.tables import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS, candidates_table,
+                                      read_retrieval, retrieval_table, validate_candidates, validate_retrieval)
+
+__all__ = [
+    "DEFAULT_ESTIMATOR", "ESTIMATORS", "Segment", "estimate", "estimate_plausible", "plausible_notes",
+    "retrieval_metadata", "IcpResult", "icp_error", "icp_restarts", "initial_transforms", "layer_height",
+    "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
+    "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose",
+    "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
+    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "final_segments_by_run", "retrieve",
+    "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table", "read_retrieval",
+    "retrieval_table", "validate_candidates", "validate_retrieval",
+]

@@ -1,0 +1,162 @@
+"""Pose estimators of the retrieve stage: the paper's ICP procedure and the plausible-set estimator, one call.
+
+``paper`` is the procedure of the paper's §V-C as :mod:`pipeline.retrieve.paper` implements it (ICP from 30
+restarts on every segment, lowest position variance chooses the segment, least penetration then lowest ICP error
+chooses the pose). ``plausible`` keeps the paper's segment choice, which picked the target's segment in 69 of 80
+training runs (docs/retrieval.md), and replaces the pose by the best of a plausible set fitted to the known shape,
+the contact points weighted by recency and the gripper's free space (:mod:`pipeline.retrieve.plausible`).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from pipeline.retrieve.model import Primitive
+from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
+from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.plausible import (PlausibleParams, SegmentFit, fit_segment, free_space_points, gripper_lattice,
+                                         recency_sigma)
+from pipeline.retrieve.runs import RunInfo
+
+__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",
+           "plausible_notes"]
+
+#: Pose estimators, the default first.
+ESTIMATORS = ("plausible", "paper")
+DEFAULT_ESTIMATOR = ESTIMATORS[0]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One segment of a run's final segmentation.
+
+    Attributes
+    ----------
+    id : int
+    points : ndarray, shape (M, 2), metres
+        Final tracked positions.
+    steps : ndarray, shape (M,), int
+        Step (action index) at which each point was observed.
+    """
+
+    id: int
+    points: np.ndarray
+    steps: np.ndarray
+
+
+def retrieval_metadata(estimator: str, params: RetrievalParams, plausible: PlausibleParams, **extra) -> dict:
+    """What the retrieval and candidates tables record of their parameters: every field of the parameters the
+    estimator used (the paper's ICP parameters for both; the plausible ones only for ``plausible``)."""
+    meta = dict(params.to_dict(), estimator=estimator)
+    if estimator == "plausible":
+        meta["plausible"] = plausible.to_dict()
+    for k, v in extra.items():
+        meta[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
+    return meta
+
+
+def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+             params: RetrievalParams = RetrievalParams(), plausible: PlausibleParams = PlausibleParams()
+             ) -> Estimate:
+    """The target pose of one run by estimator ``name`` (:data:`ESTIMATORS`).
+
+    ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`).
+    """
+    if name not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; expected one of {', '.join(ESTIMATORS)}")
+    if name == "paper":
+        return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0],
+                            rngs[1])
+    return estimate_plausible(segments, info, sdf, params, plausible, rngs)
+
+
+def plausible_notes(points: np.ndarray, fit: SegmentFit, n_free: int, target: Primitive, params: RetrievalParams,
+                    plausible: PlausibleParams) -> list[str]:
+    """Low-confidence reasons of a plausible-set estimate.
+
+    ``few_points`` and ``collinear`` as the paper's estimator; ``poor_fit`` (more than half of the points
+    farther from the surface than ``outlier_sigmas`` of their sigma: the shape does not explain them);
+    ``penetrating`` (the pose puts the target deeper than ``free_tolerance`` plus one lattice cell into the
+    gripper's free space); ``no_free_space`` (the gripper never came near after the last contact: nothing
+    bounds the pose from outside); ``ambiguous_yaw`` (less than ``min_share`` of the plausible set agrees with
+    the estimate's yaw within ``yaw_agreement``; a box only); ``wide_set`` (the agreeing poses spread more
+    than ``max_spread``).
+    """
+    notes = [n for n in confidence_notes(points, 0.0, 0.0, params) if n in ("few_points", "collinear")]
+    c = fit.chosen
+    if fit.outlier_fraction[c] > 0.5:
+        notes.append("poor_fit")
+    if fit.penetration[c] > plausible.free_tolerance + plausible.free_resolution:
+        notes.append("penetrating")
+    if n_free == 0:
+        notes.append("no_free_space")
+    if target.symmetry != 0.0 and fit.share < plausible.min_share:
+        notes.append("ambiguous_yaw")
+    if fit.spread > plausible.max_spread:
+        notes.append("wide_set")
+    return notes
+
+
+_LATTICES: dict[tuple[str, float], np.ndarray] = {}
+
+
+def _lattice(sdf, resolution: float) -> np.ndarray:
+    # The gripper lattice depends only on the grid and the spacing: built once per process (about 5 ms).
+    key = (sdf.digest, float(resolution))
+    if key not in _LATTICES:
+        _LATTICES[key] = gripper_lattice(sdf, resolution)
+    return _LATTICES[key]
+
+
+def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
+                       plausible: PlausibleParams, rngs: Sequence[np.random.Generator]) -> Estimate:
+    """The plausible-set estimate of one run: the paper's segment choice, then the best pose of the plausible set
+    of that segment (contacts weighted by recency, the gripper's free space after its last contact, the other
+    segments' points outside the target).
+
+    Returns an :class:`Estimate` whose candidates are the chosen segment's hypotheses (``restart`` = hypothesis,
+    ``icp_rmse_m`` = RMS distance of the points to the surface, ``valid`` = in the plausible set,
+    ``position_var_m2`` = squared spread of the agreeing poses, ``rank`` by cost).
+    """
+    import open3d  # noqa: F401  (imported before the clock starts, as the paper's estimator does)
+
+    t0 = time.perf_counter()
+    paper = estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
+    if paper.segment < 0:
+        paper.icp_s = time.perf_counter() - t0
+        return paper
+    seg = next(s for s in segments if s.id == paper.segment)
+    target = info.target
+    pts = np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
+    centre = pts.mean(axis=0)
+    # The target touches its contacts, so every part of it lies within its diameter of their centroid.
+    radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
+        + float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    free = free_space_points(_lattice(sdf, plausible.free_resolution), info.ee[:-1], info.ee[1:], info.steps,
+                             int(np.max(seg.steps)), plausible, centre, radius)
+    others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
+    others = others[np.linalg.norm(others - centre, axis=1) <= radius]
+    icp = paper.candidates
+    mine = (icp["segment"] == seg.id) & icp["valid"] if plausible.icp_seeds else np.zeros(0, dtype=bool)
+    seeds = np.column_stack([icp["x_m"][mine], icp["y_m"][mine], icp["yaw_rad"][mine]]) if mine.any() else None
+    fit = fit_segment(target, pts, recency_sigma(seg.steps, plausible), free, others, plausible, rngs[2], seeds)
+    c = fit.chosen
+    B = len(fit.poses)
+    order = np.argsort(fit.terms.total, kind="stable")
+    rank = np.empty(B, dtype=np.int64)
+    rank[order] = np.arange(B)
+    candidates = {
+        "segment": np.full(B, seg.id), "restart": np.arange(B), "n_points": np.full(B, len(pts)),
+        "x_m": fit.poses[:, 0], "y_m": fit.poses[:, 1], "yaw_rad": fit.poses[:, 2], "icp_rmse_m": fit.rms,
+        "penetration_m": fit.penetration, "valid": fit.plausible, "position_var_m2": np.full(B, fit.spread ** 2),
+        "rank": rank, "segment_chosen": np.ones(B, dtype=bool), "chosen": np.arange(B) == c,
+    }
+    notes = plausible_notes(pts, fit, len(free), target, params, plausible)
+    return Estimate(pose=target.canonical(fit.poses[c]), segment=seg.id, n_points=len(pts),
+                    n_segments=len(segments), position_var=fit.spread ** 2, rmse=float(fit.rms[c]),
+                    penetration=float(fit.penetration[c]), notes=notes, candidates=candidates,
+                    icp_s=time.perf_counter() - t0)

@@ -1,0 +1,287 @@
+"""Where grasps are lost: a ladder of grasp success from the true pose down to the tracker's points (``stucco bench
+retrieval``).
+
+For every run of an evaluation directory and every pose estimator, the simulated grasp (:mod:`pipeline.grasp`,
+unchanged) is tried at poses that lose one piece of knowledge per rung:
+
+1. ``true_pose``: the target's true final pose;
+2. ``yaw±0.05`` ... ``pos+2cm_along``: the true pose perturbed in yaw or along/across the target's long axis (the
+   grasp's tolerance);
+3. ``ideal_true_segment``: the estimator on ideal contact points of the target alone (the segment is known);
+4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
+5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it.
+
+Ideal contact points are the run's recorded true contact of every action with a known body, carried with that
+body from its pose after the action to its final pose: exactly where each contact lies now. A lost grasp is
+put down to ``wrong_segment`` (the estimate is more than 10 cm off, or its segment holds mostly other bodies'
+points), ``yaw`` (more than ``YAW_TOL``), ``position`` (more than ``POSITION_TOL``) or, with a good pose,
+``grasp_rule``.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import pyarrow.parquet as pq
+from joblib import Parallel, delayed
+
+from pipeline import schema
+from pipeline.evaluate import partition, single_threaded
+from pipeline.retrieve.estimators import Segment, estimate
+from pipeline.retrieve.model import pose_error, rot2
+from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng
+from pipeline.robot import load_robot
+from pipeline.segment import final_estimates
+
+__all__ = ["PERTURBATIONS", "RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason", "run_ladder",
+           "ladder_rows", "summarise", "summary_markdown", "write_outputs"]
+
+#: (rung, yaw offset rad, offset along the long axis m, offset across m) of the perturbed true pose.
+PERTURBATIONS = (("yaw+0.05", 0.05, 0.0, 0.0), ("yaw-0.05", -0.05, 0.0, 0.0), ("yaw+0.10", 0.10, 0.0, 0.0),
+                 ("yaw-0.10", -0.10, 0.0, 0.0), ("yaw+0.15", 0.15, 0.0, 0.0), ("yaw-0.15", -0.15, 0.0, 0.0),
+                 ("pos+1cm_across", 0.0, 0.0, 0.01), ("pos+2cm_across", 0.0, 0.0, 0.02),
+                 ("pos+1cm_along", 0.0, 0.01, 0.0), ("pos+2cm_along", 0.0, 0.02, 0.0))
+ESTIMATOR_RUNGS = ("ideal_true_segment", "ideal_our_choice", "tracker_our_choice")
+RUNGS = ("true_pose",) + tuple(p[0] for p in PERTURBATIONS) + ESTIMATOR_RUNGS
+#: A pose farther than this from the truth is another object's (m).
+WRONG_SEGMENT_TOL = 0.10
+#: The grasp's tolerances measured at the true pose (docs/retrieval.md): 0.05 rad, 2 cm.
+YAW_TOL = 0.05
+POSITION_TOL = 0.02
+
+
+@dataclass(frozen=True)
+class LadderRow:
+    """One grasp of the ladder (errors of the tried pose against the truth, metres and radians)."""
+
+    scene: str
+    seed: int
+    estimator: str
+    rung: str
+    success: bool
+    reason: str
+    position_error_m: float
+    yaw_error_rad: float
+    segment_purity: float
+    outcome: str
+
+
+def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
+    """One segment per body touched: the true contact of every action with a known body, moved with that body
+    from its pose after the action to its final pose. Segment id = body index; steps = action index."""
+    t = pq.read_table(path, columns=["step", "true_contact_x_m", "true_contact_y_m", "object_id", "obj_pose"])
+    steps = t.column("step").to_numpy()
+    body = t.column("object_id").to_numpy()
+    cx = np.array([np.nan if v is None else v for v in t.column("true_contact_x_m").to_pylist()], dtype=np.float64)
+    cy = np.array([np.nan if v is None else v for v in t.column("true_contact_y_m").to_pylist()], dtype=np.float64)
+    poses = np.asarray(t.column("obj_pose").to_pylist(), dtype=np.float64).reshape(len(steps), -1, 3)
+    keep = (body >= 0) & np.isfinite(cx) & np.isfinite(cy)
+    out = []
+    for b in np.unique(body[keep]):
+        m = keep & (body == b)
+        at, final = poses[m, b], info.final_poses[b]
+        local = np.einsum("kji,kj->ki", np.stack([rot2(y) for y in at[:, 2]]),
+                          np.column_stack([cx[m], cy[m]]) - at[:, :2])
+        out.append(Segment(int(b), local @ rot2(float(final[2])).T + final[:2], steps[m].astype(np.int64)))
+    return out
+
+
+def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndarray]]:
+    """The tracker's final segments of one run (a segments table) and each segment's ground-truth object ids."""
+    final = final_estimates(schema.read_segments(path))
+    seg = final.column("segment").to_numpy()
+    xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])
+    step = final.column("step").to_numpy()
+    oid = final.column("object_id").to_numpy() if "object_id" in final.column_names else np.full(len(seg), -1)
+    segs = [Segment(int(s), xy[seg == s], step[seg == s]) for s in np.unique(seg) if s >= 0]
+    return segs, {int(s): oid[seg == s] for s in np.unique(seg) if s >= 0}
+
+
+def perturbed(target, pose: np.ndarray, dyaw: float, along: float, across: float) -> np.ndarray:
+    """The COM pose (3,) turned by ``dyaw`` about the primitive's centre and shifted along / across the primitive's
+    long axis (its x axis when hx >= hy)."""
+    centre = target.centre_world(pose)
+    axis_yaw = float(pose[2]) + target.yaw
+    if target.kind == "box" and target.half[1] > target.half[0]:
+        axis_yaw += math.pi / 2
+    shift = rot2(axis_yaw) @ np.array([along, across])
+    new_yaw = float(pose[2]) + dyaw
+    xy = centre + shift - rot2(new_yaw) @ target.centre
+    return np.array([xy[0], xy[1], new_yaw])
+
+
+def loss_reason(success: bool, position_error: float, yaw_error: float, purity: float = 1.0) -> str:
+    """Why a grasp was lost ('' when it succeeded), in the order the causes act."""
+    if success:
+        return ""
+    if position_error > WRONG_SEGMENT_TOL or purity < 0.5:
+        return "wrong_segment"
+    if yaw_error > YAW_TOL:
+        return "yaw"
+    if position_error > POSITION_TOL:
+        return "position"
+    return "grasp_rule"
+
+
+def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[str], root_seed: int
+               ) -> list[LadderRow]:
+    """Every rung of one run (the estimator rungs once per estimator)."""
+    from pipeline.grasp import GraspParams, grasp_at  # pybullet: about a second of start-up
+
+    info = load_run(run_path)
+    target, truth = info.target, info.true_pose
+    sdf = load_robot("panda")
+    rows: list[LadderRow] = []
+
+    def grasp(estimator: str, rung: str, pose: np.ndarray, purity: float = 1.0) -> None:
+        g = grasp_at(info.scene, info.final_poses, info.final_ee, target.canonical(pose), GraspParams())
+        pos, yaw = pose_error(target, pose, truth)
+        rows.append(LadderRow(info.scene.name, info.seed, estimator, rung, bool(g.success),
+                              loss_reason(bool(g.success), pos, yaw, purity), pos, yaw, purity, g.outcome))
+
+    grasp("", "true_pose", truth)
+    for name, dyaw, along, across in PERTURBATIONS:
+        grasp("", name, perturbed(target, truth, dyaw, along, across))
+    ideal = ideal_segments(run_path, info)
+    tracked, labels = tracker_segments(segments_path) if segments_path is not None else ([], {})
+    for est in estimators:
+        for rung, segs, purity_of in (
+                ("ideal_true_segment", [s for s in ideal if s.id == info.target_id], lambda s: 1.0),
+                ("ideal_our_choice", ideal, lambda s: float(s == info.target_id)),
+                ("tracker_our_choice", tracked,
+                 lambda s: float(np.mean(labels[s] == info.target_id)) if s in labels else 0.0)):
+            if rung == "tracker_our_choice" and segments_path is None:
+                continue
+            e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run))
+            grasp(est, rung, e.pose, purity_of(e.segment) if e.segment >= 0 else 0.0)
+    return rows
+
+
+def _run_pair(out: Path, scene: str, seed: int, estimators: Sequence[str], method: str, root_seed: int
+              ) -> list[LadderRow]:
+    runs = partition(out, "runs", scene, seed)
+    if not runs.is_file():
+        raise FileNotFoundError(f"{runs}: no collected run for {scene} seed {seed}; run `stucco evaluate` first")
+    seg = partition(out, "segments", scene, seed, method)
+    with single_threaded():
+        return run_ladder(runs, seg if seg.is_file() else None, estimators, root_seed)
+
+
+def ladder_rows(runs_from: Path, pairs: Sequence[tuple[str, int]], estimators: Sequence[str], method: str,
+                root_seed: int, jobs: int = 1, progress: Callable | None = None) -> list[LadderRow]:
+    """The ladder of every (scene, seed) of an evaluation directory (``stucco evaluate`` layout), in grid order.
+
+    ``progress`` wraps the iterable of finished runs (``progress(iterable, total=)``).
+    """
+    args = [(Path(runs_from), sc, int(s), tuple(estimators), method, root_seed) for sc, s in pairs]
+    if jobs > 1 and len(args) > 1:
+        results = Parallel(n_jobs=min(jobs, len(args)), return_as="generator")(delayed(_run_pair)(*a) for a in args)
+    else:
+        results = (_run_pair(*a) for a in args)
+    if progress is not None:
+        results = progress(results, total=len(args))
+    return [r for chunk in results for r in chunk]
+
+
+def summarise(rows: Sequence[LadderRow]) -> list[dict]:
+    """Per (scene, estimator, rung): runs, successes and the lost grasps by reason. The true-pose rungs, which no
+    estimator touches, are listed under every estimator."""
+    estimators = [e for e in dict.fromkeys(r.estimator for r in rows) if e] or [""]
+    out = []
+    for scene in dict.fromkeys(r.scene for r in rows):
+        for est in estimators:
+            for rung in RUNGS:
+                sel = [r for r in rows if r.scene == scene and r.rung == rung and r.estimator in (est, "")]
+                if not sel:
+                    continue
+                lost = {k: sum(r.reason == k for r in sel) for k in ("wrong_segment", "yaw", "position",
+                                                                     "grasp_rule")}
+                out.append(dict(scene=scene, estimator=est, rung=rung, runs=len(sel),
+                                success=sum(r.success for r in sel), **{f"lost_{k}": v for k, v in lost.items()}))
+    return out
+
+
+#: Columns of the compact ladder table: (title, rungs pooled into it).
+_COLUMNS = (("true pose", ("true_pose",)), ("yaw ±0.05", ("yaw+0.05", "yaw-0.05")),
+            ("yaw ±0.10", ("yaw+0.10", "yaw-0.10")), ("yaw ±0.15", ("yaw+0.15", "yaw-0.15")),
+            ("1 cm", ("pos+1cm_across", "pos+1cm_along")), ("2 cm", ("pos+2cm_across", "pos+2cm_along")),
+            ("ideal, true segment", ("ideal_true_segment",)), ("ideal, our choice", ("ideal_our_choice",)),
+            ("tracker, our choice", ("tracker_our_choice",)))
+
+
+def summary_markdown(summary: Sequence[dict]) -> str:
+    """One line per (task, estimator): grasps kept per rung (perturbations pooled over their two directions) and
+    why the tracker rung lost the others (wrong segment / yaw / position / grasp rule)."""
+    head = "| task | estimator | " + " | ".join(t for t, _ in _COLUMNS) + " | tracker lost: segment / yaw / " \
+        "position / rule |\n|" + "---|" * (len(_COLUMNS) + 3) + "\n"
+    body = ""
+    for scene, est in dict.fromkeys((r["scene"], r["estimator"]) for r in summary):
+        by = {r["rung"]: r for r in summary if (r["scene"], r["estimator"]) == (scene, est)}
+        cells = []
+        for _, rungs in _COLUMNS:
+            got = [by[g] for g in rungs if g in by]
+            cells.append(f"{sum(r['success'] for r in got)}/{sum(r['runs'] for r in got)}" if got else "-")
+        t = by.get("tracker_our_choice")
+        lost = "-" if t is None else " / ".join(str(t[f"lost_{k}"]) for k in ("wrong_segment", "yaw", "position",
+                                                                             "grasp_rule"))
+        body += f"| {scene} | {est} | " + " | ".join(cells) + f" | {lost} |\n"
+    return head + body
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _csv(rows: Sequence[dict]) -> str:
+    buf = io.StringIO()
+    if rows:
+        w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    return buf.getvalue()
+
+
+def write_outputs(rows: Sequence[LadderRow], out: str | Path) -> tuple[Path, Path, Path]:
+    """``ladder.csv`` (one row per grasp), ``ladder_summary.csv`` and ``ladder.png`` (per task, GS % per rung and
+    estimator) into ``out``, each written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarise(rows)
+    paths = (out / "ladder.csv", out / "ladder_summary.csv", out / "ladder.png")
+    _atomic_text(paths[0], _csv([asdict(r) for r in rows]))
+    _atomic_text(paths[1], _csv(summary))
+    scenes = list(dict.fromkeys(r["scene"] for r in summary))
+    estimators = list(dict.fromkeys(r["estimator"] for r in summary))
+    fig, axes = plt.subplots(len(scenes), 1, figsize=(12, 2.6 * len(scenes)), squeeze=False)
+    width = 0.8 / max(1, len(estimators))
+    for ax, scene in zip(axes[:, 0], scenes):
+        for k, est in enumerate(estimators):
+            sel = {r["rung"]: r for r in summary if r["scene"] == scene and r["estimator"] == est}
+            x = np.arange(len(RUNGS)) + (k - (len(estimators) - 1) / 2) * width
+            gs = [100.0 * sel[g]["success"] / sel[g]["runs"] if g in sel else np.nan for g in RUNGS]
+            ax.bar(x, np.nan_to_num(gs), width, label=f"{est} estimator" if est else "true pose")
+        ax.set_xticks(np.arange(len(RUNGS)), RUNGS, rotation=30, ha="right", fontsize=7)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel(f"{scene}: GS %")
+        ax.axhline(85, color="0.5", lw=0.6, ls="--")
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    axes[0, 0].set_title("Where grasps are lost: grasp success per rung (dashed: 85 %)", fontsize=9)
+    fig.tight_layout()
+    tmp = paths[2].with_name(f".{paths[2].name}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    os.replace(tmp, paths[2])
+    return paths

@@ -1,0 +1,271 @@
+"""The paper's pose estimator (§V-C): ICP restarts on every segment, the lowest position variance picks the
+segment, the least penetration of the gripper's visited poses then the lowest ICP error picks the pose."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from pipeline.retrieve.icp import icp_restarts, initial_transforms
+from pipeline.retrieve.model import Primitive, apply_pose, model_normals, model_points
+from pipeline.retrieve.params import RetrievalParams
+
+__all__ = ["min_clearance", "Choice", "choose", "confidence_notes", "Estimate", "estimate_run"]
+
+
+def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> np.ndarray:
+    """Smallest pxpen of the posed model points against every visited gripper position.
+
+    Parameters
+    ----------
+    sdf : pipeline.robot.GridSDF
+        The gripper grid; pxpen(x, p) = sdf.query(p - x).
+    model : ndarray, shape (N, 2)
+        Model points, COM frame.
+    poses : ndarray, shape (B, 3)
+        Candidate object poses.
+    ee : ndarray, shape (K, 2)
+        Gripper positions visited in the run.
+
+    Returns
+    -------
+    ndarray, shape (B,), metres
+        min over (k, n) of sdf(pose(model_n) - ee_k); negative = the pose penetrates the gripper somewhere it
+        has been; ``sdf.outside_value`` when no model point comes near any gripper position.
+    """
+    world = apply_pose(np.asarray(poses, dtype=np.float64), np.asarray(model, dtype=np.float64))  # (B, N, 2)
+    ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
+    if len(ee) == 0 or world.shape[0] == 0:
+        return np.full(world.shape[0], float(sdf.outside_value))
+    vals = sdf.query(world[:, :, None, :] - ee[None, None, :, :])  # (B, N, K)
+    return vals.reshape(len(world), -1).min(axis=1)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """Which segment and which restart the selection rule picked.
+
+    Attributes
+    ----------
+    segment_index : int
+        Index into the list of segments given to :func:`choose` (-1 if none).
+    restart : int
+        Restart of that segment (-1 if none).
+    position_var : ndarray, shape (S,), m^2
+        Per segment: unbiased variance of the restarts' estimated positions (x plus y), over the valid
+        restarts that agree (see :func:`choose`); inf when fewer than 2 are valid.
+    rank : list of ndarray
+        Per segment, each restart's rank under (excess penetration, ICP RMSE) (0 = best; invalid last).
+    """
+
+    segment_index: int
+    restart: int
+    position_var: np.ndarray
+    rank: list[np.ndarray]
+
+
+def choose(centres: Sequence[np.ndarray], penetration: Sequence[np.ndarray], rmse: Sequence[np.ndarray],
+           valid: Sequence[np.ndarray], tolerance: float, fit_gate: float | None = None,
+           agreement: float | None = None) -> Choice:
+    """The paper's selection rule over S segments of B restarts each.
+
+    1. The segment with the lowest variance of the estimated positions (``centres``) wins; ties go to the
+       segment listed first. The variance is over the valid restarts, or with ``agreement`` over those whose
+       ICP error is within ``agreement`` of the segment's best (all valid ones if fewer than two are). With
+       ``fit_gate``, only segments whose best valid restart has an ICP error <= fit_gate compete, unless none
+       has.
+    2. Within it, the restart that penetrates the visited gripper poses least: excess penetration
+       max(0, penetration - tolerance), then on ties the lowest ICP error, then the lowest restart index.
+
+    Parameters
+    ----------
+    centres : sequence of ndarray, shape (B, 2)
+        Estimated positions (of the primitive centre, so a symmetric shape's arbitrary yaw adds no variance).
+    penetration : sequence of ndarray, shape (B,), metres
+        max(0, -min_clearance).
+    rmse : sequence of ndarray, shape (B,)
+        ICP error of each restart.
+    valid : sequence of ndarray, shape (B,), bool
+    tolerance : float, metres
+    fit_gate : float or None, metres
+    agreement : float or None, metres
+    """
+    var = np.full(len(centres), np.inf)
+    best_err = np.full(len(centres), np.inf)
+    ranks = []
+    for s, (c, pen, err, ok) in enumerate(zip(centres, penetration, rmse, valid)):
+        ok = np.asarray(ok, dtype=bool)
+        if ok.any():
+            best_err[s] = float(np.min(np.asarray(err)[ok]))
+        use = ok
+        if agreement is not None and ok.any():
+            near = ok & (np.asarray(err) <= best_err[s] + agreement)
+            use = near if near.sum() >= 2 else ok
+        if use.sum() >= 2:
+            var[s] = float(np.var(np.asarray(c)[use], axis=0, ddof=1).sum())
+        excess = np.maximum(np.asarray(pen) - tolerance, 0.0)
+        key0 = np.where(ok, excess, np.inf)
+        order = np.lexsort((np.arange(len(ok)), np.where(ok, err, np.inf), key0))
+        rank = np.empty(len(ok), dtype=np.int64)
+        rank[order] = np.arange(len(ok))
+        ranks.append(rank)
+    if not len(centres):
+        return Choice(-1, -1, var, ranks)
+    eligible = np.isfinite(best_err)
+    if fit_gate is not None and np.any(best_err <= fit_gate):
+        eligible &= best_err <= fit_gate
+    pool = np.where(eligible, var, np.inf)
+    if np.isfinite(pool).any():
+        s_best = int(np.flatnonzero(pool == pool[np.isfinite(pool)].min())[0])
+    elif eligible.any():
+        # No eligible segment has two valid restarts: the first with any valid one.
+        s_best = int(np.flatnonzero(eligible)[0])
+    else:
+        s_best = 0
+    return Choice(s_best, int(np.argmin(ranks[s_best])), var, ranks)
+
+
+def confidence_notes(points: np.ndarray | None, rmse: float, penetration: float, params: RetrievalParams) -> list[str]:
+    """Why an estimate should not be trusted (empty list: confident).
+
+    ``no_points`` (empty segmentation), ``few_points`` (fewer than ``min_points``), ``collinear`` (smallest
+    principal standard deviation below ``collinear_tolerance``: the pose can slide along the line),
+    ``poor_fit`` (ICP RMSE above ``max_rmse``: the points are not on the target's shape, e.g. a segment of
+    another object), ``penetrating`` (the chosen pose penetrates a visited gripper pose deeper than
+    ``penetration_tolerance``).
+    """
+    if points is None or len(points) == 0:
+        return ["no_points"]
+    notes: list[str] = []
+    if len(points) < params.min_points:
+        notes.append("few_points")
+    if len(points) >= 2:
+        sv = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+        if sv[-1] / math.sqrt(len(points)) < params.collinear_tolerance:
+            notes.append("collinear")
+    if not (rmse <= params.max_rmse):
+        notes.append("poor_fit")
+    if penetration > params.penetration_tolerance:
+        notes.append("penetrating")
+    return notes
+
+
+@dataclass
+class Estimate:
+    """Pose estimate of one run and the candidates behind it.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (3,)
+        Target COM pose (x, y, yaw), canonical under the target's symmetry; finite even without points (then
+        the last gripper position, yaw 0, flagged ``no_points``).
+    segment : int
+        Chosen segment id (-1 if none).
+    n_points, n_segments : int
+    position_var : float, m^2
+        Variance of the chosen segment's restart positions (inf if undefined).
+    rmse, penetration : float, metres
+    notes : list of str
+        Low-confidence reasons (:func:`confidence_notes`).
+    candidates : dict of ndarray
+        Columns of the candidates table for this run.
+    icp_s : float
+        Wall time of model sampling, ICP, scoring and choice.
+    """
+
+    pose: np.ndarray
+    segment: int
+    n_points: int
+    n_segments: int
+    position_var: float
+    rmse: float
+    penetration: float
+    notes: list[str]
+    candidates: dict[str, np.ndarray]
+    icp_s: float
+
+    @property
+    def low_confidence(self) -> bool:
+        return bool(self.notes)
+
+
+def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, ee: np.ndarray, sdf,
+                 params: RetrievalParams, rng_model: np.random.Generator, rng_restarts: np.random.Generator
+                 ) -> Estimate:
+    """Estimate the target pose from the segments of one run.
+
+    Parameters
+    ----------
+    segments : sequence of (segment id, ndarray (M_s, 2))
+        Final tracked points of each segment, world metres.
+    target : Primitive
+    ee : ndarray, shape (K, 2)
+        Gripper positions visited in the run.
+    sdf : GridSDF
+        Gripper grid for pxpen.
+    params : RetrievalParams
+    rng_model, rng_restarts : numpy.random.Generator
+
+    Returns
+    -------
+    Estimate
+    """
+    import open3d  # noqa: F401  (imported before the clock starts: the first import takes about a second)
+
+    t0 = time.perf_counter()
+    model = model_points(target, params, rng_model)
+    normals = model_normals(target, model)
+    ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
+    segs = [(int(s), np.asarray(p, dtype=np.float64).reshape(-1, 2)) for s, p in segments]
+    segs = [(s, p) for s, p in segs if len(p) > 0]
+    B = params.n_restarts
+    results, centres, pens, rmses, valids = [], [], [], [], []
+    for _, pts in segs:
+        inits = initial_transforms(pts, model, B, rng_restarts)
+        res = icp_restarts(pts, model, inits, params, normals)
+        clear = min_clearance(sdf, model, res.poses, ee)
+        results.append(res)
+        centres.append(target.centre_world(res.poses))
+        pens.append(np.maximum(-clear, 0.0))
+        rmses.append(res.rmse)
+        valids.append(res.valid)
+    choice = choose(centres, pens, rmses, valids, params.penetration_tolerance, params.segment_fit_gate,
+                    params.agreement_tolerance)
+    cand: dict[str, list] = {k: [] for k in ("segment", "restart", "n_points", "x_m", "y_m", "yaw_rad",
+                                             "icp_rmse_m", "penetration_m", "valid", "position_var_m2", "rank",
+                                             "segment_chosen", "chosen")}
+    for i, ((sid, pts), res) in enumerate(zip(segs, results)):
+        cand["segment"].append(np.full(B, sid))
+        cand["restart"].append(np.arange(B))
+        cand["n_points"].append(np.full(B, len(pts)))
+        cand["x_m"].append(res.poses[:, 0])
+        cand["y_m"].append(res.poses[:, 1])
+        cand["yaw_rad"].append(res.poses[:, 2])
+        cand["icp_rmse_m"].append(res.rmse)
+        cand["penetration_m"].append(pens[i])
+        cand["valid"].append(res.valid)
+        v = choice.position_var[i]
+        cand["position_var_m2"].append(np.full(B, v if math.isfinite(v) else np.nan))
+        cand["rank"].append(choice.rank[i])
+        cand["segment_chosen"].append(np.full(B, i == choice.segment_index))
+        cand["chosen"].append((np.arange(B) == choice.restart) & (i == choice.segment_index))
+    candidates = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in cand.items()}
+    if choice.segment_index < 0:
+        pose = np.array([ee[-1, 0], ee[-1, 1], 0.0]) if len(ee) else np.zeros(3)
+        return Estimate(pose=pose, segment=-1, n_points=0, n_segments=0, position_var=math.inf, rmse=math.nan,
+                        penetration=0.0, notes=["no_points"], candidates=candidates,
+                        icp_s=time.perf_counter() - t0)
+    i, b = choice.segment_index, choice.restart
+    pts = segs[i][1]
+    pose = target.canonical(results[i].poses[b])
+    rmse = float(rmses[i][b])
+    pen = float(pens[i][b])
+    var = float(choice.position_var[i])
+    notes = confidence_notes(pts, rmse, pen, params)
+    if not results[i].valid[b]:
+        notes.append("no_valid_icp")
+    return Estimate(pose=pose, segment=segs[i][0], n_points=len(pts), n_segments=len(segs), position_var=var,
+                    rmse=rmse, penetration=pen, notes=notes, candidates=candidates, icp_s=time.perf_counter() - t0)

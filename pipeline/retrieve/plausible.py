@@ -1,0 +1,448 @@
+"""Pose estimation from the target's shape, its contact points and the gripper's free space: a plausible set.
+
+The idea follows CHSEL (Zhong et al., RSS 2023), written here for a planar task with numpy only: register the
+known shape of the target against the contact points (they lie on its surface, signed distance 0) and against
+the space the gripper occupied after the target last moved (the target cannot be there, signed distance >= 0),
+from many starts in SE(2), and keep every pose that explains the data about as well as the best one (the
+plausible set) instead of a single answer. The grasp goes to the yaw that most of the set agrees on.
+
+Three terms, all in units of a contact point's squared standard deviation (docs/retrieval.md, "The plausible
+estimator"):
+
+* **contact**: Geman-McClure robust cost of each point's signed distance to the target surface over its own
+  standard deviation. A point observed before later contacts with the same segment has been carried through
+  those pushes by the tracker, which moves points but does not turn them with the object, so its position is
+  less certain: sigma = contact_sigma * recency_growth ** (later contacts), capped at max_sigma.
+* **free space**: squared depth (beyond free_tolerance) of gripper points inside the target, for the gripper
+  poses from the segment's last contact on (the end of that action and the sweep of every later action), on a
+  lattice of the gripper's slice (the robot's SDF grid, :mod:`pipeline.robot`).
+* **others**: the same for the other segments' points, which lie on other objects' surfaces, not inside the
+  target.
+
+Poses are refined by a batched Levenberg-Marquardt on (centre x, centre y, yaw) of the primitive, every
+hypothesis at once: arrays (hypotheses, points, 2), no loop over points or hypotheses.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.retrieve.model import Primitive, outline_point, wrap_angle
+
+__all__ = ["PlausibleParams", "Terms", "recency_sigma", "gripper_lattice", "free_space_points", "primitive_sdf",
+           "evaluate_terms", "refine", "initial_poses", "SegmentFit", "fit_segment", "consensus", "com_pose",
+           "primitive_pose"]
+
+
+@dataclass(frozen=True)
+class PlausibleParams:
+    """Parameters of the plausible-set estimator; serialised into the retrieval metadata.
+
+    Attributes
+    ----------
+    n_hypotheses : int
+        SE(2) starts per segment (64): stratified yaw, the points' centroid on a random point of the outline.
+    iterations : int
+        Levenberg-Marquardt iterations per start (30).
+    contact_sigma : float, metres
+        Standard deviation of a contact point observed at the segment's last contact (0.003).
+    recency_growth : float
+        Factor on sigma per later contact of the same segment (2.0; 1.0 = every point alike).
+    max_sigma : float, metres
+        Cap on a point's sigma (1.0: none).
+    outlier_sigmas : float
+        Geman-McClure scale in sigmas: a point farther than this from the surface costs at most c^2 / 2 (3.0).
+    free_resolution : float, metres
+        Lattice spacing of the gripper points of the free-space term (0.005).
+    free_tolerance : float, metres
+        Penetration of the gripper's free space up to this depth costs nothing (0.003): objects tilt, the
+        recorded poses are planar.
+    free_weight : float
+        Weight of the free-space and other-segment terms (1.0).
+    sweep_spacing : float, metres
+        Spacing of the gripper poses sampled along each free action (0.01).
+    other_tolerance : float, metres
+        Depth of another segment's point inside the target that costs nothing (0.005).
+    margin : float
+        Plausible set: hypotheses whose cost is within this of the best (2.0, in squared sigmas).
+    yaw_agreement : float, radians
+        Hypotheses agree on a grasp when their yaws differ by less than this (0.05, the grasp's tolerance).
+    min_share : float
+        Below this share of the plausible set agreeing on the grasp yaw -> ``ambiguous_yaw`` (0.5).
+    max_spread : float, metres
+        Above this spread (RMS distance from their mean) of the agreeing poses' positions -> ``wide_set`` (0.02).
+    pose_rule : {"best", "vote"}
+        "best": the estimate is the plausible set's lowest-cost pose, and the set's agreement with its yaw is the
+        confidence; "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to
+        the best), then that group's lowest-cost pose. "best" grasped more on the training seeds
+        (docs/retrieval.md).
+    icp_seeds : bool
+        Also start from the paper's ICP results on the segment (True): ICP's local minima are starts the random
+        ones can miss.
+    """
+
+    n_hypotheses: int = 64
+    iterations: int = 30
+    contact_sigma: float = 0.003
+    recency_growth: float = 2.0
+    max_sigma: float = 1.0
+    outlier_sigmas: float = 3.0
+    free_resolution: float = 0.005
+    free_tolerance: float = 0.003
+    free_weight: float = 1.0
+    sweep_spacing: float = 0.01
+    other_tolerance: float = 0.005
+    margin: float = 2.0
+    yaw_agreement: float = 0.05
+    min_share: float = 0.5
+    max_spread: float = 0.02
+    pose_rule: str = "best"
+    icp_seeds: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("n_hypotheses", "iterations"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        for name in ("contact_sigma", "max_sigma", "outlier_sigmas", "free_resolution", "sweep_spacing",
+                     "yaw_agreement", "max_spread"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        for name in ("free_tolerance", "free_weight", "other_tolerance", "margin"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        if not (math.isfinite(self.recency_growth) and self.recency_growth >= 1.0):
+            raise ValueError(f"recency_growth must be a number >= 1, got {self.recency_growth!r}")
+        if not (0.0 <= self.min_share <= 1.0):
+            raise ValueError(f"min_share must be in [0, 1], got {self.min_share!r}")
+        if self.pose_rule not in ("best", "vote"):
+            raise ValueError(f"pose_rule must be 'best' or 'vote', got {self.pose_rule!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data: per-point sigma, gripper lattice, free space
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
+    """Standard deviation (M,), metres, of each point from the number of later contact steps of its segment."""
+    steps = np.asarray(steps, dtype=np.int64).reshape(-1)
+    distinct = np.unique(steps)
+    later = len(distinct) - np.searchsorted(distinct, steps, side="right")
+    # log-space power, so a long history overflows to the cap, never to inf * 0.
+    log_sigma = math.log(params.contact_sigma) + later * math.log(params.recency_growth)
+    return np.exp(np.minimum(log_sigma, math.log(params.max_sigma)))
+
+
+def gripper_lattice(sdf, resolution: float) -> np.ndarray:
+    """Robot-frame points (G, 2), metres, on a lattice of ``resolution`` inside the gripper's slice (sdf < 0)."""
+    lo, hi = sdf.interior_bounds(0.0)
+    if not np.all(np.isfinite(lo)):
+        return np.zeros((0, 2))
+    axes = [np.arange(lo[k], hi[k] + 0.5 * resolution, resolution) for k in range(2)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+    return grid[sdf.query(grid) < 0.0]
+
+
+def free_space_points(lattice: np.ndarray, ee_start: np.ndarray, ee_end: np.ndarray, steps: np.ndarray,
+                      after_step: int, params: PlausibleParams, centre: np.ndarray, radius: float) -> np.ndarray:
+    """World points (F, 2), metres, the gripper occupied while the segment's object stayed where it ended.
+
+    The object last moved during action ``after_step`` (its last contact): the gripper's pose at the end of that
+    action and its sweep through every later action (straight from start to end, a pose every
+    ``sweep_spacing``) are free of it. Lattice points within ``radius`` of ``centre`` are kept, deduplicated
+    on a ``free_resolution`` grid.
+
+    Parameters
+    ----------
+    lattice : ndarray, shape (G, 2)
+        Gripper points in the robot frame (:func:`gripper_lattice`).
+    ee_start, ee_end : ndarray, shape (K, 2)
+        Gripper position at the start and end of every action.
+    steps : ndarray, shape (K,)
+        Action index of each row.
+    """
+    ee_start = np.asarray(ee_start, dtype=np.float64).reshape(-1, 2)
+    ee_end = np.asarray(ee_end, dtype=np.float64).reshape(-1, 2)
+    steps = np.asarray(steps, dtype=np.int64).reshape(-1)
+    later = steps > after_step
+    a, b = ee_start[later], ee_end[later]
+    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / params.sweep_spacing).astype(np.int64))
+    if len(a):
+        seg = np.repeat(np.arange(len(a)), n + 1)
+        t = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n])
+        sweep = a[seg] + t[:, None] * (b - a)[seg]
+    else:
+        sweep = np.zeros((0, 2))
+    poses = np.vstack([ee_end[steps == after_step], sweep])
+    reach = radius + float(np.max(np.linalg.norm(lattice, axis=1))) if len(lattice) else 0.0
+    poses = poses[np.linalg.norm(poses - centre, axis=1) <= reach]
+    if len(poses) == 0 or len(lattice) == 0:
+        return np.zeros((0, 2))
+    pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
+    pts = pts[np.linalg.norm(pts - centre, axis=1) <= radius]
+    if len(pts) == 0:
+        return pts
+    _, first = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Cost and its Gauss-Newton terms
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def primitive_sdf(prim: Primitive, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (...), metres, and its gradient (..., 2) at points q (..., 2) in the primitive's frame.
+
+    Finite everywhere: at the centre of a cylinder or on a box's medial axis a valid subgradient is used.
+    """
+    if prim.kind == "cylinder":
+        r = np.linalg.norm(q, axis=-1)
+        safe = np.where(r > 1e-12, r, 1.0)
+        g = np.where((r > 1e-12)[..., None], q / safe[..., None], np.array([1.0, 0.0]))
+        return r - prim.half[0], g
+    d = np.abs(q) - np.asarray(prim.half[:2])
+    sign = np.where(q >= 0.0, 1.0, -1.0)
+    pos = np.maximum(d, 0.0)
+    out = np.linalg.norm(pos, axis=-1)
+    axis = np.argmax(d, axis=-1)
+    inside = np.minimum(np.take_along_axis(d, axis[..., None], axis=-1)[..., 0], 0.0)
+    g_out = pos * sign / np.where(out > 0.0, out, 1.0)[..., None]
+    g_in = np.where(axis[..., None] == np.arange(2), sign, 0.0)
+    return out + inside, np.where((out > 0.0)[..., None], g_out, g_in)
+
+
+def _to_local(world: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (P, 2) in each primitive pose's frame (B, P, 2), and their offsets from the centre."""
+    c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
+    d = world[None, :, :] - pose[:, None, :2]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1), d
+
+
+@dataclass
+class Terms:
+    """Costs (B,) of B poses, in squared contact sigmas."""
+
+    contact: np.ndarray
+    free: np.ndarray
+    others: np.ndarray
+
+    @property
+    def total(self) -> np.ndarray:
+        return self.contact + self.free + self.others
+
+
+def evaluate_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
+                   others: np.ndarray, params: PlausibleParams, jacobian: bool = False):
+    """Terms of primitive poses (B, 3) = (centre x, centre y, yaw of the primitive axes); with ``jacobian``
+    also the Gauss-Newton normal matrix (B, 3, 3) and gradient (B, 3) (IRLS weights for the robust term)."""
+    B = len(pose)
+    costs, pieces = [], []
+    c2 = params.outlier_sigmas ** 2
+    s0 = params.contact_sigma
+    for pts, kind in ((points, "contact"), (free, "free"), (others, "others")):
+        if len(pts) == 0:
+            costs.append(np.zeros(B))
+            continue
+        q, d = _to_local(pts, pose)
+        sd, g_local = primitive_sdf(prim, q)
+        if kind == "contact":
+            u = sd / sigma
+            costs.append((0.5 * c2 * u * u / (c2 + u * u)).sum(axis=1))
+            weight, resid, scale = (c2 / (c2 + u * u)) ** 2, u, 1.0 / sigma[None, :]
+        else:
+            tol = params.free_tolerance if kind == "free" else params.other_tolerance
+            r = np.minimum(sd + tol, 0.0) / s0
+            costs.append(params.free_weight * 0.5 * (r * r).sum(axis=1))
+            weight, resid, scale = np.where(r < 0.0, params.free_weight, 0.0), r, np.full((1, 1), 1.0 / s0)
+        if jacobian:
+            c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
+            gx = c * g_local[..., 0] - s * g_local[..., 1]
+            gy = s * g_local[..., 0] + c * g_local[..., 1]
+            # d sd / d centre = -g ; d sd / d yaw = -g . (-dy, dx) for the offset d of the point from the centre
+            J = np.stack([-gx, -gy, gx * d[..., 1] - gy * d[..., 0]], axis=-1) * scale[..., None]
+            pieces.append((resid, weight, J))
+    terms = Terms(*costs)
+    if not jacobian:
+        return terms
+    H = np.zeros((B, 3, 3))
+    grad = np.zeros((B, 3))
+    for resid, weight, J in pieces:
+        wJ = J * weight[..., None]
+        H += np.einsum("bpi,bpj->bij", wJ, J)
+        grad += np.einsum("bpi,bp->bi", wJ, resid)
+    return terms, H, grad
+
+
+def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
+           others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
+    """Batched Levenberg-Marquardt from primitive poses (B, 3); steps capped at 2 cm and 0.2 rad.
+
+    Returns the refined poses (B, 3), yaw wrapped to [-pi, pi), and their :class:`Terms`.
+    """
+    pose = np.array(init, dtype=np.float64)
+    lam = np.full(len(pose), 1e-3)
+    terms, H, grad = evaluate_terms(prim, pose, points, sigma, free, others, params, jacobian=True)
+    cost = terms.total
+    eye = np.eye(3)
+    for _ in range(params.iterations):
+        diag = np.maximum(np.diagonal(H, axis1=1, axis2=2), 1e-9)
+        A = H + lam[:, None, None] * (eye * diag[:, None, :]) + 1e-12 * eye
+        step = -np.linalg.solve(A, grad[..., None])[..., 0]
+        move = np.linalg.norm(step[:, :2], axis=1)
+        shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
+                                                                                            1e-12)))
+        trial = pose + step * shrink[:, None]
+        t2, H2, g2 = evaluate_terms(prim, trial, points, sigma, free, others, params, jacobian=True)
+        better = np.isfinite(t2.total) & (t2.total < cost)
+        pose = np.where(better[:, None], trial, pose)
+        cost = np.where(better, t2.total, cost)
+        H = np.where(better[:, None, None], H2, H)
+        grad = np.where(better[:, None], g2, grad)
+        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
+    pose[:, 2] = wrap_angle(pose[:, 2])
+    return pose, evaluate_terms(prim, pose, points, sigma, free, others, params)
+
+
+def initial_poses(prim: Primitive, points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """n primitive poses (n, 3): stratified yaw from a random offset, the points' centroid on a random point of
+    the outline (a contact is on the surface, so the centroid of a few is near it, not at the centre)."""
+    theta = (rng.uniform() + np.arange(n)) * (2.0 * np.pi / n)
+    if prim.kind == "cylinder":
+        ang = rng.uniform(0.0, 2.0 * np.pi, n)
+        u = prim.half[0] * np.column_stack([np.cos(ang), np.sin(ang)])
+    else:
+        hx, hy = prim.half
+        u = outline_point(rng.uniform(0.0, 4.0 * (hx + hy), n), hx, hy)
+    c, s = np.cos(theta), np.sin(theta)
+    ru = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]])
+    return np.column_stack([points.mean(axis=0) - ru, theta])
+
+
+def primitive_pose(prim: Primitive, com: np.ndarray) -> np.ndarray:
+    """Primitive (centre x, centre y, axes yaw) (..., 3) of COM poses (..., 3)."""
+    com = np.asarray(com, dtype=np.float64)
+    return np.concatenate([prim.centre_world(com), (com[..., 2] + prim.yaw)[..., None]], axis=-1)
+
+
+def com_pose(prim: Primitive, pose: np.ndarray) -> np.ndarray:
+    """COM poses (..., 3) of primitive poses (..., 3) (inverse of :func:`primitive_pose`)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    yaw = pose[..., 2] - prim.yaw
+    c, s = np.cos(yaw), np.sin(yaw)
+    cx, cy = prim.centre
+    return np.stack([pose[..., 0] - (c * cx - s * cy), pose[..., 1] - (s * cx + c * cy), yaw], axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# One segment: hypotheses, plausible set, consensus
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class SegmentFit:
+    """Hypotheses of one segment and what the plausible set says.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (B, 3)
+        Refined COM poses (x, y, yaw in [-pi, pi)).
+    terms : Terms
+        Costs of each hypothesis.
+    plausible : ndarray, shape (B,), bool
+        Within ``margin`` of the best cost.
+    agree : ndarray, shape (B,), bool
+        Plausible hypotheses agreeing (yaw within ``yaw_agreement``) with the estimate's yaw.
+    chosen : int
+        Index of the estimate (:func:`consensus`).
+    share : float
+        Likelihood-weighted share of the plausible set that agrees.
+    spread : float, metres
+        RMS distance of the agreeing hypotheses' centres from their mean.
+    rms : ndarray, shape (B,), metres
+        Root mean square signed distance of the points to the surface at each hypothesis.
+    penetration : ndarray, shape (B,), metres
+        Deepest free-space point inside the target at each hypothesis (0: none).
+    outlier_fraction : ndarray, shape (B,)
+        Share of the points farther from the surface than ``outlier_sigmas`` of their sigma.
+    """
+
+    poses: np.ndarray
+    terms: Terms
+    plausible: np.ndarray
+    agree: np.ndarray
+    chosen: int
+    share: float
+    spread: float
+    rms: np.ndarray
+    penetration: np.ndarray
+    outlier_fraction: np.ndarray
+
+    @property
+    def best_cost(self) -> float:
+        return float(self.terms.total[self.chosen])
+
+
+def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry: float, params: PlausibleParams
+              ) -> tuple[int, np.ndarray, float]:
+    """The pose the plausible set supports, by ``params.pose_rule``.
+
+    Each plausible hypothesis has the weight exp(-(cost - best)), its likelihood relative to the best; two
+    hypotheses agree when their yaws differ by less than ``yaw_agreement`` modulo the shape's ``symmetry``
+    (0: any yaw, a can, where all agree). "best": the lowest-cost hypothesis; "vote": the hypothesis whose yaw
+    gathers the most weight (ties to the lower cost, then the lower index). Returns (index of the estimate:
+    the lowest-cost hypothesis agreeing with that yaw, mask of the hypotheses agreeing, their share of the
+    weight of the set).
+    """
+    idx = np.flatnonzero(plausible)
+    w = np.exp(-(cost[idx] - cost[idx].min()))
+    if symmetry == 0.0:
+        near = np.ones((len(idx), len(idx)), dtype=bool)
+    else:
+        dyaw = (yaw[idx][:, None] - yaw[idx][None, :] + symmetry / 2) % symmetry - symmetry / 2
+        near = np.abs(dyaw) < params.yaw_agreement
+    if params.pose_rule == "vote":
+        votes = near @ w
+        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx], -np.round(votes, 12)))[0])
+    else:
+        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx]))[0])
+    agree = np.zeros_like(plausible)
+    agree[idx[near[anchor]]] = True
+    chosen = int(np.flatnonzero(agree)[np.argmin(cost[agree])])
+    return chosen, agree, float(w[near[anchor]].sum() / w.sum())
+
+
+def fit_segment(prim: Primitive, points: np.ndarray, sigma: np.ndarray, free: np.ndarray, others: np.ndarray,
+                params: PlausibleParams, rng: np.random.Generator, seeds: np.ndarray | None = None) -> SegmentFit:
+    """Hypotheses, plausible set and consensus for one segment's points (M, 2) with sigmas (M,).
+
+    ``seeds``: further starting COM poses (S, 3), e.g. ICP results, refined with the random starts.
+    """
+    init = initial_poses(prim, points, params.n_hypotheses, rng)
+    if seeds is not None and len(seeds):
+        init = np.vstack([init, primitive_pose(prim, np.asarray(seeds, dtype=np.float64).reshape(-1, 3))])
+    pose, terms = refine(prim, init, points, sigma, free, others, params)
+    total = terms.total
+    plausible = total <= total.min() + params.margin
+    chosen, agree, share = consensus(pose[:, 2], total, plausible, prim.symmetry, params)
+    centres = pose[agree, :2]
+    spread = float(np.sqrt(np.mean(np.sum((centres - centres.mean(axis=0)) ** 2, axis=1))))
+    sd, _ = primitive_sdf(prim, _to_local(points, pose)[0])
+    rms = np.sqrt(np.mean(sd * sd, axis=1))
+    outliers = np.mean(np.abs(sd) > params.outlier_sigmas * sigma[None, :], axis=1)
+    if len(free):
+        fsd, _ = primitive_sdf(prim, _to_local(free, pose)[0])
+        pen = np.maximum(-fsd.min(axis=1), 0.0)
+    else:
+        pen = np.zeros(len(pose))
+    return SegmentFit(poses=com_pose(prim, pose), terms=terms, plausible=plausible, agree=agree, chosen=chosen,
+                      share=share, spread=spread, rms=rms, penetration=pen, outlier_fraction=outliers)

@@ -1,0 +1,144 @@
+"""Collected run files as retrieval and scoring need them, and the per-run random streams of retrieval."""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline import schema
+from pipeline.retrieve.model import Primitive, target_primitive
+from pipeline.scenes import load_scene
+
+__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", ]
+
+
+@dataclass(frozen=True, eq=False)
+class RunInfo:
+    """What retrieval and scoring need from a collected run file (``sim_run`` table, docs/simulation.md).
+
+    Attributes
+    ----------
+    run : str
+    path : Path
+    scene : pipeline.scenes.Scene
+    seed : int
+    ee : ndarray, shape (K + 1, 2), metres
+        Gripper positions visited: the start of the first action, then the end of every action.
+    steps : ndarray, shape (K,), int64
+        Step (action index) of each action, as the contacts table numbers them: action k moved the gripper from
+        ``ee[k]`` to ``ee[k + 1]``.
+    final_poses : ndarray, shape (B, 3)
+        Every body's inertial-frame (x, y, yaw) after the last action, in ``scene.body_names`` order.
+    target_id : int
+    target : Primitive
+    """
+
+    run: str
+    path: Path
+    scene: Any
+    seed: int
+    ee: np.ndarray
+    steps: np.ndarray
+    final_poses: np.ndarray
+    target_id: int
+    target: Primitive
+
+    @property
+    def final_ee(self) -> np.ndarray:
+        return self.ee[-1]
+
+    @property
+    def true_pose(self) -> np.ndarray:
+        """The target's pose after the last action (3,)."""
+        return self.final_poses[self.target_id]
+
+
+def _read_run_table(path: Path, columns: list[str] | None = None) -> pa.Table:
+    if not path.is_file():
+        raise schema.SchemaError(path, None, None, "file not found")
+    try:
+        return pq.read_table(path, columns=columns)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError, KeyError) as e:
+        raise schema.SchemaError(path, None, None, f"not a collected run file ({' '.join(str(e).split())})") from None
+
+
+def load_run(path: str | Path) -> RunInfo:
+    """Read a collected run file (one (scene, seed)); SchemaError naming the file and column on problems."""
+    path = Path(path)
+    need = ["run", "seed", "step", "ee_start_x_m", "ee_start_y_m", "ee_x_m", "ee_y_m", "obj_pose"]
+    try:
+        names = pq.read_schema(path).names if path.is_file() else []
+    except (pa.ArrowInvalid, OSError) as e:
+        raise schema.SchemaError(path, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
+    t = _read_run_table(path, [c for c in need if c in names])
+    for c in need:
+        if c not in t.column_names:
+            raise schema.SchemaError(path, c, None, "missing; expected a collected run file (stucco collect)")
+    if t.num_rows == 0:
+        raise schema.SchemaError(path, None, None, "has no actions")
+    meta = schema.read_metadata(path)
+    params = meta.get("params") or {}
+    scene_name = params.get("scene")
+    if not scene_name:
+        raise schema.SchemaError(path, None, None, "metadata has no params.scene; expected a file from stucco collect")
+    scene = load_scene(scene_name)
+    bodies = params.get("bodies")
+    if bodies is not None and list(bodies) != list(scene.body_names):
+        raise schema.SchemaError(path, "obj_pose", None, f"bodies {bodies} differ from scene {scene.name}'s "
+                                                         f"{list(scene.body_names)}; was the scene file edited?")
+    f64 = lambda c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)  # noqa: E731
+    ee = np.vstack([[f64("ee_start_x_m")[0], f64("ee_start_y_m")[0]], np.column_stack([f64("ee_x_m"), f64("ee_y_m")])])
+    final = np.asarray(t.column("obj_pose")[t.num_rows - 1].as_py(), dtype=np.float64).reshape(-1, 3)
+    if final.shape[0] != len(scene.body_names):
+        raise schema.SchemaError(path, "obj_pose", t.num_rows - 1,
+                                 f"has {final.shape[0]} bodies; scene {scene.name} has {len(scene.body_names)}")
+    tid, prim = target_primitive(scene)
+    runs = set(t.column("run").to_pylist())
+    if len(runs) != 1:
+        raise schema.SchemaError(path, "run", None, f"holds {len(runs)} runs; expected one run per file")
+    return RunInfo(run=runs.pop(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()), ee=ee,
+                   steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
+                   final_poses=final, target_id=tid, target=prim)
+
+
+def run_files_by_name(directory: str | Path) -> dict[str, Path]:
+    """Run name -> collected run file, for every ``*.parquet`` in ``directory`` (non-recursive)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ValueError(f"{directory}: not a directory of collected runs")
+    out: dict[str, Path] = {}
+    for f in sorted(directory.glob("*.parquet")):
+        try:
+            if "run" not in pq.read_schema(f).names or "obj_pose" not in pq.read_schema(f).names:
+                continue  # another table kind living in the same directory
+            runs = pq.read_table(f, columns=["run"]).column("run")
+        except (pa.ArrowInvalid, OSError):
+            continue
+        if len(runs):
+            name = runs[0].as_py()
+            if name in out:
+                raise ValueError(f"{directory}: run {name!r} is in both {out[name].name} and {f.name}")
+            out[name] = f
+    return out
+
+
+def _run_key(run: str) -> int:
+    # Same formula as pipeline.track.stage.run_key (sha256 of the name), without importing the tracker.
+    return int.from_bytes(hashlib.sha256(run.encode("utf-8")).digest()[:8], "little")
+
+
+#: Third entry of retrieval's SeedSequence: keeps its draws independent of the tracker's stream of the run.
+_STREAM = int.from_bytes(hashlib.sha256(b"retrieve").digest()[:4], "little")
+
+
+def retrieval_rng(seed: int, run: str) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator]:
+    """(model points, ICP restarts, pose hypotheses) generators of one run:
+    SeedSequence([seed, run_key(run), STREAM]).spawn(3). Children are keyed by their index, so the first two are
+    the streams the paper's estimator always had."""
+    return tuple(np.random.default_rng(c)
+                 for c in np.random.SeedSequence([int(seed), _run_key(run), _STREAM]).spawn(3))

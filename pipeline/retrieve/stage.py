@@ -1,0 +1,131 @@
+"""The ``retrieve`` stage: a segments table and the collected runs in, the retrieval and candidates tables out."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pyarrow as pa
+from joblib import Parallel, delayed
+
+from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate
+from pipeline.retrieve.model import pose_error
+from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.plausible import PlausibleParams
+from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
+from pipeline.retrieve.tables import candidates_table, retrieval_table
+from pipeline.robot import load_robot
+from pipeline.segment import final_estimates
+
+__all__ = ["final_segments_by_run", "retrieve"]
+
+
+def final_segments_by_run(segments: pa.Table) -> dict[str, list[Segment]]:
+    """Run -> its segments (id, final tracked points (M, 2), observation steps (M,)) of the final estimate of each
+    run (unassigned points, segment -1, are left out)."""
+    final = final_estimates(segments)
+    out: dict[str, list[Segment]] = {}
+    if final.num_rows == 0:
+        return out
+    run = np.asarray(final.column("run").to_pylist(), dtype=object)
+    seg = final.column("segment").to_numpy()
+    step = final.column("step").to_numpy()
+    xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])
+    for r in dict.fromkeys(run):
+        m = run == r
+        out[r] = [Segment(int(s), xy[m & (seg == s)], step[m & (seg == s)]) for s in np.unique(seg[m]) if s >= 0]
+    return out
+
+
+@dataclass
+class RunOutput:
+    row: dict[str, Any]
+    candidates: dict[str, np.ndarray]
+
+
+def _retrieve_one(info: RunInfo, segs: list[Segment], method: str, root_seed: int, params: RetrievalParams,
+                  grasp: bool, grasp_params, estimator: str, plausible: PlausibleParams) -> RunOutput:
+    est = estimate(estimator, segs, info, load_robot(params.robot), retrieval_rng(root_seed, info.run), params,
+                   plausible)
+    truth = info.true_pose
+    pos_err, yaw_err = pose_error(info.target, est.pose, truth)
+    row = dict(run=info.run, scene=info.scene.name, seed=info.seed, method=method, estimator=estimator,
+               target=info.target.name,
+               x_m=float(est.pose[0]), y_m=float(est.pose[1]), yaw_rad=float(est.pose[2]), segment=est.segment,
+               n_points=est.n_points, n_segments=est.n_segments,
+               position_var_m2=est.position_var if math.isfinite(est.position_var) else None,
+               icp_rmse_m=est.rmse if math.isfinite(est.rmse) else None, penetration_m=est.penetration,
+               low_confidence=est.low_confidence, notes=",".join(est.notes),
+               true_x_m=float(truth[0]), true_y_m=float(truth[1]), true_yaw_rad=float(truth[2]),
+               position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
+               icp_s=est.icp_s, grasp_s=None)
+    if grasp:
+        # pybullet is imported only when a grasp is simulated (about a second of start-up).
+        from pipeline.grasp import GraspParams, grasp_at
+
+        g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, grasp_params or GraspParams())
+        row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
+    cand = dict(est.candidates)
+    cand["run"] = np.full(len(cand["segment"]), info.run, dtype=object)
+    return RunOutput(row, cand)
+
+
+def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco", root_seed: int = 0,
+             params: RetrievalParams = RetrievalParams(), grasp: bool = True, grasp_params=None, jobs: int = 1,
+             progress: Callable | None = None, segments_path: str = "<segments>",
+             estimator: str = DEFAULT_ESTIMATOR, plausible_params: PlausibleParams = PlausibleParams()
+             ) -> tuple[pa.Table, pa.Table]:
+    """The ``retrieve`` stage: a segments table and the collected runs in, retrieval and candidates tables out.
+
+    Every run file in ``run_dir`` gets one row: a run absent from the segments table had no tracked contact
+    (an empty segmentation) and is estimated as such (flagged ``no_points``). A run of the segments table
+    without a run file is an error.
+
+    Parameters
+    ----------
+    segments : pyarrow.Table
+        A validated segments table (its final estimate per run is used).
+    run_dir : path
+        Directory of ``stucco collect`` files.
+    method : str
+        Tracking method, recorded in the output.
+    root_seed : int
+    params : RetrievalParams
+    grasp : bool
+        Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
+    grasp_params : pipeline.grasp.GraspParams, optional
+    jobs : int
+        Runs processed in parallel processes.
+    progress : callable, optional
+        Wraps the iterable of finished runs (``progress(iterable, total=)``).
+    estimator : {"plausible", "paper"}
+        Pose estimator (:mod:`pipeline.retrieve.estimators`).
+    plausible_params : PlausibleParams
+        Parameters of the plausible estimator.
+
+    Returns
+    -------
+    retrieval, candidates : pyarrow.Table
+    """
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}")
+    files = run_files_by_name(run_dir)
+    by_run = final_segments_by_run(segments)
+    missing = [r for r in by_run if r not in files]
+    if missing:
+        raise ValueError(f"{segments_path}: run {missing[0]!r} has no collected run file in {run_dir} "
+                         f"({len(files)} run file(s) there)")
+    infos = [load_run(files[r]) for r in files]
+    args = [(info, by_run.get(info.run, []), method, root_seed, params, grasp, grasp_params, estimator,
+             plausible_params) for info in infos]
+    if jobs > 1 and len(args) > 1:
+        results = Parallel(n_jobs=min(jobs, len(args)), return_as="generator")(
+            delayed(_retrieve_one)(*a) for a in args)
+    else:
+        results = (_retrieve_one(*a) for a in args)
+    if progress is not None:
+        results = progress(results, total=len(args))
+    outs = list(results)
+    return retrieval_table([o.row for o in outs]), candidates_table([o.candidates for o in outs])
