@@ -128,7 +128,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import METHODS, parse_scenes, partition
     from pipeline.retrieve.estimators import ESTIMATORS
-    from pipeline.retrieve.ladder import ladder_rows, summarise, summary_markdown, write_outputs
+    from pipeline.retrieve.ladder import ladder_rows, ladder_tables, summarise, summary_markdown, write_outputs
     from stucco_cli.main import user_errors
 
     if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
@@ -157,5 +157,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     with user_errors("bench retrieval"):
         rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs, progress=bar)
         paths = write_outputs(rows, out_dir)
-    click.echo(summary_markdown(summarise(rows)), nl=False)
+    summary = summarise(rows)
+    click.echo(ladder_tables(summary))
+    click.echo(summary_markdown(summary), nl=False)
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.retrieve.ladder import RUNGS, LadderRow, ideal_segments, loss_reason, perturbed, summarise
+from pipeline.retrieve.ladder import (PERTURBATIONS, RUNGS, LadderRow, ideal_segments, ladder_tables, loss_reason,
+                                      perturbed, summarise)
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import load_run
 
@@ -25,12 +26,15 @@ def test_ideal_contact_points_lie_on_their_body_at_its_final_pose(name):
     segs = ideal_segments(path, info)
     assert segs and any(s.id == info.target_id for s in segs)
     bodies = list(info.scene.objects) + list(info.scene.walls)
+    d = []
     for s in segs:
         assert len(s.points) == len(s.steps) and np.all(np.diff(s.steps) > 0)
-        d = primitive_of(bodies[s.id]).signed_distance(s.points, info.final_poses[s.id])
-        # On the surface within the slice's approximation of the meshes (docs/simulation.md) and the tilt of
-        # pushed objects, which the planar poses do not record.
-        assert np.median(np.abs(d)) < 0.005, (name, s.id, np.abs(d).max())
+        d.append(primitive_of(bodies[s.id]).signed_distance(s.points, info.final_poses[s.id]))
+    d = np.abs(np.concatenate(d))
+    # On the surface within the slice's approximation of the meshes (docs/simulation.md) and the tilt of pushed
+    # objects, which the planar poses do not record. Taking an action's last contact whatever body it touched
+    # (12 of the 105 labelled actions of these runs end on another body) put 17 % of FB-000's points 1-7 cm off.
+    assert np.mean(d < 0.003) >= 0.95 and np.median(d) < 0.001, (name, np.sort(d)[-5:])
 
 
 def test_perturbed_pose_turns_about_the_centre_and_shifts_along_the_long_axis():
@@ -50,6 +54,14 @@ def test_perturbed_pose_turns_about_the_centre_and_shifts_along_the_long_axis():
     assert max(corner) > min(corner)
 
 
+def test_perturbations_cover_both_yaw_signs_and_four_shift_directions():
+    offsets = {name: (dyaw, along, across) for name, dyaw, along, across in PERTURBATIONS}
+    assert {v[0] for v in offsets.values() if v[0]} == {0.05, -0.05, 0.10, -0.10, 0.15, -0.15}
+    for cm in (0.01, 0.02):
+        assert {v[1:] for v in offsets.values() if max(abs(v[1]), abs(v[2])) == cm} == {
+            (cm, 0.0), (-cm, 0.0), (0.0, cm), (0.0, -cm)}
+
+
 @pytest.mark.parametrize("success, pos, yaw, purity, reason", [
     (True, 0.5, 1.0, 0.0, ""),
     (False, 0.2, 0.0, 1.0, "wrong_segment"),
@@ -57,6 +69,8 @@ def test_perturbed_pose_turns_about_the_centre_and_shifts_along_the_long_axis():
     (False, 0.01, 0.2, 1.0, "yaw"),
     (False, 0.03, 0.01, 1.0, "position"),
     (False, 0.005, 0.01, 1.0, "grasp_rule"),
+    (False, 0.005, 0.01, math.nan, "grasp_rule"),  # no known label: purity says nothing
+    (False, 0.5, 0.01, math.nan, "wrong_segment"),
 ])
 def test_loss_reason(success, pos, yaw, purity, reason):
     assert loss_reason(success, pos, yaw, purity) == reason
@@ -71,6 +85,8 @@ def test_summary_pools_true_pose_rungs_under_every_estimator():
                                                          ("plausible", "true_pose"),
                                                          ("plausible", "tracker_our_choice")]
     assert s[1]["lost_yaw"] == 1 and s[3]["success"] == 1
+    table = ladder_tables(s).splitlines()
+    assert "FB, paper estimator" in table and any(ln.split()[:2] == ["tracker_our_choice", "0/1"] for ln in table)
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +109,7 @@ def test_cli_writes_the_ladder(evaluation, tmp_path):
                                  "--seeds", "0", "--estimators", "paper", "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert "| FB | paper | 1/1 |" in r.stdout  # the true pose of the stored run is grasped
+    assert any(ln.split()[:2] == ["true_pose", "1/1"] for ln in r.stdout.splitlines())
     rows = list(csv.DictReader(open(out / "ladder.csv")))
     assert [x["rung"] for x in rows] == list(RUNGS)
     assert all(math.isfinite(float(x["position_error_m"])) for x in rows)

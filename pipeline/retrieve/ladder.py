@@ -5,14 +5,19 @@ For every run of an evaluation directory and every pose estimator, the simulated
 unchanged) is tried at poses that lose one piece of knowledge per rung:
 
 1. ``true_pose``: the target's true final pose;
-2. ``yaw±0.05`` ... ``pos+2cm_along``: the true pose perturbed in yaw or along/across the target's long axis (the
-   grasp's tolerance);
+2. ``yaw+0.05`` ... ``pos-2cm_along``: the true pose turned by ±0.05, ±0.10, ±0.15 rad about the primitive's
+   centre, or shifted by 1 or 2 cm in each of the four directions along (+x, -x) and across (+y, -y) the target's
+   long axis, one rung each (the grasp's tolerance);
 3. ``ideal_true_segment``: the estimator on ideal contact points of the target alone (the segment is known);
 4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
 5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it.
 
 Ideal contact points are the run's recorded true contact of every action with a known body, carried with that
-body from its pose after the action to its final pose: exactly where each contact lies now. A lost grasp is
+body from its pose after the action to its final pose: exactly where each contact lies now. The point is the
+last one of the action's 8-step window that touches the action's body (``win_true_object``); an action whose
+window touches nothing falls back to its last true contact (``true_contact_x_m``); one whose window touches only
+other bodies gives none (its last contact is another body's: 12 of the 105 labelled actions of the four runs
+in ``data/regression``, whose points lay up to 19 cm off that body). A lost grasp is
 put down to ``wrong_segment`` (the estimate is more than 10 cm off, or its segment holds mostly other bodies'
 points), ``yaw`` (more than ``YAW_TOL``), ``position`` (more than ``POSITION_TOL``) or, with a good pose,
 ``grasp_rule``.
@@ -40,13 +45,13 @@ from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
 __all__ = ["PERTURBATIONS", "RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason", "run_ladder",
-           "ladder_rows", "summarise", "summary_markdown", "write_outputs"]
+           "ladder_rows", "summarise", "ladder_tables", "summary_markdown", "write_outputs"]
 
 #: (rung, yaw offset rad, offset along the long axis m, offset across m) of the perturbed true pose.
-PERTURBATIONS = (("yaw+0.05", 0.05, 0.0, 0.0), ("yaw-0.05", -0.05, 0.0, 0.0), ("yaw+0.10", 0.10, 0.0, 0.0),
-                 ("yaw-0.10", -0.10, 0.0, 0.0), ("yaw+0.15", 0.15, 0.0, 0.0), ("yaw-0.15", -0.15, 0.0, 0.0),
-                 ("pos+1cm_across", 0.0, 0.0, 0.01), ("pos+2cm_across", 0.0, 0.0, 0.02),
-                 ("pos+1cm_along", 0.0, 0.01, 0.0), ("pos+2cm_along", 0.0, 0.02, 0.0))
+PERTURBATIONS = tuple((f"yaw{d:+.2f}", d, 0.0, 0.0) for a in (0.05, 0.10, 0.15) for d in (a, -a)) + tuple(
+    (f"pos{sign}{cm}cm_{axis}", 0.0, s * cm / 100 if axis == "along" else 0.0,
+     s * cm / 100 if axis == "across" else 0.0)
+    for cm in (1, 2) for axis in ("along", "across") for sign, s in (("+", 1.0), ("-", -1.0)))
 ESTIMATOR_RUNGS = ("ideal_true_segment", "ideal_our_choice", "tracker_our_choice")
 RUNGS = ("true_pose",) + tuple(p[0] for p in PERTURBATIONS) + ESTIMATOR_RUNGS
 #: A pose farther than this from the truth is another object's (m).
@@ -58,7 +63,28 @@ POSITION_TOL = 0.02
 
 @dataclass(frozen=True)
 class LadderRow:
-    """One grasp of the ladder (errors of the tried pose against the truth, metres and radians)."""
+    """One grasp of the ladder.
+
+    Attributes
+    ----------
+    scene, seed : str, int
+        The run.
+    estimator : str
+        Pose estimator of an estimator rung; '' for the true-pose rungs, which use none.
+    rung : str
+        One of :data:`RUNGS`.
+    success : bool
+        The simulated grasp succeeded (:func:`pipeline.grasp.grasp_at`).
+    reason : str
+        Why it was lost (:func:`loss_reason`); '' on success.
+    position_error_m, yaw_error_rad : float
+        Error of the tried pose against the truth (:func:`pipeline.retrieve.pose_error`), m and rad.
+    segment_purity : float
+        Share of the chosen segment's points with a known label that are the target's (1 for the true-pose rungs,
+        0 without a chosen segment, NaN when none of its points has a known label).
+    outcome : str
+        The grasp's outcome string.
+    """
 
     scene: str
     seed: int
@@ -73,27 +99,63 @@ class LadderRow:
 
 
 def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
-    """One segment per body touched: the true contact of every action with a known body, moved with that body
-    from its pose after the action to its final pose. Segment id = body index; steps = action index."""
-    t = pq.read_table(path, columns=["step", "true_contact_x_m", "true_contact_y_m", "object_id", "obj_pose"])
+    """Ideal contact points of a run: one segment per body touched, each point where its contact lies now.
+
+    Parameters
+    ----------
+    path : str or Path
+        The collected run file (``stucco collect``).
+    info : RunInfo
+        The same run, :func:`pipeline.retrieve.load_run`.
+
+    Returns
+    -------
+    list of Segment
+        Per body touched (segment id = body index in ``scene.body_names`` order): ``points`` (M, 2) m, the true
+        contact of each action labelled with that body (the last point of the action's 8-step window on that body;
+        without any contact in the window, the action's last true contact), expressed in the body's frame at its
+        pose after the action and put back at its final pose; ``steps`` (M,) the action indices, increasing.
+    """
+    t = pq.read_table(path, columns=["step", "win_true_contact_m", "win_true_object", "true_contact_x_m",
+                                     "true_contact_y_m", "object_id", "obj_pose"])
     steps = t.column("step").to_numpy()
     body = t.column("object_id").to_numpy()
-    cx = np.array([np.nan if v is None else v for v in t.column("true_contact_x_m").to_pylist()], dtype=np.float64)
-    cy = np.array([np.nan if v is None else v for v in t.column("true_contact_y_m").to_pylist()], dtype=np.float64)
-    poses = np.asarray(t.column("obj_pose").to_pylist(), dtype=np.float64).reshape(len(steps), -1, 3)
-    keep = (body >= 0) & np.isfinite(cx) & np.isfinite(cy)
+    n = len(steps)
+    win = np.asarray(t.column("win_true_contact_m").to_pylist(), dtype=np.float64).reshape(n, -1, 2)
+    win_body = np.asarray(t.column("win_true_object").to_pylist(), dtype=np.int64).reshape(n, -1)
+    last = np.array([np.nan if v is None else v for v in t.column("true_contact_x_m").to_pylist()]), \
+        np.array([np.nan if v is None else v for v in t.column("true_contact_y_m").to_pylist()])
+    poses = np.asarray(t.column("obj_pose").to_pylist(), dtype=np.float64).reshape(n, -1, 3)
+    on_body = (win_body == body[:, None]) & np.isfinite(win).all(axis=2) & (body[:, None] >= 0)
+    k = win.shape[1] - 1 - np.argmax(on_body[:, ::-1], axis=1)  # last window row on the action's body
+    xy = np.where(on_body.any(axis=1)[:, None], win[np.arange(n), k], np.nan)
+    quiet = ~(win_body >= 0).any(axis=1)  # the window touched nothing: the last contact is the only one recorded
+    xy[quiet] = np.column_stack(last)[quiet]
+    keep = (body >= 0) & np.isfinite(xy).all(axis=1)
     out = []
     for b in np.unique(body[keep]):
         m = keep & (body == b)
         at, final = poses[m, b], info.final_poses[b]
-        local = np.einsum("kji,kj->ki", np.stack([rot2(y) for y in at[:, 2]]),
-                          np.column_stack([cx[m], cy[m]]) - at[:, :2])
+        local = np.einsum("kji,kj->ki", np.stack([rot2(y) for y in at[:, 2]]), xy[m] - at[:, :2])
         out.append(Segment(int(b), local @ rot2(float(final[2])).T + final[:2], steps[m].astype(np.int64)))
     return out
 
 
 def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndarray]]:
-    """The tracker's final segments of one run (a segments table) and each segment's ground-truth object ids."""
+    """The tracker's final segments of one run.
+
+    Parameters
+    ----------
+    path : str or Path
+        A segments table (``stucco segment``; one run).
+
+    Returns
+    -------
+    segments : list of Segment
+        The final estimate's segments (unassigned points, segment -1, left out): points (M, 2) m, steps (M,).
+    labels : dict of int to ndarray
+        Each segment's ground-truth object ids (M,), -1 unknown.
+    """
     final = final_estimates(schema.read_segments(path))
     seg = final.column("segment").to_numpy()
     xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])
@@ -104,8 +166,24 @@ def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndar
 
 
 def perturbed(target, pose: np.ndarray, dyaw: float, along: float, across: float) -> np.ndarray:
-    """The COM pose (3,) turned by ``dyaw`` about the primitive's centre and shifted along / across the primitive's
-    long axis (its x axis when hx >= hy)."""
+    """The true pose perturbed: turned about the primitive's centre and shifted along / across its long axis.
+
+    Parameters
+    ----------
+    target : Primitive
+        The target's primitive (:attr:`RunInfo.target`).
+    pose : ndarray, shape (3,)
+        COM pose (x m, y m, yaw rad).
+    dyaw : float
+        Turn about the primitive's centre, rad.
+    along, across : float
+        Shift of the centre along / across the long axis (a box's x axis when hx >= hy; a can's x axis), m.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The perturbed COM pose.
+    """
     centre = target.centre_world(pose)
     axis_yaw = float(pose[2]) + target.yaw
     if target.kind == "box" and target.half[1] > target.half[0]:
@@ -117,7 +195,23 @@ def perturbed(target, pose: np.ndarray, dyaw: float, along: float, across: float
 
 
 def loss_reason(success: bool, position_error: float, yaw_error: float, purity: float = 1.0) -> str:
-    """Why a grasp was lost ('' when it succeeded), in the order the causes act."""
+    """Why a grasp was lost, in the order the causes act.
+
+    Parameters
+    ----------
+    success : bool
+        The grasp succeeded.
+    position_error, yaw_error : float
+        Pose error against the truth, m and rad.
+    purity : float
+        Share of the chosen segment's labelled points that are the target's (NaN: no label known).
+
+    Returns
+    -------
+    str
+        '' on success; ``wrong_segment`` (position error > :data:`WRONG_SEGMENT_TOL`, or purity < 0.5),
+        ``yaw`` (> :data:`YAW_TOL`), ``position`` (> :data:`POSITION_TOL`), else ``grasp_rule``.
+    """
     if success:
         return ""
     if position_error > WRONG_SEGMENT_TOL or purity < 0.5:
@@ -131,7 +225,24 @@ def loss_reason(success: bool, position_error: float, yaw_error: float, purity: 
 
 def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[str], root_seed: int
                ) -> list[LadderRow]:
-    """Every rung of one run (the estimator rungs once per estimator)."""
+    """Every rung of one run (the estimator rungs once per estimator).
+
+    Parameters
+    ----------
+    run_path : Path
+        The collected run file.
+    segments_path : Path or None
+        The tracker's segments of the run; None skips ``tracker_our_choice``.
+    estimators : sequence of str
+        Pose estimators (:data:`pipeline.retrieve.ESTIMATORS`).
+    root_seed : int
+        Root seed of the estimators' random streams (:func:`pipeline.retrieve.retrieval_rng`).
+
+    Returns
+    -------
+    list of LadderRow
+        The true-pose rungs once (estimator ''), then the estimator rungs per estimator.
+    """
     from pipeline.grasp import GraspParams, grasp_at  # pybullet: about a second of start-up
 
     info = load_run(run_path)
@@ -155,12 +266,20 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
                 ("ideal_true_segment", [s for s in ideal if s.id == info.target_id], lambda s: 1.0),
                 ("ideal_our_choice", ideal, lambda s: float(s == info.target_id)),
                 ("tracker_our_choice", tracked,
-                 lambda s: float(np.mean(labels[s] == info.target_id)) if s in labels else 0.0)):
+                 lambda s: _purity(labels.get(s), info.target_id))):
             if rung == "tracker_our_choice" and segments_path is None:
                 continue
             e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run))
             grasp(est, rung, e.pose, purity_of(e.segment) if e.segment >= 0 else 0.0)
     return rows
+
+
+def _purity(labels: np.ndarray | None, target_id: int) -> float:
+    """Share of the known labels (>= 0) that are the target's; 0 without a segment, NaN without a known label."""
+    if labels is None:
+        return 0.0
+    known = labels[labels >= 0]
+    return float(np.mean(known == target_id)) if len(known) else math.nan
 
 
 def _run_pair(out: Path, scene: str, seed: int, estimators: Sequence[str], method: str, root_seed: int
@@ -210,14 +329,15 @@ def summarise(rows: Sequence[LadderRow]) -> list[dict]:
 #: Columns of the compact ladder table: (title, rungs pooled into it).
 _COLUMNS = (("true pose", ("true_pose",)), ("yaw ±0.05", ("yaw+0.05", "yaw-0.05")),
             ("yaw ±0.10", ("yaw+0.10", "yaw-0.10")), ("yaw ±0.15", ("yaw+0.15", "yaw-0.15")),
-            ("1 cm", ("pos+1cm_across", "pos+1cm_along")), ("2 cm", ("pos+2cm_across", "pos+2cm_along")),
+            ("1 cm", tuple(p[0] for p in PERTURBATIONS if p[0].startswith(("pos+1", "pos-1")))),
+            ("2 cm", tuple(p[0] for p in PERTURBATIONS if p[0].startswith(("pos+2", "pos-2")))),
             ("ideal, true segment", ("ideal_true_segment",)), ("ideal, our choice", ("ideal_our_choice",)),
             ("tracker, our choice", ("tracker_our_choice",)))
 
 
 def summary_markdown(summary: Sequence[dict]) -> str:
-    """One line per (task, estimator): grasps kept per rung (perturbations pooled over their two directions) and
-    why the tracker rung lost the others (wrong segment / yaw / position / grasp rule)."""
+    """One line per (task, estimator): grasps kept per rung (perturbations pooled over their directions: yaw ±, a
+    shift's four directions) and why the tracker rung lost the others (wrong segment / yaw / position / rule)."""
     head = "| task | estimator | " + " | ".join(t for t, _ in _COLUMNS) + " | tracker lost: segment / yaw / " \
         "position / rule |\n|" + "---|" * (len(_COLUMNS) + 3) + "\n"
     body = ""
@@ -232,6 +352,21 @@ def summary_markdown(summary: Sequence[dict]) -> str:
                                                                              "grasp_rule"))
         body += f"| {scene} | {est} | " + " | ".join(cells) + f" | {lost} |\n"
     return head + body
+
+
+def ladder_tables(summary: Sequence[dict]) -> str:
+    """A table per (task, estimator) of :func:`summarise`'s rows: one line per rung, grasps kept / runs and the
+    lost ones by reason."""
+    reasons = ("wrong_segment", "yaw", "position", "grasp_rule")
+    text = ""
+    for scene, est in dict.fromkeys((r["scene"], r["estimator"]) for r in summary):
+        text += f"\n{scene}, {est or 'no'} estimator\n{'rung':<20} {'GS':>7}   " + " ".join(
+            f"{k:>13}" for k in reasons) + "\n"
+        for r in summary:
+            if (r["scene"], r["estimator"]) == (scene, est):
+                text += f"{r['rung']:<20} {r['success']:>3}/{r['runs']:<3}   " + " ".join(
+                    f"{r['lost_' + k]:>13}" for k in reasons) + "\n"
+    return text
 
 
 def _atomic_text(path: Path, text: str) -> None:

@@ -58,7 +58,8 @@ RETRIEVAL_COLUMNS: tuple[schema.Column, ...] = (
 CANDIDATES_COLUMNS: tuple[schema.Column, ...] = (
     _RUN,
     _C("segment", pa.int64(), "", False, "Segment the candidate was fitted to.", minimum=0),
-    _C("restart", pa.int64(), "", False, "ICP restart 0..n_restarts-1.", minimum=0),
+    _C("restart", pa.int64(), "", False, "ICP restart 0..n_restarts-1 (paper); pose hypothesis (plausible).",
+       minimum=0),
     _C("n_points", pa.int64(), "", False, "Points in the segment.", minimum=1),
     _C("x_m", pa.float64(), "m", False, "Candidate target COM x.", finite=True),
     _C("y_m", pa.float64(), "m", False, "Candidate target COM y.", finite=True),
