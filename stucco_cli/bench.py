@@ -128,7 +128,8 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import METHODS, parse_scenes, partition
     from pipeline.retrieve.estimators import ESTIMATORS
-    from pipeline.retrieve.ladder import ladder_rows, ladder_tables, summarise, summary_markdown, write_outputs
+    from pipeline.retrieve.ladder import ladder_rows
+    from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
     from stucco_cli.main import user_errors
 
     if not runs_from.is_dir() or not (runs_from / "runs").is_dir():

@@ -46,6 +46,29 @@ def user_errors(what: str | None = None):
         raise click.ClickException(f"{what}: {msg}" if what else msg) from None
 
 
+def distinct_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:
+    """Refuse, in one line and before any work, a command whose outputs would overwrite one of its inputs or
+    each other. ``inputs`` and ``outputs`` map option names (``--in``) to paths (None: not given)."""
+    from pathlib import Path
+
+    def key(p) -> Path:
+        return Path(p).expanduser().resolve()
+
+    ins = {k: key(v) for k, v in inputs.items() if v is not None}
+    seen: dict[Path, str] = {}
+    for opt, path in outputs.items():
+        if path is None:
+            continue
+        k = key(path)
+        for in_opt, in_key in ins.items():
+            if k == in_key:
+                raise click.UsageError(f"{opt} {path} is also {in_opt}: a command never overwrites its own input; "
+                                       f"choose another {opt}")
+        if k in seen:
+            raise click.UsageError(f"{opt} {path} is also {seen[k]}: two outputs cannot share one file")
+        seen[k] = opt
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Root seed; every random draw of every stage derives from it.")

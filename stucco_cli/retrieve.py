@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors
+from stucco_cli.main import Settings, cli, distinct_paths, pass_settings, user_errors
 
 
 def _progress(settings: Settings, desc: str):
@@ -48,6 +48,8 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieval_metadata
     from pipeline.retrieve import retrieve as run_retrieve
 
+    cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
+    distinct_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
     with user_errors():
         segments = schema.read_segments(segments_path)
         meta = schema.read_metadata(segments_path)
@@ -61,7 +63,6 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
                                          progress=_progress(settings, "retrieve"),
                                          segments_path=str(segments_path), estimator=estimator,
                                          plausible_params=plausible)
-    cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
     meta_out = retrieval_metadata(estimator, params, plausible, method=method, grasp=grasp,
                                   grasp_params=gparams if grasp else None)
     inputs = {"segments": str(segments_path)}
@@ -105,10 +106,13 @@ def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir
     from pipeline.retrieve import read_retrieval
     from pipeline.score import diagnostics_path_for, score as run_score, summary_lines
 
+    distinct_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
+                   {"--out": out_path})
     with user_errors():
         retrieval = read_retrieval(retrieval_path)
         segments = schema.read_segments(segments_path)
         diag_path = diag_path or diagnostics_path_for(segments_path)
+        distinct_paths({"--diagnostics": diag_path}, {"--out": out_path})
         diagnostics = schema.read_diagnostics(diag_path) if diag_path is not None else None
     with user_errors("score"):
         table = run_score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),

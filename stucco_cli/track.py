@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors
+from stucco_cli.main import Settings, cli, distinct_paths, pass_settings, user_errors
 
 
 def _progress(settings: Settings, desc: str):
@@ -79,6 +79,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
                                "use --set KEY=VALUE for baseline parameters")
     params.update(_parse_sets(sets))
     diag_path = diag_path or diagnostics_path_for(out_path)
+    distinct_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
     with user_errors("track"):
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
     with user_errors("track"):
@@ -107,6 +108,7 @@ def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: 
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
     from pipeline.segment import plot_segments, segment_file, summarise
 
+    distinct_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
     with user_errors("segment"):
         segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by)
     if plot_path is not None:

@@ -11,9 +11,9 @@ import pytest
 from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.estimators import plausible_notes
 from pipeline.retrieve.model import Primitive, pose_error
+from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
 from pipeline.retrieve.plausible import (PlausibleParams, com_pose, consensus, evaluate_terms, fit_segment,
-                                         free_space_points, gripper_lattice, primitive_pose, primitive_sdf,
-                                         recency_sigma)
+                                         primitive_pose, primitive_sdf)
 from pipeline.robot import disc_sdf
 
 BOX = Primitive("box", (0.03, 0.079), np.array([0.002, -0.001]), 0.1, "box")
@@ -198,3 +198,23 @@ def test_same_seed_same_fit():
 def test_bad_parameters_are_refused(bad):
     with pytest.raises(ValueError):
         PlausibleParams(**bad)
+
+
+def test_uniform_rule_picks_within_the_set_by_every_point():
+    yaw = np.array([0.0, 0.5, 1.0])
+    cost = np.array([0.0, 0.3, 5.0])  # the third is outside a 0.5 margin
+    plausible = cost <= 0.5
+    uniform = np.array([9.0, 1.0, 0.0])
+    chosen, agree, _ = consensus(yaw, cost, plausible, math.pi, PlausibleParams(pose_rule="uniform"), uniform)
+    assert chosen == 1 and agree.tolist() == [False, True, False]
+
+
+def test_accurate_old_points_still_fix_the_yaw():
+    # The newest contacts lie on one face only; old contacts on the other long face are exact (ideal data):
+    # the uniform rule uses them, where the recency-weighted cost alone leaves the yaw loose.
+    new = _surface(BOX, TRUE, 3, faces=[0], seed=13)
+    old = _surface(BOX, TRUE, 12, faces=[1, 2], seed=14)
+    steps = np.r_[np.full(3, 20), np.arange(12)]
+    fit = _fit(BOX, np.vstack([new, old]), steps=steps)
+    pos, yaw = pose_error(BOX, fit.poses[fit.chosen], TRUE)
+    assert pos < 2e-3 and yaw < 0.01

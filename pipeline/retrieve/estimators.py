@@ -18,8 +18,8 @@ import numpy as np
 from pipeline.retrieve.model import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import (PlausibleParams, SegmentFit, fit_segment, free_space_points, gripper_lattice,
-                                         recency_sigma)
+from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
+from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",

@@ -45,7 +45,7 @@ class Primitive:
     """A box or upright cylinder in its body's inertial (COM) frame: the horizontal slice at contact height.
 
     Boxes and upright cylinders have the same cross-section at every height they span, so the slice at the
-    gripper plane (z = 0.1 m) is the whole shape for contact purposes (REFERENCE_SPEC §1.3).
+    gripper plane (z = 0.1 m) is the whole shape for contact purposes (docs/retrieval.md).
 
     Attributes
     ----------
@@ -138,7 +138,7 @@ def target_primitive(scene) -> tuple[int, Primitive]:
 
 
 def model_points(prim: Primitive, params: RetrievalParams, rng: np.random.Generator) -> np.ndarray:
-    """Model points on the target's surface at contact height, in its COM frame (REFERENCE_SPEC §6.4).
+    """Model points on the target's surface at contact height, in its COM frame (docs/retrieval.md, step 1).
 
     Box: testers (x, y) ~ N(0, sigma^2) about the primitive centre, each projected onto the closest point of
     the outline and rejected if within ``min_separation`` of an accepted point, until ``n_box_points``.

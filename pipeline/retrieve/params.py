@@ -15,7 +15,7 @@ __all__ = ["RetrievalParams"]
 
 @dataclass(frozen=True)
 class RetrievalParams:
-    """Parameters of pose estimation (paper §V-C, REFERENCE_SPEC §6.4-6.5); serialised into the metadata.
+    """Parameters of pose estimation (paper §V-C, docs/retrieval.md); serialised into the metadata.
 
     Attributes
     ----------

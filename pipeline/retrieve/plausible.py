@@ -15,7 +15,8 @@ estimator"):
   less certain: sigma = contact_sigma * recency_growth ** (later contacts), capped at max_sigma.
 * **free space**: squared depth (beyond free_tolerance) of gripper points inside the target, for the gripper
   poses from the segment's last contact on (the end of that action and the sweep of every later action), on a
-  lattice of the gripper's slice (the robot's SDF grid, :mod:`pipeline.robot`).
+  lattice of the gripper's slice (the robot's SDF grid, :mod:`pipeline.robot`), built in
+  :mod:`pipeline.retrieve.evidence`.
 * **others**: the same for the other segments' points, which lie on other objects' surfaces, not inside the
   target.
 
@@ -32,8 +33,7 @@ import numpy as np
 
 from pipeline.retrieve.model import Primitive, outline_point, wrap_angle
 
-__all__ = ["PlausibleParams", "Terms", "recency_sigma", "gripper_lattice", "free_space_points", "primitive_sdf",
-           "evaluate_terms", "refine", "initial_poses", "SegmentFit", "fit_segment", "consensus", "com_pose",
+__all__ = ["PlausibleParams", "Terms", "primitive_sdf", "evaluate_terms", "refine", "initial_poses", "SegmentFit", "fit_segment", "consensus", "com_pose",
            "primitive_pose"]
 
 
@@ -67,18 +67,20 @@ class PlausibleParams:
     other_tolerance : float, metres
         Depth of another segment's point inside the target that costs nothing (0.005).
     margin : float
-        Plausible set: hypotheses whose cost is within this of the best (2.0, in squared sigmas).
+        Plausible set: hypotheses whose cost is within this of the best (0.5, in squared sigmas).
     yaw_agreement : float, radians
         Hypotheses agree on a grasp when their yaws differ by less than this (0.05, the grasp's tolerance).
     min_share : float
         Below this share of the plausible set agreeing on the grasp yaw -> ``ambiguous_yaw`` (0.5).
     max_spread : float, metres
         Above this spread (RMS distance from their mean) of the agreeing poses' positions -> ``wide_set`` (0.02).
-    pose_rule : {"best", "vote"}
-        "best": the estimate is the plausible set's lowest-cost pose, and the set's agreement with its yaw is the
-        confidence; "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to
-        the best), then that group's lowest-cost pose. "best" grasped more on the training seeds
-        (docs/retrieval.md).
+    pose_rule : {"uniform", "best", "vote"}
+        "uniform" (default): the plausible pose whose cost with one sigma for every point (``uniform_sigma``) is
+        lowest: recency decides what is plausible, every contact picks within it. "best": the set's lowest-cost
+        pose. "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to the
+        best), then that group's lowest-cost pose. Measured on the training seeds in docs/retrieval.md.
+    uniform_sigma : float, metres
+        The one sigma of the "uniform" rule (0.005).
     icp_seeds : bool
         Also start from the paper's ICP results on the segment (True): ICP's local minima are starts the random
         ones can miss.
@@ -95,11 +97,12 @@ class PlausibleParams:
     free_weight: float = 1.0
     sweep_spacing: float = 0.01
     other_tolerance: float = 0.005
-    margin: float = 2.0
+    margin: float = 0.5
     yaw_agreement: float = 0.05
     min_share: float = 0.5
     max_spread: float = 0.02
-    pose_rule: str = "best"
+    pose_rule: str = "uniform"
+    uniform_sigma: float = 0.005
     icp_seeds: bool = True
 
     def __post_init__(self) -> None:
@@ -108,7 +111,7 @@ class PlausibleParams:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         for name in ("contact_sigma", "max_sigma", "outlier_sigmas", "free_resolution", "sweep_spacing",
-                     "yaw_agreement", "max_spread"):
+                     "yaw_agreement", "max_spread", "uniform_sigma"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
@@ -120,8 +123,8 @@ class PlausibleParams:
             raise ValueError(f"recency_growth must be a number >= 1, got {self.recency_growth!r}")
         if not (0.0 <= self.min_share <= 1.0):
             raise ValueError(f"min_share must be in [0, 1], got {self.min_share!r}")
-        if self.pose_rule not in ("best", "vote"):
-            raise ValueError(f"pose_rule must be 'best' or 'vote', got {self.pose_rule!r}")
+        if self.pose_rule not in ("best", "vote", "uniform"):
+            raise ValueError(f"pose_rule must be 'best', 'vote' or 'uniform', got {self.pose_rule!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -130,69 +133,6 @@ class PlausibleParams:
 # ---------------------------------------------------------------------------------------------------------------
 # Data: per-point sigma, gripper lattice, free space
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
-    """Standard deviation (M,), metres, of each point from the number of later contact steps of its segment."""
-    steps = np.asarray(steps, dtype=np.int64).reshape(-1)
-    distinct = np.unique(steps)
-    later = len(distinct) - np.searchsorted(distinct, steps, side="right")
-    # log-space power, so a long history overflows to the cap, never to inf * 0.
-    log_sigma = math.log(params.contact_sigma) + later * math.log(params.recency_growth)
-    return np.exp(np.minimum(log_sigma, math.log(params.max_sigma)))
-
-
-def gripper_lattice(sdf, resolution: float) -> np.ndarray:
-    """Robot-frame points (G, 2), metres, on a lattice of ``resolution`` inside the gripper's slice (sdf < 0)."""
-    lo, hi = sdf.interior_bounds(0.0)
-    if not np.all(np.isfinite(lo)):
-        return np.zeros((0, 2))
-    axes = [np.arange(lo[k], hi[k] + 0.5 * resolution, resolution) for k in range(2)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
-    return grid[sdf.query(grid) < 0.0]
-
-
-def free_space_points(lattice: np.ndarray, ee_start: np.ndarray, ee_end: np.ndarray, steps: np.ndarray,
-                      after_step: int, params: PlausibleParams, centre: np.ndarray, radius: float) -> np.ndarray:
-    """World points (F, 2), metres, the gripper occupied while the segment's object stayed where it ended.
-
-    The object last moved during action ``after_step`` (its last contact): the gripper's pose at the end of that
-    action and its sweep through every later action (straight from start to end, a pose every
-    ``sweep_spacing``) are free of it. Lattice points within ``radius`` of ``centre`` are kept, deduplicated
-    on a ``free_resolution`` grid.
-
-    Parameters
-    ----------
-    lattice : ndarray, shape (G, 2)
-        Gripper points in the robot frame (:func:`gripper_lattice`).
-    ee_start, ee_end : ndarray, shape (K, 2)
-        Gripper position at the start and end of every action.
-    steps : ndarray, shape (K,)
-        Action index of each row.
-    """
-    ee_start = np.asarray(ee_start, dtype=np.float64).reshape(-1, 2)
-    ee_end = np.asarray(ee_end, dtype=np.float64).reshape(-1, 2)
-    steps = np.asarray(steps, dtype=np.int64).reshape(-1)
-    later = steps > after_step
-    a, b = ee_start[later], ee_end[later]
-    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / params.sweep_spacing).astype(np.int64))
-    if len(a):
-        seg = np.repeat(np.arange(len(a)), n + 1)
-        t = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n])
-        sweep = a[seg] + t[:, None] * (b - a)[seg]
-    else:
-        sweep = np.zeros((0, 2))
-    poses = np.vstack([ee_end[steps == after_step], sweep])
-    reach = radius + float(np.max(np.linalg.norm(lattice, axis=1))) if len(lattice) else 0.0
-    poses = poses[np.linalg.norm(poses - centre, axis=1) <= reach]
-    if len(poses) == 0 or len(lattice) == 0:
-        return np.zeros((0, 2))
-    pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
-    pts = pts[np.linalg.norm(pts - centre, axis=1) <= radius]
-    if len(pts) == 0:
-        return pts
-    _, first = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
-    return pts[np.sort(first)]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -392,16 +332,17 @@ class SegmentFit:
         return float(self.terms.total[self.chosen])
 
 
-def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry: float, params: PlausibleParams
-              ) -> tuple[int, np.ndarray, float]:
+def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry: float, params: PlausibleParams,
+              uniform: np.ndarray | None = None) -> tuple[int, np.ndarray, float]:
     """The pose the plausible set supports, by ``params.pose_rule``.
 
     Each plausible hypothesis has the weight exp(-(cost - best)), its likelihood relative to the best; two
     hypotheses agree when their yaws differ by less than ``yaw_agreement`` modulo the shape's ``symmetry``
-    (0: any yaw, a can, where all agree). "best": the lowest-cost hypothesis; "vote": the hypothesis whose yaw
-    gathers the most weight (ties to the lower cost, then the lower index). Returns (index of the estimate:
-    the lowest-cost hypothesis agreeing with that yaw, mask of the hypotheses agreeing, their share of the
-    weight of the set).
+    (0: any yaw, a can, where all agree). "best": the lowest-cost hypothesis; "uniform": the one with the lowest
+    ``uniform`` cost (B,) (every point with one sigma); "vote": the hypothesis whose yaw gathers the most weight
+    (ties to the lower cost, then the lower index). Returns (index of the estimate: for "uniform" that
+    hypothesis, otherwise the lowest-cost hypothesis agreeing with its yaw; mask of the hypotheses agreeing;
+    their share of the weight of the set).
     """
     idx = np.flatnonzero(plausible)
     w = np.exp(-(cost[idx] - cost[idx].min()))
@@ -413,12 +354,14 @@ def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry
     if params.pose_rule == "vote":
         votes = near @ w
         anchor = int(np.lexsort((np.arange(len(idx)), cost[idx], -np.round(votes, 12)))[0])
+    elif params.pose_rule == "uniform" and uniform is not None:
+        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx], uniform[idx]))[0])
     else:
         anchor = int(np.lexsort((np.arange(len(idx)), cost[idx]))[0])
     agree = np.zeros_like(plausible)
     agree[idx[near[anchor]]] = True
-    chosen = int(np.flatnonzero(agree)[np.argmin(cost[agree])])
-    return chosen, agree, float(w[near[anchor]].sum() / w.sum())
+    chosen = idx[anchor] if params.pose_rule == "uniform" else int(np.flatnonzero(agree)[np.argmin(cost[agree])])
+    return int(chosen), agree, float(w[near[anchor]].sum() / w.sum())
 
 
 def fit_segment(prim: Primitive, points: np.ndarray, sigma: np.ndarray, free: np.ndarray, others: np.ndarray,
@@ -433,7 +376,11 @@ def fit_segment(prim: Primitive, points: np.ndarray, sigma: np.ndarray, free: np
     pose, terms = refine(prim, init, points, sigma, free, others, params)
     total = terms.total
     plausible = total <= total.min() + params.margin
-    chosen, agree, share = consensus(pose[:, 2], total, plausible, prim.symmetry, params)
+    sd_all, _ = primitive_sdf(prim, _to_local(points, pose)[0])
+    u2 = (sd_all / params.uniform_sigma) ** 2
+    c2 = params.outlier_sigmas ** 2
+    uniform = (0.5 * c2 * u2 / (c2 + u2)).sum(axis=1)
+    chosen, agree, share = consensus(pose[:, 2], total, plausible, prim.symmetry, params, uniform)
     centres = pose[agree, :2]
     spread = float(np.sqrt(np.mean(np.sum((centres - centres.mean(axis=0)) ** 2, axis=1))))
     sd, _ = primitive_sdf(prim, _to_local(points, pose)[0])

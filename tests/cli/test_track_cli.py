@@ -305,3 +305,41 @@ def test_track_particles_with_a_baseline_names_the_real_option(tmp_path, contact
     res = track(contacts_file, tmp_path / "t.parquet", "--robot", "disc:0.05", "--method", "kmeans",
                 "--particles", "5")
     assert_usage_error(res, "--particles applies to --method stucco only")
+
+
+# ------------------------------------------------------------------------------------------- outputs vs inputs
+
+
+@pytest.mark.parametrize("command, clash", [
+    ("track", "out=in"), ("track", "diagnostics=in"), ("track", "diagnostics=out"),
+    ("segment", "out=in"), ("segment", "plot=in"),
+    ("retrieve", "out=segments"), ("retrieve", "candidates=segments"), ("retrieve", "candidates=out"),
+    ("score", "out=retrieval"), ("score", "out=segments"), ("score", "out=diagnostics"),
+])
+def test_no_command_overwrites_its_input_or_writes_two_outputs_to_one_file(tmp_path, command, clash):
+    """Refused in one line before any work; every file is byte-identical afterwards."""
+    from stucco_cli.main import cli
+
+    files = {name: tmp_path / f"{name}.parquet" for name in ("in", "out", "segments", "retrieval", "diagnostics",
+                                                             "candidates", "plot")}
+    for f in files.values():
+        f.write_bytes(b"precious " + f.name.encode())
+    before = {f: f.read_bytes() for f in files.values()}
+    a, b = clash.split("=")
+    files[a] = files[b]
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    args = {
+        "track": ["track", "--in", files["in"], "--out", files["out"], "--diagnostics", files["diagnostics"]],
+        "segment": ["segment", "--in", files["in"], "--out", files["out"], "--plot", files["plot"]],
+        "retrieve": ["retrieve", "--segments", files["segments"], "--runs", runs, "--out", files["out"],
+                     "--candidates", files["candidates"]],
+        "score": ["score", "--retrieval", files["retrieval"], "--segments", files["segments"], "--runs", runs,
+                  "--diagnostics", files["diagnostics"], "--out", files["out"]],
+    }[command]
+    r = CliRunner().invoke(cli, [str(x) for x in args])
+    assert r.exit_code == 2, r.output
+    last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
+    assert last.startswith("Error: --") and ("never overwrites its own input" in last or "cannot share" in last), last
+    assert "Traceback" not in r.output
+    assert {f: f.read_bytes() for f in before} == before
