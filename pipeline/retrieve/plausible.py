@@ -67,7 +67,7 @@ class PlausibleParams:
     other_tolerance : float, metres
         Depth of another segment's point inside the target that costs nothing (0.005).
     margin : float
-        Plausible set: hypotheses whose cost is within this of the best (0.5, in squared sigmas).
+        Plausible set: hypotheses whose cost is within this of the best (2.0, in squared sigmas).
     yaw_agreement : float, radians
         Hypotheses agree on a grasp when their yaws differ by less than this (0.05, the grasp's tolerance).
     min_share : float
@@ -75,9 +75,9 @@ class PlausibleParams:
     max_spread : float, metres
         Above this spread (RMS distance from their mean) of the agreeing poses' positions -> ``wide_set`` (0.02).
     pose_rule : {"uniform", "best", "vote"}
-        "uniform" (default): the plausible pose whose cost with one sigma for every point (``uniform_sigma``) is
-        lowest: recency decides what is plausible, every contact picks within it. "best": the set's lowest-cost
-        pose. "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to the
+        "best" (default): the set's lowest-cost pose. "uniform": the plausible pose whose cost with one sigma for
+        every point (``uniform_sigma``) is lowest: recency decides what is plausible, every contact picks within
+        it. "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to the
         best), then that group's lowest-cost pose. Measured on the training seeds in docs/retrieval.md.
     uniform_sigma : float, metres
         The one sigma of the "uniform" rule (0.005).
@@ -97,11 +97,11 @@ class PlausibleParams:
     free_weight: float = 1.0
     sweep_spacing: float = 0.01
     other_tolerance: float = 0.005
-    margin: float = 0.5
+    margin: float = 2.0
     yaw_agreement: float = 0.05
     min_share: float = 0.5
     max_spread: float = 0.02
-    pose_rule: str = "uniform"
+    pose_rule: str = "best"
     uniform_sigma: float = 0.005
     icp_seeds: bool = True
 
