@@ -46,6 +46,26 @@ def user_errors(what: str | None = None):
         raise click.ClickException(f"{what}: {msg}" if what else msg) from None
 
 
+class FiniteFloat(click.FloatRange):
+    """A float option that must be finite (nan and inf refused, unlike :class:`click.FloatRange`) and in range."""
+
+    name = "finite float"
+
+    def convert(self, value, param, ctx):
+        import math
+
+        rv = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(rv, param, ctx)
+
+
+#: Physical or logical bounds of the options several commands share (docs/tables.md gives the units).
+POSITIVE = FiniteFloat(min=0.0, min_open=True)
+NON_NEGATIVE = FiniteFloat(min=0.0)
+ALPHA = FiniteFloat(min=0.0, max=1.0, min_open=True, max_open=True)  # exp(-d^2/l) > alpha: 0 and 1 are degenerate
+
+
 def distinct_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:
     """Refuse, in one line and before any work, a command whose outputs would overwrite one of its inputs or
     each other. ``inputs`` and ``outputs`` map option names (``--in``) to paths (None: not given)."""
@@ -70,7 +90,7 @@ def distinct_paths(inputs: dict[str, object], outputs: dict[str, object]) -> Non
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Root seed; every random draw of every stage derives from it.")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
               help="Parallel worker processes for stages that process independent runs.")

@@ -45,15 +45,24 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     """Estimate the target pose of every run from its segments and grasp it in simulation."""
     from pipeline import schema
     from pipeline.grasp import GraspParams
+    from pipeline.report import METHOD_ORDER
     from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieval_metadata
     from pipeline.retrieve import retrieve as run_retrieve
 
+    def known(m: str) -> str:
+        if m not in METHOD_ORDER:
+            raise click.BadParameter(f"unknown method {m!r}; expected one of {', '.join(METHOD_ORDER)}",
+                                     param_hint="--method")
+        return m
+
+    if method is not None:
+        known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
     distinct_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
     with user_errors():
         segments = schema.read_segments(segments_path)
         meta = schema.read_metadata(segments_path)
-    method = method or str((meta.get("params") or {}).get("method", "stucco"))
+    method = known(method or str((meta.get("params") or {}).get("method", "stucco")))
     with user_errors("retrieve"):
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
         plausible = PlausibleParams(**({} if hypotheses is None else {"n_hypotheses": hypotheses}))

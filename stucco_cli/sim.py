@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from stucco_cli.bench import bench
-from stucco_cli.main import Settings, cli, pass_settings, user_errors
+from stucco_cli.main import NON_NEGATIVE, Settings, cli, pass_settings, user_errors
 
 
 @cli.command()
@@ -35,7 +35,7 @@ def _load(scene: str):
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for one <scene>-<seed>.parquet per run.")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Stop each run after N actions.")
-@click.option("--noise-mm", type=click.FloatRange(min=0.0), default=None,
+@click.option("--noise-mm", type=NON_NEGATIVE, default=None,
               help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
 @click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
 @click.option("--force-overwrite", is_flag=True, help="Replace existing run files.")

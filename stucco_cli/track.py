@@ -5,7 +5,12 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, distinct_paths, pass_settings, user_errors
+from stucco_cli.main import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, cli, distinct_paths, pass_settings,
+                             user_errors)
+
+#: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
+#: 1e5 particles over 1,000 tracked points is already 1.6 GB.
+MAX_PARTICLES = 100_000
 
 
 def _progress(settings: Settings, desc: str):
@@ -46,16 +51,16 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
 @click.option("--method", default="stucco", show_default=True,
               help="stucco, or a baseline: birch, dbscan, kmeans, gmphd.")
 @click.option("--robot", default="panda", show_default=True, help="'panda' or 'disc:RADIUS' (metres).")
-@click.option("--particles", "n_particles", type=int, default=None, help="N particles [100].")
-@click.option("--length", type=float, default=None, help="Characteristic length l, m^2 [0.02].")
-@click.option("--penetration-length", type=float, default=None, help="Penetration length l_p, m^2 [0.002].")
-@click.option("--alpha", type=float, default=None, help="Connection threshold of Alg. 3 [0.4].")
-@click.option("--tolerance", type=float, default=None, help="Ignored penetration depth, m [0.002].")
+@click.option("--particles", "n_particles", type=click.IntRange(1, MAX_PARTICLES), default=None, help="N particles [100].")
+@click.option("--length", type=POSITIVE, default=None, help="Characteristic length l, m^2 [0.02].")
+@click.option("--penetration-length", type=POSITIVE, default=None, help="Penetration length l_p, m^2 [0.002].")
+@click.option("--alpha", type=ALPHA, default=None, help="Connection threshold of Alg. 3, in (0, 1) [0.4].")
+@click.option("--tolerance", type=NON_NEGATIVE, default=None, help="Ignored penetration depth, m [0.002].")
 @click.option("--weighting", type=click.Choice(["reference", "paper"]), default=None,
               help="Particle weighting rule [reference].")
 @click.option("--replace", type=click.Choice(["after-resample", "every-step", "never"]), default=None,
               help="When ReplaceInconsistentPoints runs [after-resample].")
-@click.option("--ess-threshold", type=float, default=None, help="Resample when ESS/N is below this [0.8].")
+@click.option("--ess-threshold", type=FiniteFloat(0.0, 1.0), default=None, help="Resample when ESS/N is below this [0.8].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Any other tracker parameter (e.g. baselines: --set eps=0.05).")
 @click.option("--every-step", is_flag=True, help="Also write the estimate after every step.")
@@ -97,8 +102,8 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Segments table to write.")
 @click.option("--by", type=click.Choice(["auto", "components", "tracker"]), default="auto", show_default=True,
               help="Alg. 3 connected components, the tracker's own labels, or auto (components for stucco).")
-@click.option("--length", type=float, default=None, help="Characteristic length l, m^2 [from the tracks metadata].")
-@click.option("--alpha", type=float, default=None, help="Connection threshold [from the tracks metadata].")
+@click.option("--length", type=POSITIVE, default=None, help="Characteristic length l, m^2 [from the tracks metadata].")
+@click.option("--alpha", type=ALPHA, default=None, help="Connection threshold, in (0, 1) [from the tracks metadata].")
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None,
               help="Also draw the final segments of the first runs to this PNG.")
 @click.option("--print", "print_table", is_flag=True, help="Print one line per segment to stdout.")

@@ -229,7 +229,7 @@ def test_make_baseline_unknown_name_lists_accepted_values():
     ("gmphd", "birth, detection, q, r, bias"),
 ])
 def test_make_baseline_unknown_parameter_lists_accepted_fields(name, fields):
-    with pytest.raises(ValueError, match=rf"unknown parameter\(s\) 'foo' for baseline '{name}'; accepted: {fields}"):
+    with pytest.raises(ValueError, match=rf"unknown parameter\(s\) 'foo' for method '{name}'; accepted: {fields}"):
         make_baseline(name, {"foo": 1}, np.random.default_rng(0))
 
 

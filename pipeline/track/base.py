@@ -10,7 +10,9 @@ and exposes its current estimate of every contact point seen so far, in the orde
 """
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import dataclasses
+import math
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -42,3 +44,31 @@ class ContactTracker(Protocol):
 
     def labels(self) -> np.ndarray:
         """ndarray, shape (M,), int64: hard object assignment of :attr:`points_` (0..n_objects-1)."""
+
+
+def params_from_dict(cls: type, values: dict[str, Any], method: str) -> Any:
+    """Build the parameter dataclass ``cls`` of ``method`` from a mapping of overrides, refusing (ValueError, one
+    line naming the parameter) unknown names and values of the wrong kind: a number where the default is a number
+    (finite; an integer where the default is one), a flag where it is a flag. Ranges are the dataclass's own
+    ``__post_init__`` checks."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for method {method!r}; "
+                         f"accepted: {', '.join(fields)}")
+    for name, value in values.items():
+        default = fields[name].default
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+            kind = "true or false"
+        elif isinstance(default, int):
+            ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+            kind = "an integer"
+        elif isinstance(default, float):
+            ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool) and math.isfinite(value)
+            kind = "a finite number"
+        else:
+            continue
+        if not ok:
+            raise ValueError(f"parameter {name!r} of method {method!r} must be {kind}, got {value!r}")
+    return cls(**values)

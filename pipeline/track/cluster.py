@@ -11,7 +11,6 @@ the growing k-means and the GM-PHD filter of :mod:`pipeline.track.gmphd`. Build 
 """
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Protocol
@@ -20,7 +19,7 @@ import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans
 from sklearn.exceptions import ConvergenceWarning
 
-from pipeline.track.base import ContactTracker
+from pipeline.track.base import ContactTracker, params_from_dict
 from pipeline.track.gmphd import GMPHDLabeller, GMPHDParams
 
 __all__ = [
@@ -281,12 +280,7 @@ def _params(name: str, cls: type, params: dict | Any | None) -> Any:
         return params
     if not isinstance(params, dict):
         raise ValueError(f"params for baseline {name!r} must be a dict or {cls.__name__}, got {type(params).__name__}")
-    accepted = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(params) - set(accepted))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for baseline {name!r}; "
-                         f"accepted: {', '.join(accepted)}")
-    return cls(**params)
+    return params_from_dict(cls, params, name)
 
 
 def make_baseline(name: str, params: dict | None, rng: np.random.Generator) -> ContactTracker:

@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.segment import segment_points
 from pipeline.track import kernels
+from pipeline.track.base import params_from_dict
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
@@ -101,13 +102,9 @@ class SoftTrackingParams:
 
     @classmethod
     def from_dict(cls, values: dict) -> "SoftTrackingParams":
-        """Build from a mapping, refusing unknown names with a ValueError that lists the accepted ones."""
-        accepted = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(values) - set(accepted))
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for method 'stucco'; "
-                             f"accepted: {', '.join(accepted)}")
-        return cls(**values)
+        """Build from a mapping, refusing unknown names (the ValueError lists the accepted ones) and values of the
+        wrong kind (:func:`pipeline.track.base.params_from_dict`)."""
+        return params_from_dict(cls, values, "stucco")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,84 @@
+"""Bad option and parameter values are refused where they enter (issue 12, classes 3 and 4).
+
+Every case: a non-zero exit, a last line that names the option or parameter, no traceback, no output written and
+every input byte-identical afterwards. Numbers must be finite and within their physical or logical range
+(docs/tables.md for units); tracker parameters given with ``--set`` must have the kind of their default.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from stucco_cli.main import cli
+
+CONTACTS = Path(__file__).resolve().parents[2] / "data" / "contacts" / "FB-000.parquet"
+
+#: (command, extra arguments, text the message must contain).
+CASES = [
+    ("track", ["--particles", "0"], "--particles"),
+    ("track", ["--particles", "1000000000"], "--particles"),
+    ("track", ["--length", "0"], "--length"),
+    ("track", ["--length", "-1"], "--length"),
+    ("track", ["--length", "nan"], "--length"),
+    ("track", ["--length", "inf"], "--length"),
+    ("track", ["--penetration-length", "nan"], "--penetration-length"),
+    ("track", ["--alpha", "0"], "--alpha"),
+    ("track", ["--alpha", "1"], "--alpha"),
+    ("track", ["--alpha", "2"], "--alpha"),
+    ("track", ["--alpha", "-1"], "--alpha"),
+    ("track", ["--alpha", "nan"], "--alpha"),
+    ("track", ["--tolerance", "-0.001"], "--tolerance"),
+    ("track", ["--ess-threshold", "1.5"], "--ess-threshold"),
+    ("track", ["--method", "birch", "--set", "threshold=abc"], "threshold"),
+    ("track", ["--method", "birch", "--set", "threshold=nan"], "threshold"),
+    ("track", ["--method", "dbscan", "--set", "min_samples=2.5"], "min_samples"),
+    ("track", ["--method", "dbscan", "--set", "eps=true"], "eps"),
+    ("track", ["--set", "n_particles=many"], "n_particles"),
+    ("segment", ["--length", "-1"], "--length"),
+    ("segment", ["--length", "0"], "--length"),
+    ("segment", ["--alpha", "0"], "--alpha"),
+    ("segment", ["--alpha", "-1"], "--alpha"),
+    ("segment", ["--alpha", "2"], "--alpha"),
+    ("segment", ["--alpha", "nan"], "--alpha"),
+    ("retrieve", ["--method", "foo"], "--method"),
+    ("collect", ["--noise-mm", "nan"], "--noise-mm"),
+    ("collect", ["--noise-mm", "inf"], "--noise-mm"),
+    ("collect", ["--noise-mm", "-1"], "--noise-mm"),
+    ("seed", ["--seed", "-1"], "--seed"),
+]
+
+
+def _args(command: str, extra: list[str], files: dict[str, Path]) -> list[str]:
+    if command == "track":
+        return ["track", "--in", str(files["contacts"]), "--out", str(files["out"]), "--robot", "disc:0.05", *extra]
+    if command == "segment":
+        return ["segment", "--in", str(files["tracks"]), "--out", str(files["out"]), *extra]
+    if command == "retrieve":
+        return ["retrieve", "--segments", str(files["segments"]), "--runs", str(files["runs"]), "--out",
+                str(files["out"]), *extra]
+    if command == "collect":
+        return ["collect", "--scene", "FB", "--seeds", "0", "--out", str(files["runs"]), *extra]
+    return [*extra, "track", "--in", str(files["contacts"]), "--out", str(files["out"]), "--robot", "disc:0.05"]
+
+
+@pytest.mark.parametrize("command, extra, culprit", CASES, ids=[f"{c}:{' '.join(e)}" for c, e, _ in CASES])
+def test_bad_value_is_refused_in_one_line_and_touches_nothing(tmp_path, command, extra, culprit):
+    files = {"contacts": tmp_path / "contacts.parquet", "tracks": tmp_path / "tracks.parquet",
+             "segments": tmp_path / "segments.parquet", "runs": tmp_path / "runs", "out": tmp_path / "out.parquet"}
+    shutil.copyfile(CONTACTS, files["contacts"])
+    files["tracks"].write_bytes(b"tracks the user keeps")
+    files["segments"].write_bytes(b"segments the user keeps")
+    files["runs"].mkdir()
+    before = {p: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+
+    r = CliRunner().invoke(cli, _args(command, extra, files))
+
+    assert r.exit_code != 0, r.output
+    assert "Traceback" not in r.output and not isinstance(r.exception, (TypeError, AttributeError, MemoryError))
+    last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
+    assert last.startswith("Error:") and culprit in last, r.output
+    assert {p: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    assert not files["out"].exists() and not any(files["runs"].iterdir())
