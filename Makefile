@@ -23,6 +23,8 @@ $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[dev]'
+	@echo "compiling the tracker's numba kernels once (cached on disk; about 30 s, never booked as tracking time)"
+	$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()"
 	@touch $(STAMP)
 
 # FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.

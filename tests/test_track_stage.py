@@ -189,3 +189,23 @@ def test_unknown_method_is_refused():
 def test_bad_tracker_params_surface_as_value_error():
     with pytest.raises(ValueError, match="n_particles must be a positive integer"):
         track_table(contacts(push_run("a")), TrackConfig(robot=DISC, params=dict(n_particles=0)), seed=0)
+
+
+def test_warm_up_loads_the_kernels_once_per_process_and_changes_no_result(tmp_path):
+    """Kernel compilation or cache loading happens before the timed updates (issue 12), once per process and
+    (method, robot), with its own random stream: the tracks of a run are the same with or without it."""
+    from pipeline import schema
+    from pipeline.robot import load_robot
+    from pipeline.track import stage
+
+    config = stage.TrackConfig(method="stucco", robot="disc:0.05")
+    robot = load_robot(config.robot)
+    (run, contacts), = schema.contacts_by_run(schema.read_contacts(stage.WARM_UP_LOG))
+    stage._WARM.discard(("stucco", "disc:0.05"))
+    warm = stage.track_run(run, contacts, config, robot, seed=3)
+    assert ("stucco", "disc:0.05") in stage._WARM
+    assert stage.warm_up(config, robot) == 0.0  # already warm
+    again = stage.track_run(run, contacts, config, robot, seed=3)
+    for k in warm.tracks:
+        np.testing.assert_array_equal(warm.tracks[k], again.tracks[k])
+    assert stage.warm_up(stage.TrackConfig(method="birch", robot="disc:0.05"), robot) == 0.0  # no kernels
