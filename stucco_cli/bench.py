@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import cli, pass_settings
+from stucco_cli.main import cli, pass_settings, writable_dir, writable_file
 
 
 @cli.group()
@@ -36,6 +36,8 @@ def _ints(text: str) -> tuple[int, ...]:
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also save every figure.")
 def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, reference_python, json_path) -> None:
     """Replay the authors' anchor streams: time per update, memory, FMI and CE, against the reference."""
+    if json_path is not None:
+        writable_file("--json", json_path)  # before the measurements, which a failed save would lose
     from pipeline.bench import track_bench
 
     res = track_bench(_ints(t_list), _ints(n_list), repeats=repeats, acc_seeds=accuracy_seeds, streams=streams,
@@ -74,6 +76,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                    baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
+    writable_dir("--out", out_dir)
     import pyarrow as pa
 
     from pipeline.collect import parse_seeds
@@ -123,6 +126,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_dir) -> None:
     """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
+    writable_dir("--out", out_dir)
     from tqdm import tqdm
 
     from pipeline.collect import parse_seeds

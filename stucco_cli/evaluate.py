@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors
+from stucco_cli.main import Settings, cli, pass_settings, user_errors, writable_dir
 
 
 @cli.command()
@@ -46,6 +46,9 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
              estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str, scheduler: str | None) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
+    for opt, d in (("--out", out_dir), ("--snapshot", snapshot_dir)):
+        if d is not None:
+            writable_dir(opt, d)  # before the evaluation, whose results a failed snapshot would not reach
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, distinct_paths, pass_settings, user_errors
+from stucco_cli.main import Settings, cli, check_paths, pass_settings, user_errors
 
 
 def _progress(settings: Settings, desc: str):
@@ -58,7 +58,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     if method is not None:
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
-    distinct_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
+    check_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
     with user_errors():
         segments = schema.read_segments(segments_path)
         meta = schema.read_metadata(segments_path)
@@ -75,10 +75,11 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     meta_out = retrieval_metadata(estimator, params, plausible, method=method, grasp=grasp,
                                   grasp_params=gparams if grasp else None)
     inputs = {"segments": str(segments_path)}
-    schema.write_table(table, out_path, stage="retrieve", params=meta_out, seed=settings.seed, inputs=inputs,
-                       kind="retrieval")
-    schema.write_table(candidates, cand_path, stage="retrieve", params=meta_out, seed=settings.seed,
-                       inputs=inputs, kind="candidates")
+    with user_errors("retrieve"):  # candidates first: the retrieval, which later stages read, only once both can
+        schema.write_table(candidates, cand_path, stage="retrieve", params=meta_out, seed=settings.seed,
+                           inputs=inputs, kind="candidates")
+        schema.write_table(table, out_path, stage="retrieve", params=meta_out, seed=settings.seed, inputs=inputs,
+                           kind="retrieval")
     if print_table:
         click.echo(f"{'run':<10} {'x_m':>7} {'y_m':>7} {'yaw':>6} {'seg':>4} {'pts':>4} {'pos_err_cm':>10} "
                    f"{'yaw_err':>7} {'grasp':>6}  notes / outcome")
@@ -115,13 +116,13 @@ def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir
     from pipeline.retrieve import read_retrieval
     from pipeline.score import diagnostics_path_for, score as run_score, summary_lines
 
-    distinct_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
+    check_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
                    {"--out": out_path})
     with user_errors():
         retrieval = read_retrieval(retrieval_path)
         segments = schema.read_segments(segments_path)
         diag_path = diag_path or diagnostics_path_for(segments_path)
-        distinct_paths({"--diagnostics": diag_path}, {"--out": out_path})
+        check_paths({"--diagnostics": diag_path}, {"--out": out_path})
         diagnostics = schema.read_diagnostics(diag_path) if diag_path is not None else None
     with user_errors("score"):
         table = run_score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from stucco_cli.bench import bench
-from stucco_cli.main import NON_NEGATIVE, Settings, cli, pass_settings, user_errors
+from stucco_cli.main import NON_NEGATIVE, Settings, check_paths, cli, pass_settings, user_errors, writable_dir
 
 
 @cli.command()
@@ -43,6 +43,7 @@ def _load(scene: str):
 def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_dir: Path, max_actions: int | None,
             noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
     """Simulate runs of a scene and record one Parquet file per seed (table `sim_run`, docs/simulation.md)."""
+    writable_dir("--out", out_dir)
     from pipeline.collect import collect as run_collect, output_path, parse_seeds
 
     sc = _load(scene)
@@ -86,6 +87,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
 @pass_settings
 def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, force_overwrite: bool) -> None:
     """Detect contacts from the wrench residual and isolate them on the gripper surface -> contacts table."""
+    check_paths({"--in": in_path}, {"--out": out_path})
     from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict, run_files
     from pipeline.schema import write_table
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors
+from stucco_cli.main import Settings, cli, pass_settings, user_errors, writable_dir
 
 
 @cli.group()
@@ -56,6 +56,7 @@ def _options(f):
 def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, methods) -> None:
     """Fig. 5: collect (greedy walk, discard rule), track with every method, median FMI against median CE with
     20th-80th percentile bars, for all runs and runs with ambiguity >= 0.3."""
+    writable_dir("--out", out_dir)
     from pipeline.evaluate import parse_methods
     from pipeline.study import training_study
 
@@ -87,6 +88,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
 def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, methods, values_json) -> None:
     """Sweep STUCCO's characteristic length and each baseline's main parameter on the training set; report the
     chosen values (highest median FMI; within 0.01 of it, lowest median CE). Defaults are not changed."""
+    writable_dir("--out", out_dir)
     from pipeline.evaluate import parse_methods
     from pipeline.study import TUNE_GRID, tune
 

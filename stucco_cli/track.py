@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, cli, distinct_paths, pass_settings,
+from stucco_cli.main import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, cli, pass_settings,
                              user_errors)
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
@@ -84,7 +84,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
                                "use --set KEY=VALUE for baseline parameters")
     params.update(_parse_sets(sets))
     diag_path = diag_path or diagnostics_path_for(out_path)
-    distinct_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
+    check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
     with user_errors("track"):
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
     with user_errors("track"):
@@ -113,11 +113,13 @@ def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: 
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
     from pipeline.segment import plot_segments, segment_file, summarise
 
-    distinct_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
+    check_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
     with user_errors("segment"):
         segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by)
     if plot_path is not None:
-        plot_segments(segments, plot_path)
+        with user_errors("segment --plot"):
+            plot_path.parent.mkdir(parents=True, exist_ok=True)  # as the tables' writer does
+            plot_segments(segments, plot_path)
     if print_table:
         rows = summarise(segments)
         click.echo(f"{'run':<16} {'segment':>7} {'points':>6} {'centroid_x_m':>12} {'centroid_y_m':>12} {'run_FMI':>8}")

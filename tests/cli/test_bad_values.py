@@ -82,3 +82,55 @@ def test_bad_value_is_refused_in_one_line_and_touches_nothing(tmp_path, command,
     assert last.startswith("Error:") and culprit in last, r.output
     assert {p: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
     assert not files["out"].exists() and not any(files["runs"].iterdir())
+
+
+# ------------------------------------------------------------------------------------------ bad output paths
+
+#: (command line with placeholders, culprit): {dir} an existing directory, {file} an existing file (so {file}/x
+#: lies under a file), {long} a 300-byte name; {contacts}, {tracks}, {segments}, {runs} as above.
+PATH_CASES = [
+    ("track --in {contacts} --out {dir}", "--out"),
+    ("track --in {contacts} --out {file}/t.parquet", "--out"),
+    ("track --in {contacts} --out {long}", "--out"),
+    ("track --in {contacts} --out {tmp}/t.parquet --diagnostics {dir}", "--diagnostics"),
+    ("segment --in {tracks} --out {dir}", "--out"),
+    ("segment --in {tracks} --out {tmp}/s.parquet --plot {dir}", "--plot"),
+    ("segment --in {tracks} --out {tmp}/s.parquet --plot {file}/p.png", "--plot"),
+    ("segment --in {tracks} --out {tmp}/s.parquet --plot {long}", "--plot"),
+    ("retrieve --segments {segments} --runs {runs} --out {dir}", "--out"),
+    ("retrieve --segments {segments} --runs {runs} --out {tmp}/r.parquet --candidates {dir}", "--candidates"),
+    ("retrieve --segments {segments} --runs {runs} --out {tmp}/r.parquet --candidates {file}/c.parquet",
+     "--candidates"),
+    ("score --retrieval {segments} --segments {tracks} --runs {runs} --out {dir}", "--out"),
+    ("isolate --in {runs} --out {dir}", "--out"),
+    ("isolate --in {runs} --out {file}/c.parquet", "--out"),
+    ("collect --scene FB --out {file}/runs", "--out"),
+    ("evaluate --quick --out {file}/eval", "--out"),
+    ("evaluate --quick --out {tmp}/eval --snapshot {file}/snap", "--snapshot"),
+    ("bench accuracy --out {file}/acc", "--out"),
+    ("bench retrieval --runs-from {tmp} --out {file}/ladder", "--out"),
+    ("bench track --json {file}/b.json", "--json"),
+    ("bench track --json {dir}", "--json"),
+    ("study training --out {file}/training", "--out"),
+]
+
+
+@pytest.mark.parametrize("line, culprit", PATH_CASES, ids=[c for c, _ in PATH_CASES])
+def test_unwritable_output_is_refused_before_any_work(tmp_path, line, culprit):
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "adir").mkdir()
+    shutil.copyfile(CONTACTS, tmp_path / "contacts.parquet")
+    for name in ("tracks", "segments", "afile"):
+        (tmp_path / name).write_bytes(f"{name} the user keeps".encode())
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    names = dict(tmp=tmp_path, dir=tmp_path / "adir", file=tmp_path / "afile", long=tmp_path / ("x" * 300),
+                 contacts=tmp_path / "contacts.parquet", tracks=tmp_path / "tracks", segments=tmp_path / "segments",
+                 runs=tmp_path / "runs")
+
+    r = CliRunner().invoke(cli, line.format(**names).split())
+
+    assert r.exit_code != 0, r.output
+    assert "Traceback" not in r.output and (r.exception is None or isinstance(r.exception, SystemExit)), r.exception
+    last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
+    assert last.startswith("Error:") and culprit in last, r.output
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
