@@ -244,3 +244,20 @@ def summary_lines(scores: pa.Table) -> list[str]:
         lines.append(f"{key[0]:<6} {key[1]:<8} {key[2]:<9} runs {int(m.sum()):>3}  GS {gtxt} %  FMI {ms(f)}  CE {ms(ce)} cm  "
                      f"pos err median {pem * 100:.1f} cm  yaw err median {yem:.2f} rad")
     return lines
+
+
+def check_score_inputs(retrieval_path: str | Path, segments_path: str | Path, segments: pa.Table,
+                       diagnostics: pa.Table | None = None, diagnostics_path: str | Path | None = None) -> None:
+    """Refuse (ValueError naming the file) inputs that do not belong together: a segments file other than the one
+    the retrieval recorded (its SHA-256 in the ``stucco.inputs`` metadata, docs/tables.md), or diagnostics that
+    lack a run of the segments table. Scoring them would pair FMI and timings with the wrong run."""
+    recorded = (schema.read_metadata(retrieval_path).get("inputs") or {}).get("segments") or {}
+    digest = recorded.get("sha256")
+    if digest and schema.file_digest(segments_path) != digest:
+        raise ValueError(f"{segments_path}: not the segments table {retrieval_path} was made from (it recorded "
+                         f"{recorded.get('file', '?')} with SHA-256 {digest[:12]}…, this file differs)")
+    if diagnostics is not None:
+        missing = sorted(set(segments.column("run").to_pylist()) - set(diagnostics.column("run").to_pylist()))
+        if missing:
+            raise ValueError(f"{diagnostics_path}: no diagnostics for run {missing[0]!r} of {segments_path} "
+                             f"({len(missing)} run(s) missing); pass the diagnostics of the same tracking")

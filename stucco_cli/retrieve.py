@@ -114,7 +114,7 @@ def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir
     """Score runs: grasp success, FMI, contact error (cm), pose error and stage timings (scores.parquet)."""
     from pipeline import schema
     from pipeline.retrieve import read_retrieval
-    from pipeline.score import diagnostics_path_for, score as run_score, summary_lines
+    from pipeline.score import check_score_inputs, diagnostics_path_for, score as run_score, summary_lines
 
     check_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
                    {"--out": out_path})
@@ -124,6 +124,7 @@ def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir
         diag_path = diag_path or diagnostics_path_for(segments_path)
         check_paths({"--diagnostics": diag_path}, {"--out": out_path})
         diagnostics = schema.read_diagnostics(diag_path) if diag_path is not None else None
+        check_score_inputs(retrieval_path, segments_path, segments, diagnostics, diag_path)
     with user_errors("score"):
         table = run_score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
                           retrieval_path=str(retrieval_path))

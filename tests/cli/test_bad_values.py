@@ -134,3 +134,50 @@ def test_unwritable_output_is_refused_before_any_work(tmp_path, line, culprit):
     last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
     assert last.startswith("Error:") and culprit in last, r.output
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+# ------------------------------------------------------------------------------ inputs that do not belong together
+
+REGRESSION = Path(__file__).resolve().parents[2] / "data" / "regression"
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mismatch") / "ev"
+    r = CliRunner().invoke(cli, ["-q", "evaluate", "--from-runs", str(REGRESSION), "--scenes", "FB,TC", "--seeds",
+                                 "0", "--methods", "stucco", "--estimators", "paper", "--no-figures", "--out",
+                                 str(out)])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def _part(out: Path, kind: str, scene: str) -> Path:
+    return next((out / kind / f"scene={scene}").rglob("part.parquet"))
+
+
+@pytest.mark.parametrize("segments_of, diagnostics_of, culprit", [
+    ("TC", "FB", "not the segments table"),
+    ("FB", "TC", "no diagnostics for run"),
+])
+def test_score_refuses_inputs_of_another_run(two_runs, tmp_path, segments_of, diagnostics_of, culprit):
+    files = [_part(two_runs, k, s) for k, s in (("retrieval", "FB"), ("segments", segments_of),
+                                                ("diagnostics", diagnostics_of))]
+    before = [f.read_bytes() for f in files]
+    out = tmp_path / "scores.parquet"
+    r = CliRunner().invoke(cli, ["score", "--retrieval", str(files[0]), "--segments", str(files[1]), "--diagnostics",
+                                 str(files[2]), "--runs", str(_part(two_runs, "runs", "FB").parent), "--out",
+                                 str(out)])
+    assert r.exit_code == 1, r.output
+    last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
+    assert last.startswith("Error:") and culprit in last and "Traceback" not in r.output, r.output
+    assert [f.read_bytes() for f in files] == before and not out.exists()
+
+
+def test_score_accepts_the_inputs_the_retrieval_was_made_from(two_runs, tmp_path):
+    out = tmp_path / "scores.parquet"
+    r = CliRunner().invoke(cli, ["score", "--retrieval", str(_part(two_runs, "retrieval", "FB")), "--segments",
+                                 str(_part(two_runs, "segments", "FB")), "--diagnostics",
+                                 str(_part(two_runs, "diagnostics", "FB")), "--runs",
+                                 str(_part(two_runs, "runs", "FB").parent), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert out.exists()
