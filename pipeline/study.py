@@ -100,7 +100,7 @@ class Setting:
     restarts: int = 30
     robot: str = "panda"
     estimator: str = "plausible"
-    hypotheses: int = 64
+    hypotheses: int = 32
     free_resolution: float = 0.005
 
 

@@ -33,7 +33,7 @@ def _side_path(out_path: Path, suffix: str) -> Path:
                    "target's shape, the contacts and the gripper's free space; paper: the paper's ICP procedure.")
 @click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
 @click.option("--hypotheses", type=click.IntRange(min=1), default=None,
-              help="Pose hypotheses of the plausible estimator [64].")
+              help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
 @click.option("--grasp/--no-grasp", default=True, show_default=True,
               help="Simulate the grasp at each estimate (pybullet).")

@@ -63,8 +63,8 @@ def test_choose_breaks_fmi_near_ties_by_ce():
 
 
 def test_accuracy_settings_have_the_default_once():
-    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (32, 64), (5, 10), baselines=("kmeans",))]
-    assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "stucco hypotheses=32",
+    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (16, 32), (5, 10), baselines=("kmeans",))]
+    assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "stucco hypotheses=16",
                      "stucco free=10mm", "stucco paper estimator", "kmeans"]
 
 

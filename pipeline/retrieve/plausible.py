@@ -44,7 +44,7 @@ class PlausibleParams:
     Attributes
     ----------
     n_hypotheses : int
-        SE(2) starts per segment (64): stratified yaw, the points' centroid on a random point of the outline.
+        SE(2) starts per segment (32): stratified yaw, the points' centroid on a random point of the outline.
     iterations : int
         Levenberg-Marquardt iterations per start (30).
     contact_sigma : float, metres
@@ -86,7 +86,7 @@ class PlausibleParams:
         ones can miss.
     """
 
-    n_hypotheses: int = 64
+    n_hypotheses: int = 32
     iterations: int = 30
     contact_sigma: float = 0.003
     recency_growth: float = 2.0
