@@ -6,10 +6,10 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import cli, pass_settings, writable_dir, writable_file
+from stucco_cli.common import pass_settings, user_errors, writable_dir, writable_file
 
 
-@cli.group()
+@click.group()
 def bench() -> None:
     """Benchmarks: what accuracy costs in time."""
 
@@ -83,7 +83,6 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     from pipeline.evaluate import parse_scenes
     from pipeline.study import (_write_csv, accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
                                 summary_markdown)
-    from stucco_cli.main import user_errors
 
     try:
         scene_list = parse_scenes(scenes)
@@ -134,7 +133,6 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     from pipeline.retrieve.estimators import ESTIMATORS
     from pipeline.retrieve.ladder import ladder_rows
     from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
-    from stucco_cli.main import user_errors
 
     if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
         raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors, writable_dir
+from stucco_cli.common import Settings, pass_settings, user_errors, writable_dir
 
 
-@cli.command()
+@click.command()
 @click.option("--scenes", default=None, help="Comma-separated retrieval tasks, or 'all' [FB,BC,IB,TC].")
 @click.option("--seeds", default=None, help="Run seeds: N, N-M, or a comma-separated list [0-19].")
 @click.option("--methods", default="all", show_default=True,
@@ -43,7 +43,8 @@ from stucco_cli.main import Settings, cli, pass_settings, user_errors, writable_
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
-             estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str, scheduler: str | None) -> None:
+             estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str,
+             scheduler: str | None) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     for opt, d in (("--out", out_dir), ("--snapshot", snapshot_dir)):

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, check_paths, pass_settings, user_errors
+from stucco_cli.common import Settings, check_paths, pass_settings, user_errors
 
 
 def _progress(settings: Settings, desc: str):
@@ -18,7 +18,7 @@ def _side_path(out_path: Path, suffix: str) -> Path:
     return out_path.with_name(out_path.name.removesuffix(".parquet") + suffix)
 
 
-@cli.command()
+@click.command()
 @click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
               help="Segments table (Parquet) from `stucco segment`.")
 @click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
@@ -97,7 +97,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
                    + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""), err=True)
 
 
-@cli.command()
+@click.command()
 @click.option("--retrieval", "retrieval_path", required=True, type=click.Path(path_type=Path),
               help="Retrieval table from `stucco retrieve`.")
 @click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),

@@ -7,10 +7,10 @@ from pathlib import Path
 import click
 
 from stucco_cli.bench import bench
-from stucco_cli.main import NON_NEGATIVE, Settings, check_paths, cli, pass_settings, user_errors, writable_dir
+from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, pass_settings, user_errors, writable_dir
 
 
-@cli.command()
+@click.command()
 def scenes() -> None:
     """List the scenes (data/scenes/*.toml) with a one-line description each."""
     from pipeline.scenes import SCENE_DIR, load_all
@@ -27,7 +27,7 @@ def _load(scene: str):
         return load_scene(scene)
 
 
-@cli.command()
+@click.command()
 @click.option("--scene", required=True, help="Scene name (see `stucco scenes`) or path to a scene .toml file.")
 @click.option("--seeds", default="0", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
 @click.option("--policy", type=click.Choice(["scripted", "greedy-walk"]), default=None,
@@ -77,7 +77,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
                        f"{touched}; {state}; {r.wall_s:.2f} s", err=True)
 
 
-@cli.command()
+@click.command()
 @click.option("--in", "in_path", required=True, type=click.Path(path_type=Path),
               help="Directory of run files from `stucco collect` (or one run file).")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path),

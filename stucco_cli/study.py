@@ -6,10 +6,10 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import Settings, cli, pass_settings, user_errors, writable_dir
+from stucco_cli.common import Settings, pass_settings, user_errors, writable_dir
 
 
-@cli.group()
+@click.group()
 def study() -> None:
     """Studies on the training set (SELECT1-4, greedy random walk)."""
 

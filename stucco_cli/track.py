@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.main import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, cli, pass_settings,
+from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
                              user_errors)
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
@@ -43,7 +43,7 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
     return out
 
 
-@cli.command()
+@click.command()
 @click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Contacts table (Parquet).")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Tracks table to write.")
 @click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
@@ -51,7 +51,8 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
 @click.option("--method", default="stucco", show_default=True,
               help="stucco, or a baseline: birch, dbscan, kmeans, gmphd.")
 @click.option("--robot", default="panda", show_default=True, help="'panda' or 'disc:RADIUS' (metres).")
-@click.option("--particles", "n_particles", type=click.IntRange(1, MAX_PARTICLES), default=None, help="N particles [100].")
+@click.option("--particles", "n_particles", type=click.IntRange(1, MAX_PARTICLES), default=None,
+              help="N particles [100].")
 @click.option("--length", type=POSITIVE, default=None, help="Characteristic length l, m^2 [0.02].")
 @click.option("--penetration-length", type=POSITIVE, default=None, help="Penetration length l_p, m^2 [0.002].")
 @click.option("--alpha", type=ALPHA, default=None, help="Connection threshold of Alg. 3, in (0, 1) [0.4].")
@@ -60,7 +61,8 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
               help="Particle weighting rule [reference].")
 @click.option("--replace", type=click.Choice(["after-resample", "every-step", "never"]), default=None,
               help="When ReplaceInconsistentPoints runs [after-resample].")
-@click.option("--ess-threshold", type=FiniteFloat(0.0, 1.0), default=None, help="Resample when ESS/N is below this [0.8].")
+@click.option("--ess-threshold", type=FiniteFloat(0.0, 1.0), default=None,
+              help="Resample when ESS/N is below this [0.8].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Any other tracker parameter (e.g. baselines: --set eps=0.05).")
 @click.option("--every-step", is_flag=True, help="Also write the estimate after every step.")
@@ -97,7 +99,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
                    f"({ms.sum() / 1e3:.2f} s in updates; diagnostics -> {diag_path})", err=True)
 
 
-@cli.command()
+@click.command()
 @click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Tracks table (Parquet).")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Segments table to write.")
 @click.option("--by", type=click.Choice(["auto", "components", "tracker"]), default="auto", show_default=True,

@@ -1,0 +1,126 @@
+"""What every `stucco` command shares: the group's settings, one-line errors, checked option types and paths.
+
+Errors a user can fix (bad input files, unknown scenes, bad option values, outputs that cannot be written)
+surface as one line through :class:`click.ClickException` or :class:`click.UsageError` with a non-zero exit code,
+never as a traceback.
+"""
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from pathlib import Path
+from dataclasses import dataclass
+
+import click
+
+
+
+@dataclass
+class Settings:
+    """Options of the `stucco` group, shared with every command through the click context."""
+
+    seed: int = 0
+    jobs: int = 1
+    verbosity: int = 0  # -1 quiet, 0 normal, >0 verbose
+
+    @property
+    def progress(self) -> bool | None:
+        """tqdm's `disable` argument: bars off when quiet, auto (TTY only) otherwise."""
+        return True if self.verbosity < 0 else None
+
+
+pass_settings = click.make_pass_decorator(Settings, ensure=True)
+
+
+@contextmanager
+def user_errors(what: str | None = None):
+    """Turn the errors a user can fix (bad files, bad values) into one-line :class:`click.ClickException`."""
+    from pipeline.schema import SchemaError
+
+    try:
+        yield
+    except SchemaError as e:
+        raise click.ClickException(str(e)) from None
+    except (ValueError, FileNotFoundError) as e:
+        msg = " ".join(str(e).split())
+        raise click.ClickException(f"{what}: {msg}" if what else msg) from None
+    except OSError as e:  # an output the checks of check_paths could not foresee (full disk, read-only mount)
+        where = f"{e.filename}: " if e.filename else ""
+        raise click.ClickException(f"{what + ': ' if what else ''}{where}{e.strerror or e}") from None
+
+
+class FiniteFloat(click.FloatRange):
+    """A float option that must be finite (nan and inf refused, unlike :class:`click.FloatRange`) and in range."""
+
+    name = "finite float"
+
+    def convert(self, value, param, ctx):
+        import math
+
+        rv = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(rv, param, ctx)
+
+
+#: Physical or logical bounds of the options several commands share (docs/tables.md gives the units).
+POSITIVE = FiniteFloat(min=0.0, min_open=True)
+NON_NEGATIVE = FiniteFloat(min=0.0)
+ALPHA = FiniteFloat(min=0.0, max=1.0, min_open=True, max_open=True)  # exp(-d^2/l) > alpha: 0 and 1 are degenerate
+
+
+def check_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:
+    """Refuse, in one line and before any work, outputs that could not be written or would destroy data.
+
+    ``inputs`` and ``outputs`` map option names (``--in``) to paths (None: not given). An output may not be one of
+    the command's inputs or another output, an existing directory, a name longer than the file system allows, or
+    lie under a file or in a directory this user cannot write (missing parent directories are created later).
+    """
+    def key(p) -> Path:
+        return Path(p).expanduser().resolve()
+
+    for opt, path in outputs.items():
+        if path is not None:
+            writable_file(opt, path)
+    ins = {k: key(v) for k, v in inputs.items() if v is not None}
+    seen: dict[Path, str] = {}
+    for opt, path in outputs.items():
+        if path is None:
+            continue
+        k = key(path)
+        for in_opt, in_key in ins.items():
+            if k == in_key:
+                raise click.UsageError(f"{opt} {path} is also {in_opt}: a command never overwrites its own input; "
+                                       f"choose another {opt}")
+        if k in seen:
+            raise click.UsageError(f"{opt} {path} is also {seen[k]}: two outputs cannot share one file")
+        seen[k] = opt
+
+
+def writable_file(opt: str, path) -> None:
+    """Raise a one-line :class:`click.UsageError` naming ``opt`` unless ``path`` can be created as a file."""
+    p = Path(path).expanduser()
+    if len(p.name.encode()) > _NAME_MAX:
+        raise click.UsageError(f"{opt}: the file name is {len(p.name.encode())} bytes long; at most {_NAME_MAX}")
+    writable_dir(opt, p.parent)
+    if p.is_dir():
+        raise click.UsageError(f"{opt} {path} is a directory; expected a file name")
+
+
+def writable_dir(opt: str, path) -> None:
+    """Raise a one-line :class:`click.UsageError` naming ``opt`` unless ``path`` is, or can be made, a directory
+    this user can write."""
+    d = Path(path).expanduser().resolve()
+    if any(len(part.encode()) > _NAME_MAX for part in d.parts):
+        raise click.UsageError(f"{opt} {path}: a directory name is longer than {_NAME_MAX} bytes")
+    existing = d
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise click.UsageError(f"{opt} {path}: {existing} is a file, not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise click.UsageError(f"{opt} {path}: the directory {existing} is not writable")
+
+
+#: Longest file name (bytes) of the usual Linux and macOS file systems.
+_NAME_MAX = 255
