@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import pass_settings, user_errors, writable_dir, writable_file
+from stucco_cli.common import parsed, pass_settings, user_errors, writable_dir, writable_file
 
 
 @click.group()
@@ -84,14 +84,8 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     from pipeline.study import (_write_csv, accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
                                 summary_markdown)
 
-    try:
-        scene_list = parse_scenes(scenes)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--scenes") from None
-    try:
-        seed_list = parse_seeds(seeds)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    scene_list = parsed("--scenes", parse_scenes, scenes)
+    seed_list = parsed("--seeds", parse_seeds, seeds)
     sweep = accuracy_settings(_ints(n_list), _ints(restart_list), _floats(sdf_list),
                               hypotheses=_ints(hyp_list) if hyp_list.strip() else (),
                               free_mm=_floats(free_list) if free_list.strip() else (),
@@ -130,25 +124,16 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
 
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import METHODS, parse_scenes, partition
-    from pipeline.retrieve.estimators import ESTIMATORS
+    from pipeline.retrieve.estimators import parse_estimators
     from pipeline.retrieve.ladder import ladder_rows
     from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
 
     if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
         raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
                                  f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
-    try:
-        scene_list = parse_scenes(scenes)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--scenes") from None
-    try:
-        seed_list = parse_seeds(seeds)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--seeds") from None
-    est = tuple(e.strip() for e in estimators.split(",") if e.strip())
-    if not est or any(e not in ESTIMATORS for e in est):
-        raise click.BadParameter(f"expected some of {', '.join(ESTIMATORS)}, got {estimators!r}",
-                                 param_hint="--estimators")
+    scene_list = parsed("--scenes", parse_scenes, scenes)
+    seed_list = parsed("--seeds", parse_seeds, seeds)
+    est = parsed("--estimators", parse_estimators, estimators)
     if method not in METHODS:
         raise click.BadParameter(f"expected one of {', '.join(METHODS)}, got {method!r}", param_hint="--method")
     pairs = [(sc, s) for sc in scene_list for s in seed_list]

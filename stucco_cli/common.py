@@ -49,6 +49,14 @@ def user_errors(what: str | None = None):
         raise click.ClickException(f"{what + ': ' if what else ''}{where}{e.strerror or e}") from None
 
 
+def parsed(param_hint: str, parse, text):
+    """``parse(text)``, a ValueError becoming click's one-line "Invalid value for PARAM_HINT" (exit code 2)."""
+    try:
+        return parse(text)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint=param_hint) from None
+
+
 class FiniteFloat(click.FloatRange):
     """A float option that must be finite (nan and inf refused, unlike :class:`click.FloatRange`) and in range."""
 

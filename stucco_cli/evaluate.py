@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import Settings, pass_settings, user_errors, writable_dir
+from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
 
 
 @click.command()
@@ -80,17 +80,10 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
             seed_list = list(QUICK_SEEDS) if quick else parse_seeds("0-19")
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--seeds") from None
-    try:
-        method_list = parse_methods(methods)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--methods") from None
-    from pipeline.retrieve.estimators import ESTIMATORS
+    method_list = parsed("--methods", parse_methods, methods)
+    from pipeline.retrieve.estimators import parse_estimators
 
-    estimator_list = tuple(e.strip() for e in estimators.split(",") if e.strip())
-    bad = [e for e in estimator_list if e not in ESTIMATORS]
-    if bad or not estimator_list:
-        raise click.BadParameter(f"unknown estimator {bad[0] if bad else ''!r}; expected some of "
-                                 f"{', '.join(ESTIMATORS)}", param_hint="--estimators")
+    estimator_list = parsed("--estimators", parse_estimators, estimators)
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from stucco_cli.bench import bench
-from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, pass_settings, user_errors, writable_dir
+from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, parsed, pass_settings, user_errors, writable_dir
 
 
 @click.command()
@@ -47,10 +47,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
     from pipeline.collect import collect as run_collect, output_path, parse_seeds
 
     sc = _load(scene)
-    try:
-        seed_list = parse_seeds(seeds)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    seed_list = parsed("--seeds", parse_seeds, seeds)
     if policy is None:
         policy = "scripted" if sc.kind == "retrieval" else "greedy-walk"
     if policy == "scripted" and sc.actions is None:

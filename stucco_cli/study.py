@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import Settings, pass_settings, user_errors, writable_dir
+from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
 
 
 @click.group()
@@ -27,10 +27,7 @@ def _grid(scenes: str, seeds: str):
         if sc.walk is None:
             raise click.BadParameter(f"scene {n!r} has no [walk] table (not a training scene)",
                                      param_hint="--scenes")
-    try:
-        return names, parse_seeds(seeds)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--seeds") from None
+    return names, parsed("--seeds", parse_seeds, seeds)
 
 
 _common = [
@@ -61,10 +58,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     from pipeline.study import training_study
 
     names, seed_list = _grid(scenes, seeds)
-    try:
-        method_list = parse_methods(methods)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--methods") from None
+    method_list = parsed("--methods", parse_methods, methods)
     with user_errors("study training"):
         res = training_study(out_dir, names, seed_list, method_list, root_seed=settings.seed,
                              jobs=jobs or settings.jobs, progress=settings.progress, max_actions=max_actions)
@@ -93,10 +87,7 @@ def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     from pipeline.study import TUNE_GRID, tune
 
     names, seed_list = _grid(scenes, seeds)
-    try:
-        method_list = parse_methods(methods)
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--methods") from None
+    method_list = parsed("--methods", parse_methods, methods)
     grid = {m: TUNE_GRID[m] for m in method_list}
     if values_json:
         try:

@@ -120,7 +120,7 @@ def test_cli_writes_the_ladder(evaluation, tmp_path):
 @pytest.mark.parametrize("args, match", [
     (["--runs-from", "{tmp}/nowhere"], r"Invalid value for --runs-from: .*not an evaluation directory"),
     (["--seeds", "5"], r"Invalid value for --runs-from: .*no collected run for FB seed 5"),
-    (["--estimators", "icp"], r"Invalid value for --estimators: expected some of plausible, paper"),
+    (["--estimators", "icp"], r"Invalid value for --estimators: unknown estimator .icp.; expected some of plausible"),
     (["--scenes", "SELECT1"], r"Invalid value for --scenes: scene 'SELECT1' is a training scene"),
 ])
 def test_cli_bad_options_fail_with_one_line(evaluation, tmp_path, args, match):

@@ -23,11 +23,20 @@ from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",
-           "plausible_notes"]
+           "plausible_notes", "parse_estimators"]
 
 #: Pose estimators, the default first.
 ESTIMATORS = ("plausible", "paper")
 DEFAULT_ESTIMATOR = ESTIMATORS[0]
+
+
+def parse_estimators(text: str) -> tuple[str, ...]:
+    """Estimator names from ``"plausible,paper"``; ValueError naming an unknown one (or none given)."""
+    names = tuple(n.strip() for n in str(text).split(",") if n.strip())
+    bad = [n for n in names if n not in ESTIMATORS]
+    if bad or not names:
+        raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+    return names
 
 
 @dataclass(frozen=True)

@@ -33,8 +33,8 @@ import numpy as np
 
 from pipeline.retrieve.model import Primitive, outline_point, wrap_angle
 
-__all__ = ["PlausibleParams", "Terms", "primitive_sdf", "evaluate_terms", "refine", "initial_poses", "SegmentFit", "fit_segment", "consensus", "com_pose",
-           "primitive_pose"]
+__all__ = ["PlausibleParams", "Terms", "primitive_sdf", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
+           "fit_segment", "consensus", "com_pose", "primitive_pose"]
 
 
 @dataclass(frozen=True)
