@@ -213,7 +213,7 @@ def validate_scores(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
 
 
 def read_scores(path: str | Path) -> pa.Table:
-    return validate_scores(schema._read_parquet(path), path)
+    return validate_scores(schema.read_parquet(path), path)
 
 
 def summary_lines(scores: pa.Table) -> list[str]:

@@ -397,7 +397,7 @@ def _fail_midway(table, sink):
 
 
 def test_write_table_failure_leaves_no_target_and_no_temp_file(tmp_path, monkeypatch):
-    monkeypatch.setattr(S, "_write_parquet", _fail_midway)
+    monkeypatch.setattr(S.io, "_write_parquet", _fail_midway)
     target = tmp_path / "out" / "tracks.parquet"
     with pytest.raises(RuntimeError, match="disk full"):
         _write(make(), target)
@@ -408,7 +408,7 @@ def test_write_table_failure_leaves_no_target_and_no_temp_file(tmp_path, monkeyp
 def test_write_table_failure_keeps_existing_target_intact(tmp_path, monkeypatch):
     target = _write(make(), tmp_path / "contacts.parquet")
     before = target.read_bytes()
-    monkeypatch.setattr(S, "_write_parquet", _fail_midway)
+    monkeypatch.setattr(S.io, "_write_parquet", _fail_midway)
     with pytest.raises(RuntimeError):
         _write(make(), target, seed=8)
     assert target.read_bytes() == before

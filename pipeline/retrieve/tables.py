@@ -109,7 +109,7 @@ def validate_candidates(table: pa.Table, path: str | Path = "<table>") -> pa.Tab
 
 def read_retrieval(path: str | Path) -> pa.Table:
     """Read and validate a retrieval table written by ``stucco retrieve``."""
-    return validate_retrieval(schema._read_parquet(path), path)
+    return validate_retrieval(schema.read_parquet(path), path)
 
 
 def retrieval_table(rows: list[dict[str, Any]]) -> pa.Table:

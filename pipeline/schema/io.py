@@ -1,0 +1,264 @@
+"""Parquet files: reading with validation, and atomic writing with provenance metadata.
+
+Every file a stage writes goes through :func:`write_table`, which validates, attaches provenance (``stucco.*``
+schema metadata: stage, version, parameters, seed, input digests, table kind; :data:`METADATA_KEYS`) and
+writes to a temporary name in the target directory before renaming it onto the target, so a reader never sees
+a partial file. Writing the same table with the same metadata twice gives identical bytes. The metadata and
+the writer options are documented in ``docs/tables.md``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import secrets
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline import __version__
+from pipeline.schema.errors import SchemaError
+from pipeline.schema.specs import TABLES, validate_table
+
+__all__ = [
+    "METADATA_KEYS",
+    "WRITER_OPTIONS",
+    "read_parquet",
+    "read_table",
+    "read_contacts",
+    "read_tracks",
+    "read_segments",
+    "read_diagnostics",
+    "write_table",
+    "read_metadata",
+    "file_digest",
+]
+
+# The provenance keys write_table sets, with their meaning (the metadata section of docs/tables.md).
+METADATA_KEYS: tuple[tuple[str, str], ...] = (
+    ("stucco.stage", "Stage that wrote the file (e.g. `track`)."),
+    ("stucco.version", "`pipeline.__version__` of the writer."),
+    ("stucco.params", "JSON object of the stage's parameters, keys sorted."),
+    ("stucco.seed", "JSON integer root seed, or `null`."),
+    ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
+    ("stucco.schema", "Table kind: `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own kind)."),
+)
+
+# Fixed writer options: same bytes for the same table (no timestamps are written by parquet-cpp; the
+# `created_by` string depends only on the pyarrow version).
+WRITER_OPTIONS: dict[str, Any] = dict(
+    compression="zstd",
+    compression_level=3,
+    version="2.6",
+    use_dictionary=True,
+    write_statistics=True,
+    row_group_size=1 << 20,
+)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Reading
+
+
+def read_parquet(path: str | os.PathLike) -> pa.Table:
+    """Read a Parquet file without validating it (stage-owned tables validate it with their own spec).
+
+    Raises
+    ------
+    SchemaError
+        One line, when `path` does not exist, is not a file or is not Parquet.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise SchemaError(p, None, None, "file not found")
+    if not p.is_file():
+        raise SchemaError(p, None, None, "is not a file; expected a Parquet file")
+    try:
+        return pq.ParquetFile(p).read()
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+        raise SchemaError(p, None, None, f"not a Parquet file ({e})") from None
+
+
+def read_table(path: str | os.PathLike, kind: str) -> pa.Table:
+    """Read and validate a Parquet file of table kind `kind`; see :func:`validate_table`."""
+    return validate_table(read_parquet(path), kind, path)
+
+
+def read_contacts(path: str | os.PathLike) -> pa.Table:
+    """Read and validate a contacts file (the input of ``stucco track``)."""
+    return read_table(path, "contacts")
+
+
+def read_tracks(path: str | os.PathLike) -> pa.Table:
+    """Read and validate a tracks file (the output of ``stucco track``)."""
+    return read_table(path, "tracks")
+
+
+def read_segments(path: str | os.PathLike) -> pa.Table:
+    """Read and validate a segments file (the output of ``stucco segment``)."""
+    return read_table(path, "segments")
+
+
+def read_diagnostics(path: str | os.PathLike) -> pa.Table:
+    """Read and validate a diagnostics file (the side output of ``stucco track``)."""
+    return read_table(path, "diagnostics")
+
+
+# --------------------------------------------------------------------------------------------------------
+# Writing with provenance
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """Hex SHA-256 of the file's bytes."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (Path, os.PathLike)):
+        return os.fspath(o)
+    if isinstance(o, (set, frozenset)):
+        return sorted(o)
+    if dataclasses.is_dataclass(o) and not isinstance(o, type):
+        return dataclasses.asdict(o)
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def _dumps(o: Any) -> str:
+    return json.dumps(o, sort_keys=True, separators=(",", ":"), allow_nan=False, default=_json_default)
+
+
+def _infer_kind(names: list[str]) -> str | None:
+    s = set(names)
+    if "ess" in s and "n_replaced" in s:
+        return "diagnostics"
+    if "segment" in s and "tracker_label" in s:
+        return "segments"
+    if "tracker_label" in s and "estimate_step" in s:
+        return "tracks"
+    if "in_contact" in s and "contact_x_m" in s:
+        return "contacts"
+    return None
+
+
+def _write_parquet(table: pa.Table, sink) -> None:
+    """The one place bytes are written (patched in tests to fail midway)."""
+    pq.write_table(table, sink, **WRITER_OPTIONS)
+
+
+def write_table(
+    table: pa.Table,
+    path: str | os.PathLike,
+    *,
+    stage: str,
+    params: Mapping[str, Any],
+    seed: int | None,
+    inputs: Mapping[str, str | os.PathLike] | None = None,
+    kind: str | None = None,
+) -> Path:
+    """Validate `table`, attach provenance and write it atomically to `path`.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+    path : path-like
+        Target file; parent directories are created.
+    stage : str
+        Name of the writing stage (``stucco.stage``).
+    params : mapping (or dataclass)
+        The stage's parameters; stored as JSON with sorted keys (``stucco.params``). numpy scalars and
+        arrays, paths and dataclasses are converted; NaN/inf are refused.
+    seed : int or None
+        Root seed (``stucco.seed``).
+    inputs : mapping role -> path, optional
+        Input files; each is recorded by file name and SHA-256 of its bytes (``stucco.inputs``).
+    kind : str, optional
+        Table kind (``stucco.schema``). Inferred from the columns when omitted; a kind of :data:`TABLES` is
+        validated (and written in canonical form), any other kind is written as given.
+
+    Returns
+    -------
+    pathlib.Path
+        `path`.
+
+    Notes
+    -----
+    The file is written under a temporary name in the target directory and renamed onto `path`
+    (``os.replace``), so `path` is either the old file or the complete new one; on any error the temporary
+    file is removed. The table's own schema metadata is replaced by the ``stucco.*`` keys. The same table
+    and metadata give byte-identical files (fixed :data:`WRITER_OPTIONS`, chunks combined, no timestamps).
+    """
+    path = Path(path)
+    if kind is None:
+        kind = _infer_kind(table.column_names)
+        if kind is None:
+            raise ValueError(f"{path}: cannot tell the table kind from columns {table.column_names}; pass kind=")
+    if kind in TABLES:
+        table = validate_table(table, kind, path)
+    if dataclasses.is_dataclass(params) and not isinstance(params, type):
+        params = dataclasses.asdict(params)
+
+    recorded = {role: {"file": Path(p).name, "sha256": file_digest(p)} for role, p in (inputs or {}).items()}
+    meta = {
+        "stucco.stage": stage,
+        "stucco.version": __version__,
+        "stucco.params": _dumps(dict(params)),
+        "stucco.seed": _dumps(None if seed is None else int(seed)),
+        "stucco.inputs": _dumps(recorded),
+        "stucco.schema": kind,
+    }
+    table = table.replace_schema_metadata(meta).combine_chunks()
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    try:
+        with open(tmp, "xb") as f:  # default permissions (umask), unlike mkstemp's 0600
+            _write_parquet(table, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """Decoded ``stucco.*`` schema metadata of a Parquet file, keys without the prefix.
+
+    Returns
+    -------
+    dict
+        Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs`` (dict), ``seed``
+        (int or None). A file written by other tools gives ``{}``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise SchemaError(p, None, None, "file not found" if not p.exists() else "is not a file")
+    try:
+        raw = pq.read_schema(p).metadata or {}
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+        raise SchemaError(p, None, None, f"not a Parquet file ({e})") from None
+    out: dict[str, Any] = {}
+    for k, v in raw.items():
+        key = k.decode()
+        if not key.startswith("stucco."):
+            continue
+        name, text = key[len("stucco."):], v.decode()
+        if name in ("params", "inputs", "seed"):
+            try:
+                out[name] = json.loads(text)
+            except json.JSONDecodeError as e:
+                raise SchemaError(p, None, None, f"metadata {key} is not valid JSON ({e})") from None
+        else:
+            out[name] = text
+    return out

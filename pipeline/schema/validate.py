@@ -1,0 +1,159 @@
+"""Validation engine: checks a ``pyarrow.Table`` against any :class:`~pipeline.schema.columns.TableSpec`.
+
+Per column: presence, accepted type (cast to the canonical one), nulls, finiteness and bounds; then the spec's
+own rule (``TableSpec.check``, e.g. :mod:`pipeline.schema.rules`) on numpy views of the columns. The first
+problem raises a one-line :class:`~pipeline.schema.errors.SchemaError` naming the file, the column and the
+first bad row (``docs/tables.md``). Also the helpers the table rules share (first bad row, value formatting,
+run grouping, step order).
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.schema.columns import TableSpec, _Columns, _num, _type_name
+from pipeline.schema.errors import SchemaError
+
+__all__ = ["validate_spec"]
+
+
+def _accepts(target: pa.DataType, t: pa.DataType) -> bool:
+    if pa.types.is_null(t):
+        return True
+    if target == pa.string():
+        if pa.types.is_dictionary(t):
+            t = t.value_type
+        return pa.types.is_string(t) or pa.types.is_large_string(t) or pa.types.is_string_view(t)
+    if target == pa.int64():
+        return pa.types.is_integer(t)
+    if target == pa.float64():
+        return pa.types.is_floating(t) or pa.types.is_integer(t)
+    if target == pa.bool_():
+        return pa.types.is_boolean(t)
+    return t == target
+
+
+_ACCEPTED = {
+    pa.string(): "string (string, large_string or dictionary of strings)",
+    pa.int64(): "int64 (any integer type is accepted)",
+    pa.float64(): "float64 (any float or integer type is accepted)",
+    pa.bool_(): "bool",
+}
+
+
+def _run_codes(col: pa.ChunkedArray) -> tuple[np.ndarray, list[str]]:
+    # dictionary_encode numbers values by first appearance, which is the run order we promise.
+    enc = col.combine_chunks().dictionary_encode()
+    return enc.indices.to_numpy(zero_copy_only=False).astype(np.int64), enc.dictionary.to_pylist()
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, (np.integer,)):
+        return str(int(v))
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    return repr(v)
+
+
+def _first(mask: np.ndarray) -> int | None:
+    idx = np.flatnonzero(mask)
+    return int(idx[0]) if idx.size else None
+
+
+def validate_spec(table: pa.Table, spec: TableSpec, path: str | os.PathLike = "<table>") -> pa.Table:
+    """Validate a table against any :class:`TableSpec` (stages that own their tables use this)."""
+    return _validate(table, spec, path)
+
+
+def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.Table:
+    path = str(path)
+    if not isinstance(table, pa.Table):
+        raise TypeError(f"expected a pyarrow.Table, got {type(table).__name__}")
+    names = table.column_names
+    for c in spec.columns:
+        k = names.count(c.name)
+        if k == 0 and c.required:
+            raise SchemaError(path, c.name, None,
+                              f"missing; expected {_type_name(c.type)}"
+                              f"{f' in {c.unit}' if c.unit else ''} ({c.meaning.rstrip('.')})")
+        if k > 1:
+            raise SchemaError(path, c.name, None, f"appears {k} times; expected once")
+    present = [c for c in spec.columns if c.name in names]
+    for c in present:
+        t = table.schema.field(c.name).type
+        if not _accepts(c.type, t):
+            raise SchemaError(path, c.name, None, f"has type {t}; expected {_ACCEPTED.get(c.type, c.type)}")
+
+    n = table.num_rows
+    arrays: dict[str, pa.ChunkedArray] = {}
+    values: dict[str, np.ndarray] = {}
+    null: dict[str, np.ndarray] = {}
+    for c in present:
+        col = table.column(c.name)
+        if pa.types.is_uint64(col.type) and c.type == pa.int64():
+            big = np.asarray(col.to_numpy(zero_copy_only=False)) > np.iinfo(np.int64).max
+            if (r := _first(big)) is not None:
+                raise SchemaError(path, c.name, r, f"{col[r].as_py()} does not fit in int64")
+        if col.type != c.type:
+            col = col.cast(c.type)
+        arrays[c.name] = col
+        isnull = col.is_null().to_numpy(zero_copy_only=False) if col.null_count else np.zeros(n, bool)
+        null[c.name] = np.asarray(isnull, dtype=bool)
+        if not c.nullable and (r := _first(null[c.name])) is not None:
+            raise SchemaError(path, c.name, r, "is null; expected a value (this column is never null)")
+        if c.type == pa.float64():
+            v = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)  # null -> NaN
+        elif c.type == pa.string():
+            v = None  # runs are handled through codes
+        else:
+            v = np.asarray(col.to_numpy(zero_copy_only=False))
+        if v is not None:
+            values[c.name] = v
+            ok = ~null[c.name]
+            if c.finite and (r := _first(ok & ~np.isfinite(v))) is not None:
+                raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected a finite value")
+            if c.minimum is not None:
+                below = (v <= c.minimum) if c.exclusive_minimum else (v < c.minimum)
+                if (r := _first(ok & below)) is not None:
+                    bound = ("greater than " if c.exclusive_minimum else "at least ") + _num(c.minimum)
+                    raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected {bound}")
+            if c.maximum is not None and (r := _first(ok & (v > c.maximum))) is not None:
+                raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected at most {_num(c.maximum)}")
+
+    codes, run_names = _run_codes(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
+    cols = _Columns(path, n, values, null, codes, run_names)
+    if spec.check is not None:
+        spec.check(cols)
+
+    extra = [i for i, name in enumerate(names) if name not in spec.names]  # by index: names may repeat
+    out_fields = [pa.field(c.name, c.type, nullable=True) for c in present]
+    out_fields += [table.schema.field(i) for i in extra]
+    return pa.Table.from_arrays([arrays[c.name] for c in present] + [table.column(i) for i in extra],
+                                schema=pa.schema(out_fields))
+
+
+def _sorted_by_run(cols: _Columns) -> tuple[np.ndarray, np.ndarray]:
+    """(order, same): rows grouped by run in first-appearance order, file order kept within a run; `same[i]`
+    says sorted rows i and i+1 belong to the same run."""
+    order = np.argsort(cols.run_codes, kind="stable")
+    rc = cols.run_codes[order]
+    return order, rc[1:] == rc[:-1]
+
+
+def _check_steps_nondecreasing(cols: _Columns, strict: bool, why: str) -> tuple[np.ndarray, np.ndarray]:
+    step = cols.values["step"]
+    order, same = _sorted_by_run(cols)
+    s = step[order]
+    bad = same & ((s[1:] <= s[:-1]) if strict else (s[1:] < s[:-1]))
+    if bad.any():
+        rows, prev = order[1:][bad], order[:-1][bad]
+        i = int(np.argmin(rows))
+        r, p = int(rows[i]), int(prev[i])
+        cols.fail("step", r, f"step {step[r]} follows step {step[p]} (row {p}) in run "
+                             f"{cols.run_names[cols.run_codes[r]]!r}; {why}")
+    return order, same
