@@ -14,7 +14,7 @@ Policies (REFERENCE_SPEC §2.2-2.4):
 Every random draw of a job comes from ``numpy.random.SeedSequence([root_seed, scene_hash(scene), seed])``
 (children: 0 = replay noise, 1 = policy), so every method sees the same scene and actions for a given seed.
 
-The ``sim_run`` table has one row per action; see :data:`RUN_COLUMNS` (name, unit, meaning) and
+The ``sim_run`` table has one row per action; see :data:`pipeline.schema.SIM_RUN` (columns, units, rules) and
 docs/simulation.md. Files are written atomically with :func:`pipeline.schema.write_table`; the same scene, seed
 and effects give byte-identical files.
 """
@@ -29,16 +29,17 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.isolate import DetectionParams, gripper_yaw, residual, step_in_contact, window_in_contact
+from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
 from pipeline.sim.world import ActionTrace
 
-__all__ = ["POLICIES", "RUN_COLUMNS", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
+__all__ = ["POLICIES", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
            "output_path", "collect_run", "collect", "summarize_action", "action_label", "representative_force",
            "discard_reason", "RunResult"]
 
 POLICIES = ("scripted", "greedy-walk")
-RUN_KIND = "sim_run"
+RUN_KIND = SIM_RUN.name
 #: Sim steps of each action kept for detection/isolation: the detector looks at the last 5, isolation takes the
 #: latest in-contact one among them plus up to 3 preceding in-contact steps, so it can reach 8 steps back.
 WINDOW_STEPS = 8
@@ -48,50 +49,6 @@ BUCKET_SAMPLE = 5
 #: Discard rule thresholds (REFERENCE_SPEC §2.4).
 MIN_REP_FORCE_N = 0.1
 MAX_NO_CONTACT_FRACTION = 0.95
-
-#: (name, unit, meaning) of every column of the sim_run table, in order.
-RUN_COLUMNS: tuple[tuple[str, str, str], ...] = (
-    ("run", "", "Run id '<scene>/<seed>'."),
-    ("scene", "", "Scene name."),
-    ("seed", "", "Run seed (the job's third SeedSequence entry)."),
-    ("step", "", "Action index, 0-based."),
-    ("ee_start_x_m", "m", "Gripper base x at the start of the action."),
-    ("ee_start_y_m", "m", "Gripper base y at the start of the action."),
-    ("ee_x_m", "m", "Gripper base x after the action."),
-    ("ee_y_m", "m", "Gripper base y after the action."),
-    ("ee_z_m", "m", "Gripper base z after the action."),
-    ("ee_yaw_rad", "rad", "In-plane rotation of the gripper from its fixed orientation, after the action."),
-    ("cmd_ux", "", "Commanded action x in [-1, 1] (noise included, clipped)."),
-    ("cmd_uy", "", "Commanded action y in [-1, 1]."),
-    ("cmd_dx_m", "m", "Commanded displacement x = cmd_ux * action scale."),
-    ("cmd_dy_m", "m", "Commanded displacement y."),
-    ("exec_dx_m", "m", "Executed displacement x (after - start)."),
-    ("exec_dy_m", "m", "Executed displacement y."),
-    ("in_contact", "", "Detector verdict: residual > threshold at any of the action's last 5 sim steps."),
-    ("contact_dx_m", "m", "Sum of the gripper's per-sim-step x displacement over in-contact steps; null if not "
-                          "in_contact."),
-    ("contact_dy_m", "m", "Same for y."),
-    ("residual_max", "", "Largest detection residual over the action's sim steps (NaN without wrench)."),
-    ("win_wrench", "N, N m", "Last 8 sim steps' contact wrench on the gripper (f_x, f_y, f_z, tau_x, tau_y, "
-                             "tau_z), world frame, torque about the gripper base; shape (8, 6); NaN without "
-                             "wrench."),
-    ("win_pose", "m, quaternion", "Last 8 sim steps' gripper base pose (x, y, z, qx, qy, qz, qw); shape (8, 7)."),
-    ("win_true_contact_m", "m", "Last 8 sim steps' true contact point on the gripper (x, y) of the first object "
-                                "in contact; NaN without contact; shape (8, 2)."),
-    ("win_true_object", "", "Last 8 sim steps' object id of that contact (-1 none); shape (8,)."),
-    ("true_contact_x_m", "m", "True contact point x at the action's last sim step with contact; null if none."),
-    ("true_contact_y_m", "m", "Same for y."),
-    ("object_id", "", "Ground-truth label of the action: mode over 16 buckets of 20 sim steps of the body in "
-                      "contact, -1 (no contact) winning ties; index into the 'bodies' metadata list."),
-    ("force_rep_x_n", "N", "Representative contact force x: sampled at the 6th step of each bucket, the bucket "
-                           "of median magnitude."),
-    ("force_rep_y_n", "N", "Same for y."),
-    ("obj_pose", "m, m, rad", "Every body's inertial-frame (x, y, yaw) after the action, in 'bodies' order; "
-                              "NaN for bodies not built."),
-    ("obj_distance_m", "m", "Every body's minimum distance to the gripper after the action (negative: "
-                            "penetration); NaN for bodies not built."),
-)
-
 
 # ---------------------------------------------------------------------------------------------------------------
 # Seeds
@@ -301,7 +258,7 @@ def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
     data["force_rep_y_n"] = pa.array(fr[:, 1])
     data["obj_pose"] = _fixed_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
     data["obj_distance_m"] = _fixed_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
-    assert tuple(data) == tuple(c[0] for c in RUN_COLUMNS)
+    assert tuple(data) == SIM_RUN.names
     return pa.table(data)
 
 
@@ -424,8 +381,6 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
 
 def _job(scene: Scene, seed: int, root_seed: int, policy: str, out_dir: Path, max_actions: int | None,
          keep_discarded: bool) -> RunResult:
-    from pipeline.schema import write_table
-
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions)
     if result.discarded is None or keep_discarded:
         path = output_path(out_dir, scene.name, seed)

@@ -20,6 +20,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+
+from pipeline import schema
 
 __all__ = [
     "DetectionParams",
@@ -331,21 +334,14 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
         Files written by :func:`pipeline.collect.collect` (any order; rows come out sorted by scene, seed,
         step).
     """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     points, normals = _surface(iso)
     allcols: dict[str, list] | None = None
     errors: list[float] = []
     unisolated = n_actions = 0
     tables = []
     for path in files:
-        t = pq.read_table(path)
-        missing = [c for c in ("run", "scene", "seed", "step", "ee_x_m", "ee_y_m", "contact_dx_m", "contact_dy_m", "object_id",
-                               "win_wrench", "win_pose", "win_true_contact_m") if c not in t.column_names]
-        if missing:
-            raise ValueError(f"{path}: column '{missing[0]}' missing; expected a run written by 'stucco collect'")
-        key = (t.column("scene")[0].as_py(), t.column("seed")[0].as_py()) if t.num_rows else ("", -1)
+        t = schema.read_run(path)
+        key = (t.column("scene")[0].as_py(), t.column("seed")[0].as_py())
         tables.append((key, t))
     for _, t in sorted(tables, key=lambda kt: kt[0]):
         cols, errs, un = isolate_run(t, points, normals, det, iso)
@@ -359,11 +355,11 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
                 allcols[k] += cols[k]
     allcols = allcols or {k: [] for k in ("run", "step", "ee_x_m", "ee_y_m", "in_contact", "contact_x_m",
                                           "contact_y_m", "dx_m", "dy_m", "object_id")}
-    schema = pa.schema([("run", pa.string()), ("step", pa.int64()), ("ee_x_m", pa.float64()),
+    contacts_schema = pa.schema([("run", pa.string()), ("step", pa.int64()), ("ee_x_m", pa.float64()),
                         ("ee_y_m", pa.float64()), ("in_contact", pa.bool_()), ("contact_x_m", pa.float64()),
                         ("contact_y_m", pa.float64()), ("dx_m", pa.float64()), ("dy_m", pa.float64()),
                         ("object_id", pa.int64())])
-    table = pa.Table.from_pydict(allcols, schema=schema)
+    table = pa.Table.from_pydict(allcols, schema=contacts_schema)
     n_contact = int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False)))
     return IsolationResult(table=table, errors=np.asarray(errors), n_runs=len(files), n_actions=n_actions,
                            n_contact=n_contact, n_unisolated=unisolated)

@@ -6,9 +6,10 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.collect import (RUN_COLUMNS, RUN_KIND, action_label, collect, collect_run, discard_reason,
+from pipeline.collect import (RUN_KIND, action_label, collect, collect_run, discard_reason,
                               output_path, parse_seeds, representative_force)
 from pipeline.scenes import load_scene
+from pipeline import schema
 from pipeline.schema import read_metadata
 
 N = 3  # actions per short run: ~0.1 s each
@@ -91,7 +92,7 @@ def test_short_scripted_run_touches_expected_objects(name, touched):
 
 def test_run_table_columns_and_shapes(fb):
     table, params, res = fb
-    assert table.column_names == [c[0] for c in RUN_COLUMNS]
+    assert tuple(table.column_names) == schema.SIM_RUN.names
     assert table.num_rows == N == res.n_actions
     assert table.column("step").to_pylist() == list(range(N))
     assert table.schema.field("win_wrench").type.list_size == 8

@@ -174,4 +174,4 @@ def test_cli_isolate_rejects_a_file_that_is_not_a_run(tmp_path):
     bad = tmp_path / "x.parquet"
     pq.write_table(pa.table({"run": ["a"], "step": [0]}), bad)
     res = CliRunner().invoke(_cli(), ["isolate", "--in", str(bad), "--out", str(tmp_path / "c.parquet")])
-    assert res.exit_code == 1 and "x.parquet: column 'scene' missing" in res.stderr
+    assert res.exit_code == 1 and "x.parquet: column 'scene': missing" in res.stderr

@@ -58,29 +58,10 @@ class RunInfo:
         return self.final_poses[self.target_id]
 
 
-def _read_run_table(path: Path, columns: list[str] | None = None) -> pa.Table:
-    if not path.is_file():
-        raise schema.SchemaError(path, None, None, "file not found")
-    try:
-        return pq.read_table(path, columns=columns)
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError, KeyError) as e:
-        raise schema.SchemaError(path, None, None, f"not a collected run file ({' '.join(str(e).split())})") from None
-
-
 def load_run(path: str | Path) -> RunInfo:
     """Read a collected run file (one (scene, seed)); SchemaError naming the file and column on problems."""
     path = Path(path)
-    need = ["run", "seed", "step", "ee_start_x_m", "ee_start_y_m", "ee_x_m", "ee_y_m", "obj_pose"]
-    try:
-        names = pq.read_schema(path).names if path.is_file() else []
-    except (pa.ArrowInvalid, OSError) as e:
-        raise schema.SchemaError(path, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
-    t = _read_run_table(path, [c for c in need if c in names])
-    for c in need:
-        if c not in t.column_names:
-            raise schema.SchemaError(path, c, None, "missing; expected a collected run file (stucco collect)")
-    if t.num_rows == 0:
-        raise schema.SchemaError(path, None, None, "has no actions")
+    t = schema.read_run(path)
     meta = schema.read_metadata(path)
     params = meta.get("params") or {}
     scene_name = params.get("scene")
@@ -98,11 +79,8 @@ def load_run(path: str | Path) -> RunInfo:
         raise schema.SchemaError(path, "obj_pose", t.num_rows - 1,
                                  f"has {final.shape[0]} bodies; scene {scene.name} has {len(scene.body_names)}")
     tid, prim = target_primitive(scene)
-    runs = set(t.column("run").to_pylist())
-    if len(runs) != 1:
-        raise schema.SchemaError(path, "run", None, f"holds {len(runs)} runs; expected one run per file")
-    return RunInfo(run=runs.pop(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()), ee=ee,
-                   steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
+    return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
+                   ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
                    final_poses=final, target_id=tid, target=prim)
 
 
@@ -114,16 +92,22 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
     out: dict[str, Path] = {}
     for f in sorted(directory.glob("*.parquet")):
         try:
-            if "run" not in pq.read_schema(f).names or "obj_pose" not in pq.read_schema(f).names:
-                continue  # another table kind living in the same directory
+            names = pq.read_schema(f).names
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+            raise schema.SchemaError(f, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
+        if "run" not in names or "obj_pose" not in names:
+            continue  # another table kind living in the same directory
+        try:
             runs = pq.read_table(f, columns=["run"]).column("run")
-        except (pa.ArrowInvalid, OSError):
-            continue
-        if len(runs):
-            name = runs[0].as_py()
-            if name in out:
-                raise ValueError(f"{directory}: run {name!r} is in both {out[name].name} and {f.name}")
-            out[name] = f
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+            raise schema.SchemaError(f, None, None, f"unreadable ({' '.join(str(e).split())})") from None
+        if not len(runs):
+            raise schema.SchemaError(f, None, None, "has no actions; expected at least one row (a run file written "
+                                                    "by stucco collect)")
+        name = runs[0].as_py()
+        if name in out:
+            raise ValueError(f"{directory}: run {name!r} is in both {out[name].name} and {f.name}")
+        out[name] = f
     return out
 
 

@@ -10,6 +10,8 @@ Tables (long format, one row per (run, step[, contact])):
     Output of ``stucco segment``: the tracks columns plus ``segment``.
 ``diagnostics``
     Side output of ``stucco track``: one row per control step describing the filter update.
+``sim_run``
+    Output of ``stucco collect``, input of ``isolate``, ``retrieve`` and ``score``: one row per action.
 
 Each table is described once, as data (:data:`CONTACTS_COLUMNS`, :data:`TRACKS_COLUMNS`, ...; gathered in
 :data:`TABLES`), and both validation and ``docs/tables.md`` are derived from those descriptions. Validation
@@ -30,6 +32,8 @@ One role per module (each imports only the ones listed before it):
     The validation engine (:func:`validate_spec`): per-column checks, then the spec's rule.
 :mod:`~pipeline.schema.rules`
     The multi-column and multi-row rules of the stage tables.
+:mod:`~pipeline.schema.runs`
+    The ``sim_run`` table as data (:data:`SIM_RUN`) and its rule.
 :mod:`~pipeline.schema.specs`
     The stage tables as data (:data:`TABLES`) and their validators (:func:`validate_table`, ...).
 :mod:`~pipeline.schema.io`
@@ -55,11 +59,13 @@ from pipeline.schema.io import (
     read_diagnostics,
     read_metadata,
     read_parquet,
+    read_run,
     read_segments,
     read_table,
     read_tracks,
     write_table,
 )
+from pipeline.schema.runs import SIM_RUN, SIM_RUN_COLUMNS
 from pipeline.schema.specs import (
     CONTACTS,
     CONTACTS_COLUMNS,
@@ -90,6 +96,8 @@ __all__ = [
     "TRACKS",
     "SEGMENTS",
     "DIAGNOSTICS",
+    "SIM_RUN_COLUMNS",
+    "SIM_RUN",
     "TABLES",
     "METADATA_KEYS",
     "WRITER_OPTIONS",
@@ -100,6 +108,7 @@ __all__ = [
     "read_segments",
     "validate_segments",
     "read_diagnostics",
+    "read_run",
     "validate_diagnostics",
     "read_table",
     "validate_table",

@@ -44,6 +44,13 @@ class Column:
         Makes ``minimum`` exclusive.
     values : str
         Human-readable value rule for the docs; derived from the fields above when empty.
+    shape : tuple of int or None
+        Empty for a scalar column. Otherwise the column holds nested fixed-size lists of ``type`` elements
+        with these sizes (outer first; None: any size, the same in every row), e.g. ``(8, 6)``; ``finite``
+        and the bounds apply to every element.
+    nan_means_missing : bool
+        NaN marks a missing value (e.g. no wrench simulated), so ``finite`` and the bounds skip NaN; ±inf is
+        still refused.
     """
 
     name: str
@@ -57,6 +64,15 @@ class Column:
     maximum: float | None = None
     exclusive_minimum: bool = False
     values: str = ""
+    shape: tuple[int | None, ...] = ()
+    nan_means_missing: bool = False
+
+    @property
+    def type_label(self) -> str:
+        """The type as messages and docs print it: ``float64``, or ``float64[8, 6]`` for a list column."""
+        if not self.shape:
+            return _type_name(self.type)
+        return f"{_type_name(self.type)}[{', '.join('n' if k is None else str(k) for k in self.shape)}]"
 
     @property
     def value_rule(self) -> str:
@@ -65,7 +81,7 @@ class Column:
             return self.values
         parts = []
         if self.finite:
-            parts.append("finite")
+            parts.append("finite or NaN (missing)" if self.nan_means_missing else "finite")
         lo, hi = self.minimum, self.maximum
         if lo is not None and hi is not None:
             parts.append(f"{'(' if self.exclusive_minimum else '['}{_num(lo)}, {_num(hi)}]")

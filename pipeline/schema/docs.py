@@ -4,7 +4,6 @@
 """
 from __future__ import annotations
 
-from pipeline.schema.columns import _type_name
 from pipeline.schema.specs import TABLES
 
 __all__ = ["columns_markdown", "table_markdown"]
@@ -18,7 +17,7 @@ def columns_markdown(kind: str) -> str:
         return text.replace("|", "\\|") or "–"
 
     for c in TABLES[kind].columns:
-        lines.append(f"| `{c.name}` | {_type_name(c.type)} | {cell(c.unit)} | {'yes' if c.required else 'no'} "
+        lines.append(f"| `{c.name}` | {c.type_label} | {cell(c.unit)} | {'yes' if c.required else 'no'} "
                      f"| {'yes' if c.nullable else 'no'} | {cell(c.value_rule)} | {cell(c.meaning)} |")
     return "\n".join(lines) + "\n"
 

@@ -46,7 +46,8 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.params", "JSON object of the stage's parameters, keys sorted."),
     ("stucco.seed", "JSON integer root seed, or `null`."),
     ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
-    ("stucco.schema", "Table kind: `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own kind)."),
+    ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own "
+                      "kind)."),
 )
 
 # Fixed writer options: same bytes for the same table (no timestamps are written by parquet-cpp; the
@@ -109,6 +110,11 @@ def read_diagnostics(path: str | os.PathLike) -> pa.Table:
     return read_table(path, "diagnostics")
 
 
+def read_run(path: str | os.PathLike) -> pa.Table:
+    """Read and validate a collected run file (``sim_run``, the output of ``stucco collect``)."""
+    return read_table(path, "sim_run")
+
+
 # --------------------------------------------------------------------------------------------------------
 # Writing with provenance
 
@@ -147,6 +153,8 @@ def _infer_kind(names: list[str]) -> str | None:
         return "tracks"
     if "in_contact" in s and "contact_x_m" in s:
         return "contacts"
+    if "win_wrench" in s and "obj_pose" in s:
+        return "sim_run"
     return None
 
 

@@ -1,4 +1,4 @@
-"""Table specs: the four stage tables (contacts, tracks, segments, diagnostics) as data, and their validators.
+"""Table specs: the stage tables (contacts, tracks, segments, diagnostics; sim_run from runs.py) as data, and their validators.
 
 Each table is described once here (:data:`CONTACTS_COLUMNS`, ... and the :class:`TableSpec` objects
 :data:`CONTACTS`, ...; gathered in :data:`TABLES`); validation and ``docs/tables.md`` are derived from these
@@ -12,6 +12,7 @@ import pyarrow as pa
 
 from pipeline.schema.columns import Column, TableSpec
 from pipeline.schema.rules import _check_contacts, _check_diagnostics, _check_tracks
+from pipeline.schema.runs import SIM_RUN
 from pipeline.schema.validate import _validate
 
 __all__ = [
@@ -128,7 +129,7 @@ DIAGNOSTICS = TableSpec(
     check=_check_diagnostics,
 )
 
-TABLES: dict[str, TableSpec] = {t.name: t for t in (CONTACTS, TRACKS, SEGMENTS, DIAGNOSTICS)}
+TABLES: dict[str, TableSpec] = {t.name: t for t in (CONTACTS, TRACKS, SEGMENTS, DIAGNOSTICS, SIM_RUN)}
 
 
 def validate_table(table: pa.Table, kind: str, path: str | os.PathLike = "<table>") -> pa.Table:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import TableSpec, _Columns, _num, _type_name
+from pipeline.schema.columns import Column, TableSpec, _Columns, _num
 from pipeline.schema.errors import SchemaError
 
 __all__ = ["validate_spec"]
@@ -34,6 +34,26 @@ def _accepts(target: pa.DataType, t: pa.DataType) -> bool:
     if target == pa.bool_():
         return pa.types.is_boolean(t)
     return t == target
+
+
+def _accepts_column(c: Column, t: pa.DataType) -> bool:
+    """Whether a column of type `t` is accepted for `c` (nested fixed-size lists of `c.shape` for a list column)."""
+    for size in c.shape:
+        if not pa.types.is_fixed_size_list(t) or (size is not None and t.list_size != size):
+            return False
+        t = t.value_type
+    return _accepts(c.type, t) and not pa.types.is_null(t) if c.shape else _accepts(c.type, t)
+
+
+def _list_values(col: pa.ChunkedArray, c: Column) -> np.ndarray:
+    """A nested fixed-size-list column as a float array (rows, *sizes); null elements become NaN."""
+    arr = col.combine_chunks()
+    sizes = []
+    for _ in c.shape:
+        sizes.append(arr.type.list_size)
+        arr = arr.flatten()
+    v = np.asarray(arr.to_numpy(zero_copy_only=False), dtype=np.float64)
+    return v.reshape((len(col), *sizes))
 
 
 _ACCEPTED = {
@@ -60,6 +80,20 @@ def _fmt(v: Any) -> str:
     return repr(v)
 
 
+def _rows(mask: np.ndarray) -> np.ndarray:
+    """A per-row mask from a per-row or (rows, elements) mask."""
+    return mask if mask.ndim == 1 else mask.any(axis=1)
+
+
+def _what(value: Any, bad: Any, shape: tuple[int, ...]) -> str:
+    """'is X' for a scalar value; 'has X at [i, j]' for a list column's row (flattened `value`, `bad`)."""
+    if not shape:
+        return f"is {_fmt(value)}"
+    i = int(np.flatnonzero(bad)[0])
+    index = ", ".join(str(int(k)) for k in np.unravel_index(i, shape))
+    return f"has {_fmt(value[i])} at [{index}]"
+
+
 def _first(mask: np.ndarray) -> int | None:
     idx = np.flatnonzero(mask)
     return int(idx[0]) if idx.size else None
@@ -79,15 +113,16 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
         k = names.count(c.name)
         if k == 0 and c.required:
             raise SchemaError(path, c.name, None,
-                              f"missing; expected {_type_name(c.type)}"
+                              f"missing; expected {c.type_label}"
                               f"{f' in {c.unit}' if c.unit else ''} ({c.meaning.rstrip('.')})")
         if k > 1:
             raise SchemaError(path, c.name, None, f"appears {k} times; expected once")
     present = [c for c in spec.columns if c.name in names]
     for c in present:
         t = table.schema.field(c.name).type
-        if not _accepts(c.type, t):
-            raise SchemaError(path, c.name, None, f"has type {t}; expected {_ACCEPTED.get(c.type, c.type)}")
+        if not _accepts_column(c, t):
+            expected = (f"nested fixed-size lists {c.type_label}" if c.shape else _ACCEPTED.get(c.type, c.type))
+            raise SchemaError(path, c.name, None, f"has type {t}; expected {expected}")
 
     n = table.num_rows
     arrays: dict[str, pa.ChunkedArray] = {}
@@ -99,14 +134,16 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
             big = np.asarray(col.to_numpy(zero_copy_only=False)) > np.iinfo(np.int64).max
             if (r := _first(big)) is not None:
                 raise SchemaError(path, c.name, r, f"{col[r].as_py()} does not fit in int64")
-        if col.type != c.type:
+        if col.type != c.type and not c.shape:
             col = col.cast(c.type)
         arrays[c.name] = col
         isnull = col.is_null().to_numpy(zero_copy_only=False) if col.null_count else np.zeros(n, bool)
         null[c.name] = np.asarray(isnull, dtype=bool)
         if not c.nullable and (r := _first(null[c.name])) is not None:
             raise SchemaError(path, c.name, r, "is null; expected a value (this column is never null)")
-        if c.type == pa.float64():
+        if c.shape:
+            v = _list_values(col, c)
+        elif c.type == pa.float64():
             v = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)  # null -> NaN
         elif c.type == pa.string():
             v = None  # runs are handled through codes
@@ -115,15 +152,24 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
         if v is not None:
             values[c.name] = v
             ok = ~null[c.name]
-            if c.finite and (r := _first(ok & ~np.isfinite(v))) is not None:
-                raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected a finite value")
-            if c.minimum is not None:
-                below = (v <= c.minimum) if c.exclusive_minimum else (v < c.minimum)
-                if (r := _first(ok & below)) is not None:
-                    bound = ("greater than " if c.exclusive_minimum else "at least ") + _num(c.minimum)
-                    raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected {bound}")
-            if c.maximum is not None and (r := _first(ok & (v > c.maximum))) is not None:
-                raise SchemaError(path, c.name, r, f"is {_fmt(v[r])}; expected at most {_num(c.maximum)}")
+            shape = v.shape[1:]
+            if c.shape:  # a row is bad when any of its elements is
+                v = v.reshape(n, int(np.prod(shape)))
+                ok = ok[:, None]
+            if c.nan_means_missing:
+                ok = ok & ~np.isnan(v)
+            if c.finite and (r := _first(_rows(ok & ~np.isfinite(v)))) is not None:
+                raise SchemaError(path, c.name, r, f"{_what(v[r], ok[r] & ~np.isfinite(v[r]), shape)}; "
+                                                   "expected a finite value")
+            with np.errstate(invalid="ignore"):
+                if c.minimum is not None:
+                    below = ok & ((v <= c.minimum) if c.exclusive_minimum else (v < c.minimum))
+                    if (r := _first(_rows(below))) is not None:
+                        bound = ("greater than " if c.exclusive_minimum else "at least ") + _num(c.minimum)
+                        raise SchemaError(path, c.name, r, f"{_what(v[r], below[r], shape)}; expected {bound}")
+                if c.maximum is not None and (r := _first(_rows(above := ok & (v > c.maximum)))) is not None:
+                    raise SchemaError(path, c.name, r,
+                                      f"{_what(v[r], above[r], shape)}; expected at most {_num(c.maximum)}")
 
     codes, run_names = _run_codes(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
     cols = _Columns(path, n, values, null, codes, run_names)
@@ -131,7 +177,7 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
         spec.check(cols)
 
     extra = [i for i, name in enumerate(names) if name not in spec.names]  # by index: names may repeat
-    out_fields = [pa.field(c.name, c.type, nullable=True) for c in present]
+    out_fields = [pa.field(c.name, arrays[c.name].type if c.shape else c.type, nullable=True) for c in present]
     out_fields += [table.schema.field(i) for i in extra]
     return pa.Table.from_arrays([arrays[c.name] for c in present] + [table.column(i) for i in extra],
                                 schema=pa.schema(out_fields))
