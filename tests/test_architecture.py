@@ -19,7 +19,7 @@ KNOWN_CYCLES: list[list[str]] = [
 ]
 #: Modules over 450 lines, to be split.
 KNOWN_LARGE = {"pipeline/evaluate.py", "pipeline/robot.py", "pipeline/study.py",
-               "pipeline/scenes.py", "pipeline/collect.py", "pipeline/track/gmphd.py"}
+               "pipeline/scenes.py", "pipeline/track/gmphd.py"}
 
 
 def _modules() -> dict[str, Path]:
