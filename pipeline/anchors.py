@@ -26,6 +26,41 @@ def stream_path(T: int, directory: str | Path | None = None) -> Path:
     return Path(directory or ANCHOR_DIR) / f"stream_T{T}.npz"
 
 
+#: Arrays every stream file must hold, with their dimensionality.
+STREAM_ARRAYS = {"x": 2, "dx": 2, "p": 2, "obj_id": 1, "in_contact": 1, "obj_centers": 3, "obj_sizes": 1,
+                 "robot_radius": 0}
+
+
+def check_streams(ts: list[int] | tuple[int, ...], directory: str | Path | None = None) -> list[Path]:
+    """The stream files for contact counts `ts`, each checked to load (no pickles) with the arrays a replay needs.
+
+    Raises
+    ------
+    ValueError
+        One line naming the missing or unreadable file, or the missing array, and the counts available.
+    """
+    paths = []
+    for T in ts:
+        path = stream_path(T, directory)
+        if not path.is_file():
+            have = sorted(int(f.stem[len("stream_T"):]) for f in path.parent.glob("stream_T*.npz")
+                          if f.stem[len("stream_T"):].isdigit())
+            raise ValueError(f"{path}: no stream for T={T}; streams in {path.parent}: "
+                             f"{', '.join(f'T={t}' for t in have) or 'none'}")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                shapes = {k: z[k].ndim for k in z.files if k in STREAM_ARRAYS}
+        except (ValueError, OSError, EOFError) as e:
+            raise ValueError(f"{path}: not a stream file ({' '.join(str(e).split())[:200]})") from None
+        for name, ndim in STREAM_ARRAYS.items():
+            if shapes.get(name) != ndim:
+                raise ValueError(f"{path}: array {name!r} " + ("missing" if name not in shapes else
+                                 f"has {shapes[name]} dimensions") + f"; expected {ndim} (a stream file "
+                                 "of the authors' benchmark)")
+        paths.append(path)
+    return paths
+
+
 def stream_to_contacts(stream: dict[str, np.ndarray], run: str) -> pa.Table:
     """The stream as a contacts table (one row per step; ``object_id`` -1 in free space)."""
     c = stream["in_contact"].astype(bool)

@@ -89,6 +89,30 @@ def worker(T: int, N: int, method: str = "stucco", seed: int = 0, weighting: str
                 **score(stream, out["points"], out["labels"]))
 
 
+class WorkerError(ValueError):
+    """A benchmark subprocess failed; the one-line message names it and gives its last line of stderr."""
+
+
+def _last_line(stderr: str) -> str:
+    lines = [ln.strip() for ln in stderr.strip().splitlines() if ln.strip()]
+    return lines[-1][:300] if lines else "(no output)"
+
+
+def check_reference(python: str, script: str | Path = DEFAULT_REFERENCE_SCRIPT) -> None:
+    """Refuse, before any measurement, a reference python that cannot import the authors' package or a missing
+    harness script (one-line :class:`WorkerError`)."""
+    if not Path(script).is_file():
+        raise WorkerError(f"--reference-python: the reference harness {script} is missing (see the anchors README)")
+    try:
+        res = subprocess.run([python, "-c", "import stucco"], capture_output=True, text=True, check=False,
+                             timeout=120)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise WorkerError(f"--reference-python {python}: cannot run it ({e})") from None
+    if res.returncode != 0:
+        raise WorkerError(f"--reference-python {python}: 'import stucco' failed (exit code {res.returncode}: "
+                          f"{_last_line(res.stderr)}); expected the python of a venv with stucco==1.2.1")
+
+
 def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighting: str = "reference",
                streams: str | Path | None = None, threads: int = 1) -> dict:
     cmd = [sys.executable, "-m", "pipeline.bench", "worker", str(T), str(N), method, str(seed), weighting,
@@ -96,7 +120,7 @@ def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighti
     env = dict(os.environ, STUCCO_THREADS=str(threads))
     res = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     if res.returncode != 0:
-        raise RuntimeError(f"benchmark worker failed: {res.stderr.strip().splitlines()[-1:]}")
+        raise WorkerError(f"benchmark worker (T={T}, N={N}, {method}) failed: {_last_line(res.stderr)}")
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
@@ -105,9 +129,13 @@ def run_reference_worker(T: int, N: int, python: str, script: str | Path = DEFAU
     """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors)."""
     cmd = [python, str(script), "--worker", "--T", str(T), "--N", str(N), "--seed", str(seed), "--budget",
            str(budget_s)]
-    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    except OSError as e:
+        raise WorkerError(f"--reference-python {python}: cannot run it ({e.strerror})") from None
     if res.returncode != 0:
-        raise RuntimeError(f"reference worker failed: {res.stderr.strip()[-500:]}")
+        raise WorkerError(f"--reference-python {python}: the reference worker (T={T}, N={N}) failed with exit "
+                          f"code {res.returncode}: {_last_line(res.stderr)}")
     r = json.loads(res.stdout.strip().splitlines()[-1])
     return dict(total_s=r["total_s"], ms_contact=r["mean_ms_contact"], last10_ms=r["last10pct_contact_ms"],
                 peak_rss_mb=r["rss_peak_mb"], truncated=r.get("truncated", False), fmi=r.get("fmi_cc"),

@@ -212,6 +212,9 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
     from pipeline.track.soft import SoftTrackingParams
 
     tracks = schema.read_tracks(in_path)
+    if "segment" in tracks.column_names:
+        raise schema.SchemaError(in_path, "segment", None, "present: this is a segments table; expected a tracks "
+                                                           "table (the output of stucco track)")
     tparams = schema.read_metadata(in_path).get("params") or {}
     defaults = SoftTrackingParams()
     length = float(length if length is not None else tparams.get("length", defaults.length))

@@ -14,11 +14,20 @@ def bench() -> None:
     """Benchmarks: what accuracy costs in time."""
 
 
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(t) for t in text.split(","))
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated integers, got {text!r}") from None
+def _ints(name: str, text: str, lo: int = 1, hi: int = 100_000) -> tuple[int, ...]:
+    """Comma-separated integers in [lo, hi] for option `name`; '' gives ()."""
+    out = []
+    for t in (t.strip() for t in text.split(",")):
+        if not t and not text.strip():
+            continue
+        try:
+            v = int(t)
+        except ValueError:
+            raise click.BadParameter(f"expected comma-separated integers, got {t!r}", param_hint=name) from None
+        if not lo <= v <= hi:
+            raise click.BadParameter(f"{v} is not in [{lo}, {hi}]", param_hint=name)
+        out.append(v)
+    return tuple(out)
 
 
 @bench.command("track")
@@ -36,22 +45,50 @@ def _ints(text: str) -> tuple[int, ...]:
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also save every figure.")
 def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, reference_python, json_path) -> None:
     """Replay the authors' anchor streams: time per update, memory, FMI and CE, against the reference."""
+    # Everything cheap is checked before the measurements, which a late failure would lose.
+    ts, ns, method_list = _ints("--T", t_list), _ints("--N", n_list), _methods(methods)
+    for name, values in (("--T", ts), ("--N", ns)):
+        if not values:
+            raise click.BadParameter("expected at least one value", param_hint=name)
     if json_path is not None:
-        writable_file("--json", json_path)  # before the measurements, which a failed save would lose
-    from pipeline.bench import track_bench
+        writable_file("--json", json_path)
+    from pipeline.anchors import check_streams
+    from pipeline.bench import check_reference, track_bench
 
-    res = track_bench(_ints(t_list), _ints(n_list), repeats=repeats, acc_seeds=accuracy_seeds, streams=streams,
-                      reference_python=reference_python, methods=tuple(methods.split(",")), echo=click.echo)
+    with user_errors("bench track"):
+        check_streams(sorted({*ts, 50}), streams)  # T=50 also warms the kernels up
+        if reference_python:
+            check_reference(reference_python)
+        res = track_bench(ts, ns, repeats=repeats, acc_seeds=accuracy_seeds, streams=streams,
+                          reference_python=reference_python, methods=method_list, echo=click.echo)
     if json_path:
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(res, indent=1))
 
 
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(t) for t in text.split(",") if t.strip())
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated numbers, got {text!r}") from None
+def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[float, ...]:
+    """Comma-separated finite numbers in [lo, hi] for option `name`; '' gives ()."""
+    out = []
+    for t in (t.strip() for t in text.split(",") if t.strip()):
+        try:
+            v = float(t)
+        except ValueError:
+            raise click.BadParameter(f"expected comma-separated numbers, got {t!r}", param_hint=name) from None
+        if not lo <= v <= hi:  # also refuses nan
+            raise click.BadParameter(f"{t} is not in [{lo:g}, {hi:g}]", param_hint=name)
+        out.append(v)
+    return tuple(out)
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    from pipeline.report import METHOD_ORDER
+
+    methods = tuple(m.strip() for m in text.split(",") if m.strip())
+    unknown = [m for m in methods if m not in METHOD_ORDER]
+    if unknown or not methods:
+        raise click.BadParameter(f"unknown method {unknown[0]!r}; expected some of {', '.join(METHOD_ORDER)}"
+                                 if unknown else "expected at least one method", param_hint="--methods")
+    return methods
 
 
 @bench.command("accuracy")
@@ -86,9 +123,10 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    sweep = accuracy_settings(_ints(n_list), _ints(restart_list), _floats(sdf_list),
-                              hypotheses=_ints(hyp_list) if hyp_list.strip() else (),
-                              free_mm=_floats(free_list) if free_list.strip() else (),
+    sweep = accuracy_settings(_ints("--N", n_list), _ints("--restarts", restart_list, 1, 1000),
+                              _floats("--sdf-mm", sdf_list, 0.25, 20.0),
+                              hypotheses=_ints("--hypotheses", hyp_list, 1, 4096),
+                              free_mm=_floats("--free-mm", free_list, 0.5, 100.0),
                               paper_estimator=paper_estimator,
                               baselines=tuple(b for b in baselines.split(",") if b.strip()))
     with user_errors("bench accuracy"):

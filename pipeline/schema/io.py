@@ -86,8 +86,19 @@ def read_parquet(path: str | os.PathLike) -> pa.Table:
 
 
 def read_table(path: str | os.PathLike, kind: str) -> pa.Table:
-    """Read and validate a Parquet file of table kind `kind`; see :func:`validate_table`."""
-    return validate_table(read_parquet(path), kind, path)
+    """Read and validate a Parquet file of table kind `kind`; see :func:`validate_table`.
+
+    A file whose provenance says it is another table kind (``stucco.schema``, e.g. a segments file given where a
+    tracks file is expected) is refused by name before its columns are looked at.
+    """
+    table = read_parquet(path)
+    raw = table.schema.metadata or {}
+    found = raw.get(b"stucco.schema", b"").decode(errors="replace")
+    if found and found != kind and found in TABLES:
+        stage = raw.get(b"stucco.stage", b"").decode(errors="replace")
+        raise SchemaError(path, None, None, f"is a {found} table{f' (written by stucco {stage})' if stage else ''}; "
+                                            f"expected a {kind} table")
+    return validate_table(table, kind, path)
 
 
 def read_contacts(path: str | os.PathLike) -> pa.Table:

@@ -192,3 +192,29 @@ def test_list_columns_report_the_element():
     t = _inf_wrench(pq.read_table(RUN))
     with pytest.raises(schema.SchemaError, match=r"has inf at \[7, 0\]"):
         schema.validate_table(t, "sim_run", "x.parquet")
+
+
+# ------------------------------------------------------------------------------ a table of the wrong kind
+
+def _segments_with_provenance(path: Path) -> Path:
+    t = pq.read_table(_stucco_segments(path))
+    schema.write_table(t, path, stage="segment", params={}, seed=0, kind="segments")
+    return path
+
+
+@pytest.mark.parametrize("case", ["segments to segment", "segments without provenance to segment",
+                                  "run file to track", "run file to segment", "segments to track"])
+def test_a_table_of_another_kind_is_named_as_the_input(tmp_path, case):
+    segments = (_segments_with_provenance(tmp_path / "segments.parquet") if "without" not in case
+                else _stucco_segments(tmp_path / "segments.parquet"))
+    run = tmp_path / "FB-000.parquet"
+    shutil.copyfile(RUN, run)
+    given = run if case.startswith("run file") else segments
+    command = case.rsplit(" ", 1)[-1]
+    out = tmp_path / "out.parquet"
+    extra = ["--robot", "disc:0.05"] if command == "track" else []
+    before = {p: p.read_bytes() for p in (run, segments)}
+    r = CliRunner().invoke(cli, ["-q", command, "--in", str(given), "--out", str(out), *extra])
+    culprit = ("segments table" if given == segments and command == "segment" else
+               "is a sim_run table" if given == run else "is a segments table")
+    _assert_refused(r, given, culprit, before, out)

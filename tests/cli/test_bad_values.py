@@ -181,3 +181,49 @@ def test_score_accepts_the_inputs_the_retrieval_was_made_from(two_runs, tmp_path
                                  str(_part(two_runs, "runs", "FB").parent), "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert out.exists()
+
+
+# ------------------------------------------------------------------------------------------ bench track
+
+#: (arguments with placeholders, culprit): {empty} an empty folder, {corrupt} a folder whose stream is not an
+#: npz, {pickled} one holding an object array (refused: no pickles are loaded), {false} a python that fails.
+BENCH_TRACK_CASES = [
+    ("--streams {empty}", "no stream for T=50"),
+    ("--streams {corrupt} --T 50", "not a stream file"),
+    ("--streams {pickled} --T 50", "not a stream file"),
+    ("--streams {partial} --T 50", "'x' missing"),
+    ("--T abc", "--T"),
+    ("--T 77", "no stream for T=77"),
+    ("--T 0", "--T"),
+    ("--N 0", "--N"),
+    ("--N 1000000000", "--N"),
+    ("--N abc", "--N"),
+    ("--methods foo", "--methods"),
+    ("--T 50 --N 100 --methods stucco,foo", "--methods"),
+    ("--reference-python {false}", "--reference-python"),
+]
+
+
+@pytest.mark.parametrize("line, culprit", BENCH_TRACK_CASES, ids=[c for c, _ in BENCH_TRACK_CASES])
+def test_bench_track_refuses_bad_input_before_measuring(tmp_path, line, culprit):
+    import numpy as np
+
+    folders = {k: tmp_path / k for k in ("empty", "corrupt", "pickled", "partial")}
+    for f in folders.values():
+        f.mkdir()
+    (folders["corrupt"] / "stream_T50.npz").write_bytes(b"not an npz file at all")
+    np.savez(folders["pickled"] / "stream_T50.npz", x=np.array([{"a": 1}], dtype=object))
+    np.savez(folders["partial"] / "stream_T50.npz", dx=np.zeros((3, 2)))
+    false = tmp_path / "false"
+    false.write_text("#!/bin/sh\nexit 3\n")
+    false.chmod(0o755)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+
+    r = CliRunner().invoke(cli, ["bench", "track", *line.format(false=false, **folders).split()])
+
+    assert r.exit_code != 0, r.output
+    assert "Traceback" not in r.output and (r.exception is None or isinstance(r.exception, SystemExit)), r.exception
+    assert "SPEED" not in r.output  # refused before the first measurement
+    last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
+    assert last.startswith("Error:") and culprit in last, r.output
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
