@@ -12,11 +12,12 @@ Files are written to a temporary name and renamed (matplotlib's Agg backend, no 
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from pipeline.atomic import save_figure
 
 __all__ = ["figure_path", "outline", "run_figure", "summary_figure"]
 
@@ -41,13 +42,7 @@ def outline(prim, pose: np.ndarray, n: int = 64) -> np.ndarray:
 
 
 def _save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=100)
 
 
 def _plt():

@@ -11,6 +11,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from pipeline.atomic import save_figure
+
 
 def canonical_labels(labels: np.ndarray) -> np.ndarray:
     """Relabel to 0..k-1 in order of first appearance (so equal segmentations give equal label arrays)."""
@@ -193,12 +195,7 @@ def plot_segments(segments, path, max_runs: int = 6) -> None:
     fig.suptitle("tracked contact points: colour = segment" + ("" if truth is None else ", marker = true object"),
                  fontsize=10)
     fig.tight_layout()
-    tmp = f"{path}.tmp.png"
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    import os
-
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=110)
 
 
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,

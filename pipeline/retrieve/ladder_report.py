@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from pipeline.atomic import save_figure, write_text
 from pipeline.retrieve.ladder import PERTURBATIONS, RUNGS, LadderRow
 
 __all__ = ["summarise", "summary_markdown", "ladder_tables", "write_outputs"]
@@ -79,12 +79,6 @@ def ladder_tables(summary: Sequence[dict]) -> str:
     return text
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _csv(rows: Sequence[dict]) -> str:
     buf = io.StringIO()
     if rows:
@@ -106,8 +100,8 @@ def write_outputs(rows: Sequence[LadderRow], out: str | Path) -> tuple[Path, Pat
     out.mkdir(parents=True, exist_ok=True)
     summary = summarise(rows)
     paths = (out / "ladder.csv", out / "ladder_summary.csv", out / "ladder.png")
-    _atomic_text(paths[0], _csv([asdict(r) for r in rows]))
-    _atomic_text(paths[1], _csv(summary))
+    write_text(paths[0], _csv([asdict(r) for r in rows]))
+    write_text(paths[1], _csv(summary))
     scenes = list(dict.fromkeys(r["scene"] for r in summary))
     estimators = list(dict.fromkeys(r["estimator"] for r in summary))
     fig, axes = plt.subplots(len(scenes), 1, figsize=(12, 2.6 * len(scenes)), squeeze=False)
@@ -125,8 +119,5 @@ def write_outputs(rows: Sequence[LadderRow], out: str | Path) -> tuple[Path, Pat
     axes[0, 0].legend(fontsize=7, loc="lower left")
     axes[0, 0].set_title("Where grasps are lost: grasp success per rung (dashed: 85 %)", fontsize=9)
     fig.tight_layout()
-    tmp = paths[2].with_name(f".{paths[2].name}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    os.replace(tmp, paths[2])
+    save_figure(fig, paths[2], dpi=90)
     return paths

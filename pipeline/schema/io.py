@@ -12,7 +12,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import secrets
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import __version__
+from pipeline.atomic import atomic_path
 from pipeline.schema.errors import SchemaError
 from pipeline.schema.specs import TABLES, validate_table
 
@@ -237,17 +237,9 @@ def write_table(
     }
     table = table.replace_schema_metadata(meta).combine_chunks()
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    try:
+    with atomic_path(path, fsync=True) as tmp:
         with open(tmp, "xb") as f:  # default permissions (umask), unlike mkstemp's 0600
             _write_parquet(table, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 
