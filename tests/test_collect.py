@@ -195,7 +195,7 @@ def test_effect_off_settling_leaves_spawn_poses():
         spawn = w.object_poses()
     with World(scene) as w:
         settled = w.object_poses()
-    # spawned overlapping, the tomato can is pushed away from the box while settling (REFERENCE_SPEC §1.1)
+    # spawned overlapping, the tomato can is pushed away from the box while settling (as in the authors' scene)
     assert np.hypot(*(settled[1, :2] - spawn[1, :2])) > 5e-3
 
 
