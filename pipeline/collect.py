@@ -1,6 +1,6 @@
 """Run a scene in pybullet and record one Parquet file per (scene, seed): the ``sim_run`` table.
 
-Policies (REFERENCE_SPEC §2.2-2.4):
+Policies (the authors' code; docs/simulation.md):
 
 ``scripted``
     The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
@@ -9,7 +9,7 @@ Policies (REFERENCE_SPEC §2.2-2.4):
     Start and goal uniform in the scene's square (rejected if closer than 0.7 m or if the gripper would touch
     anything at either); at most 299 actions, stop within 4 cm of the goal; after an action that ends in
     contact take 6 uniform random actions, otherwise the best of 100 uniform random actions towards the goal.
-    Runs failing the discard rule (§2.4) are not written unless asked.
+    Runs failing the discard rule (paper §V-B; docs/simulation.md) are not written unless asked.
 
 Every random draw of a job comes from ``numpy.random.SeedSequence([root_seed, scene_hash(scene), seed])``
 (children: 0 = replay noise, 1 = policy), so every method sees the same scene and actions for a given seed.
@@ -46,7 +46,7 @@ WINDOW_STEPS = 8
 #: Observations per bucket for labels and the representative force, and the observation used in a bucket.
 BUCKET = 20
 BUCKET_SAMPLE = 5
-#: Discard rule thresholds (REFERENCE_SPEC §2.4).
+#: Discard rule thresholds (paper §V-B; the values of the authors' code).
 MIN_REP_FORCE_N = 0.1
 MAX_NO_CONTACT_FRACTION = 0.95
 
@@ -91,7 +91,7 @@ def output_path(out_dir: str | Path, scene_name: str, seed: int) -> Path:
 
 
 def action_label(ids: np.ndarray, bucket: int = BUCKET) -> int:
-    """Ground-truth object of an action (REFERENCE_SPEC §2.1).
+    """Ground-truth object of an action (the authors' rule, docs/simulation.md).
 
     Parameters
     ----------
@@ -115,7 +115,7 @@ def action_label(ids: np.ndarray, bucket: int = BUCKET) -> int:
 
 
 def representative_force(wrench: np.ndarray, bucket: int = BUCKET, sample: int = BUCKET_SAMPLE) -> np.ndarray:
-    """Representative in-plane contact force of an action (MEDIAN_OVER_MINI_STEPS, REFERENCE_SPEC §2.1).
+    """Representative in-plane contact force of an action (the authors' median over buckets, docs/simulation.md).
 
     Parameters
     ----------
@@ -171,7 +171,7 @@ def step_residual_max(wrench: np.ndarray, det: DetectionParams) -> float:
 
 
 def discard_reason(object_id: np.ndarray, force_rep: np.ndarray) -> str | None:
-    """Why a training run is discarded, or None to keep it (REFERENCE_SPEC §2.4).
+    """Why a training run is discarded, or None to keep it (paper §V-B; docs/simulation.md).
 
     Labels of actions whose representative force is below 0.1 N become -1 and one -1 is appended; the run
     is rejected with fewer than 2 distinct labels, more than 95 % of -1 labels, or fewer than 2 in-contact
