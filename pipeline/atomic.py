@@ -1,19 +1,25 @@
-"""Atomic file writes: every output is written under a unique temporary name beside its target, then renamed.
+"""Safe writes: every output goes to a unique temporary name beside its target and is renamed; one writer per folder.
 
 A reader (or a second process writing the same target) sees either the old file or the complete new one, never
 a partial file; a failed or interrupted write removes its temporary file. The temporary name carries the process
 id and a random token, so concurrent writers of one target never share it, and ends in ``.tmp``, so a leftover
-of a killed process never matches a reader's ``*.parquet`` or ``*.png``.
+of a killed process never matches a reader's ``*.parquet`` or ``*.png``. :func:`exclusive` lets one process at
+a time write a folder that several commands may target (``stucco evaluate --out``).
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text", "save_figure"]
+__all__ = ["atomic_path", "write_text", "save_figure", "exclusive", "FolderBusy"]
+
+
+class FolderBusy(RuntimeError):
+    """Another process holds the folder's lock (the message names the folder and the holder's pid)."""
 
 
 @contextmanager
@@ -61,3 +67,31 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 100) -> Path:
     finally:
         plt.close(fig)
     return Path(path)
+
+
+@contextmanager
+def exclusive(folder: str | os.PathLike, name: str = ".lock") -> Iterator[Path]:
+    """Hold an exclusive lock on `folder` (created if needed) while the block runs, or raise :class:`FolderBusy`.
+
+    The lock is an advisory ``flock`` on ``folder/name``, released by the operating system when the process ends,
+    so a killed process never leaves the folder locked. The holder's pid is written into the file for the message.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / name
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise FolderBusy(f"{folder}: another process (pid {holder}) is writing here; wait for it to finish or "
+                             "use another folder") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        try:
+            yield lock
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
