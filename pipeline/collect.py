@@ -1,6 +1,6 @@
 """Run a scene in pybullet and record one Parquet file per (scene, seed): the ``sim_run`` table.
 
-Policies (the authors' code; docs/simulation.md):
+Policies (docs/simulation.md, "`stucco collect`"):
 
 ``scripted``
     The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.isolate import DetectionParams, gripper_yaw, residual, step_in_contact, window_in_contact
+from pipeline.geometry import gripper_yaw
+from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
 from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
@@ -46,7 +47,7 @@ WINDOW_STEPS = 8
 #: Observations per bucket for labels and the representative force, and the observation used in a bucket.
 BUCKET = 20
 BUCKET_SAMPLE = 5
-#: Discard rule thresholds (paper §V-B; the values of the authors' code).
+#: Discard rule thresholds (docs/simulation.md, "`stucco collect`").
 MIN_REP_FORCE_N = 0.1
 MAX_NO_CONTACT_FRACTION = 0.95
 
@@ -91,7 +92,7 @@ def output_path(out_dir: str | Path, scene_name: str, seed: int) -> Path:
 
 
 def action_label(ids: np.ndarray, bucket: int = BUCKET) -> int:
-    """Ground-truth object of an action (the authors' rule, docs/simulation.md).
+    """Ground-truth object of an action (docs/simulation.md, "World, gripper, stepping").
 
     Parameters
     ----------
@@ -115,7 +116,8 @@ def action_label(ids: np.ndarray, bucket: int = BUCKET) -> int:
 
 
 def representative_force(wrench: np.ndarray, bucket: int = BUCKET, sample: int = BUCKET_SAMPLE) -> np.ndarray:
-    """Representative in-plane contact force of an action (the authors' median over buckets, docs/simulation.md).
+    """Representative in-plane contact force of an action (MEDIAN_OVER_MINI_STEPS; docs/simulation.md, "World,
+    gripper, stepping").
 
     Parameters
     ----------
@@ -171,7 +173,7 @@ def step_residual_max(wrench: np.ndarray, det: DetectionParams) -> float:
 
 
 def discard_reason(object_id: np.ndarray, force_rep: np.ndarray) -> str | None:
-    """Why a training run is discarded, or None to keep it (paper §V-B; docs/simulation.md).
+    """Why a training run is discarded, or None to keep it (docs/simulation.md, "`stucco collect`").
 
     Labels of actions whose representative force is below 0.1 N become -1 and one -1 is appended; the run
     is rejected with fewer than 2 distinct labels, more than 95 % of -1 labels, or fewer than 2 in-contact

@@ -1,11 +1,11 @@
 """Blind object retrieval, the grasp: restore a run's final state in pybullet, grasp at the estimated pose, and
 let the simulated contacts decide whether it worked.
 
-The script is the authors' ``grasp_at_pose`` (REFERENCE_SPEC §6.6): an approach offset in the estimated object
-frame (FB (0, -0.25) m with yaw wrapped to [-pi/2, pi/2]; BC and IB (0, -0.25) with yaw in [-pi, 0]; TC
-(0, -0.2) with the yaw forced to -pi/2, approaching along +x), move to the pre-grasp point, turn the hand to
-yaw + pi/2 so the fingers point along the approach, open the fingers (0.055 m each, 30 N), advance 4 x 0.03 m,
-close (30 N) and let it settle one action. The authors judged success by eye (it is not in their code); here
+The script is the authors' ``grasp_at_pose`` (docs/retrieval.md, "Grasp in simulation"): an approach offset
+in the estimated object frame (FB (0, -0.25) m with yaw wrapped to [-pi/2, pi/2]; BC and IB (0, -0.25) with yaw
+in [-pi, 0]; TC (0, -0.2) with the yaw forced to -pi/2, approaching along +x), move to the pre-grasp point, turn
+the hand to yaw + pi/2 so the fingers point along the approach, open the fingers (0.055 m each, 30 N), advance
+4 x 0.03 m, close (30 N) and let it settle one action. The authors judged success by eye (it is not in their code); here
 the rule of the paper is evaluated on the contacts pybullet reports after closing (:func:`judge_box`,
 :func:`judge_can`), see docs/retrieval.md:
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.retrieve.model import Primitive, primitive_of
+from pipeline.geometry import Primitive, primitive_of, quat_yaw, rot2
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "judge_box", "judge_can",
            "restore_world", "FingerContacts", "PLANS"]
@@ -38,13 +38,13 @@ __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "g
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
 FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
 #: Finger pads along the hand's approach axis (hand z), from the base: joint at 0.0584, mesh z in [0, 0.0538]
-#: (REFERENCE_SPEC §1.2), i.e. world x in [0.0585, 0.1122] for the default orientation.
+#: (docs/simulation.md, "World, gripper, stepping"), i.e. world x in [0.0585, 0.1122] for the default orientation.
 PAD_FROM_BASE = (0.0585, 0.1122)
 
 
 @dataclass(frozen=True)
 class GraspPlan:
-    """How a task approaches its target (REFERENCE_SPEC §6.6).
+    """How a task approaches its target (docs/retrieval.md, "Grasp in simulation").
 
     Attributes
     ----------
@@ -184,8 +184,7 @@ def pregrasp(plan: GraspPlan, target: Primitive, estimate: np.ndarray) -> tuple[
         yaw = _wrap_into(yaw, lo, sym)
         if yaw > hi:  # a range narrower than the symmetry period cannot hold every yaw; keep the low end
             yaw = lo
-    c, s = math.cos(yaw), math.sin(yaw)
-    approach = np.array([-s, c])  # object +y
+    approach = rot2(yaw)[:, 1]  # object +y
     return yaw, centre - plan.offset * approach, approach
 
 
@@ -193,7 +192,7 @@ def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
     """A :class:`pipeline.sim.World` in a run's final state: every object at its recorded (x, y, yaw), upright at
     rest height, the gripper at ``ee``; settled for ``settle_steps``. Sensing effects are switched off."""
     p = _pybullet()
-    from pipeline.sim import World
+    from pipeline.sim import World  # on first use, as pybullet (see _pybullet)
 
     eff = dataclasses.replace(scene.effects, settle_steps=0, wrench=False, contact_truth=False, noise_mm=0.0)
     world = World(scene, effects=eff)
@@ -219,6 +218,8 @@ def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
 
 def _pybullet():
     """pybullet, imported through :mod:`pipeline.sim` (which swallows its stderr banner)."""
+    # On first use, not at the top (measured): importing pybullet when pipeline.retrieve.stage loads this module
+    # changed the paper estimator's poses in their last bits in a Dask worker (tests/test_dask_processes.py).
     import pipeline.sim  # noqa: F401
     import pybullet
 
@@ -249,8 +250,7 @@ def _body_pose(world, body: int) -> np.ndarray:
     p = _pybullet()
 
     pos, q = p.getBasePositionAndOrientation(body, physicsClientId=world.client)
-    x, y, z, w = q
-    return np.array([pos[0], pos[1], math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))])
+    return np.array([pos[0], pos[1], quat_yaw(q)])
 
 
 def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray, params: GraspParams
@@ -267,8 +267,9 @@ def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
     """
     pose = np.asarray(pose, dtype=np.float64)
     ang = float(pose[2]) + target.yaw
-    ax = np.array([math.cos(ang), math.sin(ang)])  # short axis: normal of the long faces
-    ay = np.array([-math.sin(ang), math.cos(ang)])  # long axis
+    r = rot2(ang)
+    ax = r[:, 0]  # short axis: normal of the long faces
+    ay = r[:, 1]  # long axis
     centre = target.centre_world(pose)
     cos_max = math.cos(math.radians(params.face_angle_deg))
     sides = []

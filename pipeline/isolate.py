@@ -1,4 +1,4 @@
-"""Contact detection from the wrench residual and isolation on the gripper surface (REFERENCE_SPEC §3.2-3.3).
+"""Contact detection from the wrench residual and isolation on the gripper surface (docs/simulation.md).
 
 Kernels are pure functions on arrays; :func:`isolate_runs` turns the Parquet files written by
 :mod:`pipeline.collect` into the ``contacts`` table of :mod:`pipeline.schema`, with the ground-truth object id,
@@ -23,12 +23,13 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.geometry import gripper_yaw, rot2
+from pipeline.robot import load_robot, surface_points
 
 __all__ = [
     "DetectionParams",
     "IsolationParams",
     "residual",
-    "gripper_yaw",
     "step_in_contact",
     "window_in_contact",
     "contact_window",
@@ -40,7 +41,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Residual detector of the simulation (REFERENCE_SPEC §3.2).
+    """Residual detector of the simulation (docs/simulation.md, "`stucco isolate`").
 
     Attributes
     ----------
@@ -59,7 +60,7 @@ class DetectionParams:
 
 @dataclass(frozen=True)
 class IsolationParams:
-    """Brute-force isolation over surface points (REFERENCE_SPEC §3.3).
+    """Brute-force isolation over surface points (docs/simulation.md, "`stucco isolate`").
 
     Attributes
     ----------
@@ -117,7 +118,8 @@ def window_in_contact(flags: np.ndarray, window: int = DetectionParams.window) -
 
 def contact_window(flags: np.ndarray, max_wrenches: int = IsolationParams.max_wrenches,
                    window: int = DetectionParams.window) -> np.ndarray:
-    """Indices of the wrenches isolation uses, oldest first (REFERENCE_SPEC §3.3 get_last_contact_location).
+    """Indices of the wrenches isolation uses, oldest first (the authors' get_last_contact_location;
+    docs/simulation.md, "`stucco isolate`").
 
     The most recent in-contact step among the last ``window`` plus the immediately preceding steps while they
     are still in contact, at most ``max_wrenches`` in all.
@@ -147,19 +149,6 @@ def contact_window(flags: np.ndarray, max_wrenches: int = IsolationParams.max_wr
 # ---------------------------------------------------------------------------------------------------------------
 # Isolation kernel
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def gripper_yaw(q: np.ndarray) -> float:
-    """Yaw of the deviation of an xyzw quaternion from the gripper's fixed Euler (0, pi/2, 0) orientation.
-
-    The gripper's x axis (hand x) points down (-z) at the canonical orientation, so the in-plane rotation is read
-    from where the hand's z axis (palm -> fingertips, world +x when canonical) points.
-    """
-    x, y, z, w = (float(v) for v in q)
-    # third column of the rotation matrix = hand z axis in world
-    zx = 2.0 * (x * z + w * y)
-    zy = 2.0 * (y * z - w * x)
-    return math.atan2(zy, zx)
 
 
 def isolate_point(forces: np.ndarray, torques: np.ndarray, points: np.ndarray, normals: np.ndarray,
@@ -241,8 +230,6 @@ class IsolationResult:
 
 
 def _surface(params: IsolationParams) -> tuple[np.ndarray, np.ndarray]:
-    from pipeline.robot import load_robot, surface_points
-
     sdf = load_robot(params.robot)
     return surface_points(sdf, n_query=params.n_query, radius=params.radius, min_separation=params.min_separation)
 
@@ -282,8 +269,7 @@ def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionPa
         if len(idx):
             last = idx[-1]
             yaw = gripper_yaw(pose[i, last, 3:])
-            c, s = math.cos(yaw), math.sin(yaw)
-            rot = np.array([[c, -s], [s, c]])
+            rot = rot2(yaw)
             # express the forces in the gripper's frame (world axes when the gripper is not turned)
             f = win[i, idx, :2] @ rot
             k = isolate_point(f, win[i, idx, 5], points, normals, iso.friction_cone_deg)

@@ -1,6 +1,6 @@
 """The ``score`` stage: one row per (scene, seed, method) with the metrics of the paper's Table II.
 
-* **Contact error** (REFERENCE_SPEC §6.1): for every final tracked point, the signed distance to the nearest
+* **Contact error** (docs/retrieval.md, "Scoring"): for every final tracked point, the signed distance to the nearest
   true surface among all objects **and walls** at their poses after the last action (negative inside),
   and CE = mean |distance|, reported in cm. Computed analytically on the horizontal slice of the scene's
   primitives (boxes and upright cylinders have one cross-section over their height, so this equals the
@@ -24,7 +24,8 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.retrieve import load_run, primitive_of, run_files_by_name
+from pipeline.geometry import primitive_of
+from pipeline.retrieve import load_run, run_files_by_name
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
            "validate_scores", "read_scores", "diagnostics_path_for", "summary_lines"]

@@ -7,11 +7,21 @@ is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an expo
 from __future__ import annotations
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from pipeline import schema
 from pipeline.atomic import save_figure
+
+#: Characteristic length l (m^2) of the connection probability exp(-d^2 / l), the paper's Table I (simulation).
+#: One fact for both users: STUCCO's tracker connects points with it (Alg. 1) and segmentation thresholds the same
+#: probability (Alg. 3), so :class:`pipeline.track.soft.SoftTrackingParams` takes its default from here.
+DEFAULT_LENGTH = 0.02
+#: Connection threshold alpha of segmentation (Alg. 3), the paper's Table I.
+DEFAULT_ALPHA = 0.4
 
 
 def canonical_labels(labels: np.ndarray) -> np.ndarray:
@@ -95,8 +105,6 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
     pyarrow.Table
         The input rows, in order, plus ``segment`` (int64, 0..k-1 per estimate in order of first appearance).
     """
-    import pyarrow as pa
-
     if by not in SEGMENT_BY:
         raise ValueError(f"by must be one of {', '.join(SEGMENT_BY)}, got {by!r}")
     use_components = by == "components" or (by == "auto" and method == "stucco")
@@ -120,9 +128,6 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
 
 def final_estimates(table):
     """Rows of the last estimate of each run (the whole table unless it was written with --every-step)."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
     if table.num_rows == 0:
         return table
     last = table.group_by("run").aggregate([("estimate_step", "max")])
@@ -136,6 +141,8 @@ def final_estimates(table):
 def summarise(segments) -> list[dict]:
     """One dict per (run, segment) of the final estimates: point count, centroid (m) and, when the table
     carries ground truth, the run's Fowlkes-Mallows index."""
+    # Imported here, not at the top: scikit-learn's metrics take 0.9 s to import (measured, -X importtime) and
+    # the tracker imports this module for segment_points on every run; only `stucco segment --report` needs it.
     from sklearn.metrics import fowlkes_mallows_score
 
     final = final_estimates(segments)
@@ -162,6 +169,8 @@ def summarise(segments) -> list[dict]:
 def plot_segments(segments, path, max_runs: int = 6) -> None:
     """PNG of the final tracked points of up to ``max_runs`` runs, coloured by segment; where ground truth is
     carried, the marker shape shows the true object."""
+    # Imported here, not at the top: matplotlib.pyplot takes 0.8 s to import (measured, -X importtime) and only
+    # `stucco segment --plot` draws.
     import matplotlib
 
     matplotlib.use("Agg")
@@ -205,17 +214,13 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
     ``length`` and ``alpha`` default to the values the tracks were made with (their metadata), then to Table I;
     the tracking method recorded there decides what ``by="auto"`` means. Returns the segments table.
     """
-    from pipeline import schema
-    from pipeline.track.soft import SoftTrackingParams
-
     tracks = schema.read_tracks(in_path)
     if "segment" in tracks.column_names:
         raise schema.SchemaError(in_path, "segment", None, "present: this is a segments table; expected a tracks "
                                                            "table (the output of stucco track)")
     tparams = schema.read_metadata(in_path).get("params") or {}
-    defaults = SoftTrackingParams()
-    length = float(length if length is not None else tparams.get("length", defaults.length))
-    alpha = float(alpha if alpha is not None else tparams.get("alpha", defaults.alpha))
+    length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))
+    alpha = float(alpha if alpha is not None else tparams.get("alpha", DEFAULT_ALPHA))
     method = str(tparams.get("method", "stucco"))
     segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
     schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.isolate import (DetectionParams, contact_window, gripper_yaw, isolate_point, isolate_runs, residual,
-                              step_in_contact, window_in_contact)
+from pipeline.geometry import gripper_yaw
+from pipeline.isolate import (DetectionParams, contact_window, isolate_point, isolate_runs, residual, step_in_contact,
+                              window_in_contact)
 from pipeline.schema import read_contacts, read_metadata, validate_contacts
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression" / "FB-000.parquet"

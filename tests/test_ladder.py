@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from pipeline.geometry import primitive_of
 from pipeline.retrieve.ladder import PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason, perturbed
 from pipeline.retrieve.ladder_report import ladder_tables, summarise
 from pipeline.retrieve.model import pose_error
@@ -19,8 +20,6 @@ REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 
 @pytest.mark.parametrize("name", ["FB-000", "BC-000", "IB-001", "TC-000"])
 def test_ideal_contact_points_lie_on_their_body_at_its_final_pose(name):
-    from pipeline.retrieve.model import primitive_of
-
     path = REGRESSION / f"{name}.parquet"
     info = load_run(path)
     segs = ideal_segments(path, info)

@@ -11,7 +11,7 @@ from pipeline.robot import GridSDF, disc_sdf, load_robot, panda_sdf, surface_poi
 
 ANCHOR = Path(__file__).resolve().parents[1] / "data" / "anchors" / "stream_T50.npz"
 
-# REFERENCE_SPEC §4.2 (authors' pybullet-built grid, measured).
+# The authors' pybullet-built grid, measured (docs/simulation.md, "The gripper's signed distance grid").
 SPEC_MIN = np.array([-0.02592, -0.10399])
 SPEC_MAX = np.array([0.11225, 0.10043])
 
@@ -201,7 +201,7 @@ def test_panda_known_points(panda):
 
 
 def test_panda_margin_shifts_values_by_the_margin(panda):
-    bare = robot._build_panda_grid(collision_margin=0.0)
+    bare = robot.panda_mesh.build_panda_grid(collision_margin=0.0)
     np.testing.assert_allclose(bare.values - panda.values, robot.PYBULLET_COLLISION_MARGIN, atol=1e-12)
     assert bare.values.min() == pytest.approx(-0.0295, abs=1e-3)
 
@@ -214,7 +214,7 @@ def test_panda_cache_second_call_loads_file(panda, panda_cache, monkeypatch):
     def no_build(*args, **kwargs):
         raise AssertionError("should have loaded from the cache")
 
-    monkeypatch.setattr(robot, "_build_panda_grid", no_build)
+    monkeypatch.setattr(robot.panda_cache, "build_panda_grid", no_build)
     again = panda_sdf(cache_dir=panda_cache)
     np.testing.assert_array_equal(again.values, panda.values)
     np.testing.assert_array_equal(again.origin, panda.origin)
@@ -222,10 +222,10 @@ def test_panda_cache_second_call_loads_file(panda, panda_cache, monkeypatch):
 
 
 def test_panda_cache_key_depends_on_inputs(panda_cache):
-    base = robot._panda_cache_path(0.001, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
-    assert base == robot._panda_cache_path(0.001, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
-    assert base != robot._panda_cache_path(0.002, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
-    assert base != robot._panda_cache_path(0.001, panda_cache, 0.0)
+    base = robot.panda_cache._panda_cache_path(0.001, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
+    assert base == robot.panda_cache._panda_cache_path(0.001, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
+    assert base != robot.panda_cache._panda_cache_path(0.002, panda_cache, robot.PYBULLET_COLLISION_MARGIN)
+    assert base != robot.panda_cache._panda_cache_path(0.001, panda_cache, 0.0)
 
 
 def test_panda_cache_dir_from_environment(tmp_path, monkeypatch):
@@ -236,7 +236,7 @@ def test_panda_cache_dir_from_environment(tmp_path, monkeypatch):
 
 
 def test_panda_corrupt_cache_is_rebuilt(tmp_path):
-    path = robot._panda_cache_path(0.004, tmp_path, robot.PYBULLET_COLLISION_MARGIN)
+    path = robot.panda_cache._panda_cache_path(0.004, tmp_path, robot.PYBULLET_COLLISION_MARGIN)
     path.write_bytes(b"not an npz")
     grid = panda_sdf(resolution=0.004, cache_dir=tmp_path)
     assert grid.values.min() < -0.02
@@ -266,7 +266,7 @@ def test_surface_points_lie_on_zero_level(panda_surface, panda):
 
 
 def test_surface_points_on_bare_hull_grid_all_on_zero_level():
-    bare = robot._build_panda_grid(collision_margin=0.0)
+    bare = robot.panda_mesh.build_panda_grid(collision_margin=0.0)
     points, _ = surface_points(bare)
     assert np.all(np.abs(bare.query(points)) < 1.5e-3)
 
@@ -274,7 +274,7 @@ def test_surface_points_on_bare_hull_grid_all_on_zero_level():
 def test_surface_normals_unit_and_outward(panda_surface, panda):
     points, normals = panda_surface
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-9)
-    interp = robot._bilinear(panda)
+    interp = robot.surface._bilinear(panda)
     assert np.all(interp(points + 0.003 * normals) > interp(points - 0.003 * normals))
     assert np.all(interp(points + 0.003 * normals) > 0.0)
 

@@ -11,7 +11,7 @@ from pipeline.scenes import SCENE_DIR, Effects, SceneError, load_scene, scene_ha
 
 ALL = scene_names()
 BOR_LENGTHS = {"FB": 54, "BC": 102, "IB": 44, "TC": 40}
-# Net commanded displacement of each hand-made sequence (REFERENCE_SPEC §2.2).
+# Net commanded displacement of each hand-made sequence (docs/simulation.md, "`stucco collect`").
 BOR_NET = {"FB": (0.396, -0.132), "BC": (0.15, 0.0), "IB": (0.09, -0.12), "TC": (0.15, -0.12)}
 
 

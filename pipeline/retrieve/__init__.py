@@ -3,7 +3,7 @@
 The paper's §V-C and our plausible-set estimator, one role per module (docs/retrieval.md):
 
 * :mod:`~pipeline.retrieve.params`: the paper's estimation parameters;
-* :mod:`~pipeline.retrieve.model`: the target's primitive, model points and normals, planar rotations, pose error;
+* :mod:`~pipeline.retrieve.model`: the target's primitive in a scene, model points and normals, pose error;
 * :mod:`~pipeline.retrieve.icp`: planar ICP from many restarts (Open3D), never mirrored;
 * :mod:`~pipeline.retrieve.paper`: the paper's choice of segment and pose;
 * :mod:`~pipeline.retrieve.plausible`: SE(2) hypotheses fitted to the shape, the contacts and the free space;
@@ -11,12 +11,15 @@ The paper's §V-C and our plausible-set estimator, one role per module (docs/ret
 * :mod:`~pipeline.retrieve.runs`: collected run files and the per-run random streams;
 * :mod:`~pipeline.retrieve.tables`: the ``retrieval`` and ``candidates`` tables;
 * :mod:`~pipeline.retrieve.stage`: the ``retrieve`` stage.
+
+The primitive and the planar rotations live in :mod:`pipeline.geometry`; this package's public names include them.
 """
+from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, wrap_angle
 from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, estimate_plausible,
                                           plausible_notes, retrieval_metadata)
 from pipeline.retrieve.icp import IcpResult, icp_error, icp_restarts, initial_transforms, layer_height
-from pipeline.retrieve.model import (Primitive, apply_pose, model_normals, model_points, outline_point, pose_error,
-                                     primitive_of, project_to_outline, rot2, rots2, target_primitive, wrap_angle)
+from pipeline.retrieve.model import (model_normals, model_points, outline_point, pose_error, project_to_outline,
+                                     target_primitive)
 from pipeline.retrieve.paper import Choice, Estimate, choose, confidence_notes, estimate_run, min_clearance
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline.retrieve.model import Primitive
+from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.retrieve.model import rot2, rots2, wrap_angle
+from pipeline.geometry import rot2, rots2, wrap_angle
 from pipeline.retrieve.params import RetrievalParams
 
 __all__ = ["IcpResult", "initial_transforms", "layer_height", "icp_error", "icp_restarts"]

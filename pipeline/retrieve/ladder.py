@@ -35,8 +35,10 @@ from joblib import Parallel, delayed
 
 from pipeline import schema
 from pipeline.evaluate import partition, single_threaded
+from pipeline.geometry import rot2
+from pipeline.grasp import GraspParams, grasp_at
 from pipeline.retrieve.estimators import Segment, estimate
-from pipeline.retrieve.model import pose_error, rot2
+from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
@@ -240,8 +242,6 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
     list of LadderRow
         The true-pose rungs once (estimator ''), then the estimator rungs per estimator.
     """
-    from pipeline.grasp import GraspParams, grasp_at  # pybullet: about a second of start-up
-
     info = load_run(run_path)
     target, truth = info.target, info.true_pose
     sdf = load_robot("panda")

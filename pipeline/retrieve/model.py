@@ -1,132 +1,18 @@
-"""The target's model: planar rotations, the primitive's horizontal slice, its model points and normals, pose error.
+"""The target's model: its primitive in a scene, model points and normals on the primitive's outline, pose error.
 
 Boxes and upright cylinders have one cross-section over their height, so the slice at the gripper plane is the
 whole shape for contact purposes (docs/retrieval.md). Poses are the body's inertial (COM) frame ``(x, y, yaw)``,
-the frame of the recorded ``obj_pose``.
+the frame of the recorded ``obj_pose``. The planar rotations and the :class:`~pipeline.geometry.Primitive` itself
+live in :mod:`pipeline.geometry`.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 
+from pipeline.geometry import Primitive, primitive_of, rot2
 from pipeline.retrieve.params import RetrievalParams
 
-__all__ = ["wrap_angle", "rot2", "rots2", "apply_pose", "Primitive", "primitive_of", "target_primitive",
-           "model_points", "model_normals", "outline_point", "project_to_outline", "pose_error"]
-
-
-def wrap_angle(a):
-    """Angle(s) wrapped to [-pi, pi)."""
-    return (np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def rot2(yaw: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s], [s, c]])
-
-
-def rots2(yaw: np.ndarray) -> np.ndarray:
-    """Rotation matrices, shape (..., 2, 2), of angles (...)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
-def apply_pose(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """World coordinates of frame points: pose (..., 3) as (x, y, yaw), pts (..., N, 2) -> (..., N, 2)."""
-    pose = np.asarray(pose, dtype=np.float64)
-    R = rots2(pose[..., 2])
-    return np.einsum("...ij,...nj->...ni", R, pts) + pose[..., None, :2]
-
-
-@dataclass(frozen=True)
-class Primitive:
-    """A box or upright cylinder in its body's inertial (COM) frame: the horizontal slice at contact height.
-
-    Boxes and upright cylinders have the same cross-section at every height they span, so the slice at the
-    gripper plane (z = 0.1 m) is the whole shape for contact purposes (docs/retrieval.md).
-
-    Attributes
-    ----------
-    kind : {"box", "cylinder"}
-    half : tuple of float, metres
-        Box: half extents (hx, hy) along the primitive's axes. Cylinder: (radius,).
-    centre : ndarray, shape (2,), metres
-        Primitive centre in the COM frame.
-    yaw : float, radians
-        Primitive axes in the COM frame.
-    name : str
-    """
-
-    kind: str
-    half: tuple[float, ...]
-    centre: np.ndarray
-    yaw: float = 0.0
-    name: str = ""
-
-    @property
-    def symmetry(self) -> float:
-        """Smallest rotation (rad) about the centre that maps the shape onto itself: pi for a box (pi/2 if
-        square), 0 for a cylinder, meaning any rotation."""
-        if self.kind == "cylinder":
-            return 0.0
-        return math.pi / 2 if abs(self.half[0] - self.half[1]) < 1e-9 else math.pi
-
-    def centre_world(self, pose: np.ndarray) -> np.ndarray:
-        """World position (..., 2) of the primitive centre for COM poses (..., 3)."""
-        pose = np.asarray(pose, dtype=np.float64)
-        return np.einsum("...ij,j->...i", rots2(pose[..., 2]), self.centre) + pose[..., :2]
-
-    def signed_distance(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        """Signed distance (m, negative inside) of world points (N, 2) to the primitive at COM pose (3,)."""
-        pose = np.asarray(pose, dtype=np.float64)
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        q = (pts - self.centre_world(pose)) @ rot2(float(pose[2]) + self.yaw)
-        if self.kind == "cylinder":
-            return np.linalg.norm(q, axis=1) - self.half[0]
-        d = np.abs(q) - np.asarray(self.half[:2])
-        outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
-        inside = np.minimum(np.max(d, axis=1), 0.0)
-        return outside + inside
-
-    def canonical(self, pose: np.ndarray) -> np.ndarray:
-        """The representative of a COM pose (3,) under the shape's symmetry.
-
-        Rotations about the primitive centre (not the COM) map the shape onto itself: a box's yaw is brought
-        into [-pi/2, pi/2) by a half turn about its centre, a cylinder's yaw is set to 0 keeping its centre.
-        """
-        pose = np.array(pose, dtype=np.float64)
-        c = self.centre_world(pose)
-        if self.kind == "cylinder":
-            yaw = 0.0
-        else:
-            sym = self.symmetry
-            yaw = float((pose[2] + sym / 2) % sym - sym / 2)
-        xy = c - rot2(yaw) @ self.centre
-        return np.array([xy[0], xy[1], yaw])
-
-
-def primitive_of(spec) -> Primitive:
-    """The :class:`Primitive` of a scene object (:class:`pipeline.scenes.ObjectSpec`) or wall
-    (:class:`pipeline.scenes.WallSpec`), in the frame whose pose the run files record.
-
-    Objects: the primitive sits at ``shape_offset``/``shape_yaw`` in the link frame and the recorded frame is the
-    inertial one at ``com_offset``/``com_yaw``, so centre = R(-com_yaw) (shape_offset - com_offset_xy) and yaw =
-    shape_yaw - com_yaw. Walls have no offsets (their recorded pose is their centre).
-    """
-    kind = getattr(spec, "shape", "box")
-    if kind not in ("box", "cylinder"):
-        raise ValueError(f"object {spec.name!r}: shape {kind!r} is not a box or cylinder")
-    if getattr(spec, "rp", (0.0, 0.0)) != (0.0, 0.0):
-        raise ValueError(f"object {spec.name!r}: only upright primitives have a constant horizontal slice")
-    half = (spec.size[0],) if kind == "cylinder" else (spec.size[0] / 2.0, spec.size[1] / 2.0)
-    so = np.asarray(getattr(spec, "shape_offset", (0.0, 0.0)), dtype=np.float64)
-    com = np.asarray(getattr(spec, "com_offset", (0.0, 0.0, 0.0))[:2], dtype=np.float64)
-    com_yaw = float(getattr(spec, "com_yaw", 0.0))
-    centre = rot2(-com_yaw) @ (so - com)
-    return Primitive(kind=kind, half=tuple(float(h) for h in half), centre=centre,
-                     yaw=float(getattr(spec, "shape_yaw", 0.0)) - com_yaw, name=spec.name)
+__all__ = ["target_primitive", "model_points", "model_normals", "outline_point", "project_to_outline", "pose_error"]
 
 
 def target_primitive(scene) -> tuple[int, Primitive]:

@@ -9,8 +9,9 @@ from typing import Sequence
 
 import numpy as np
 
+from pipeline.geometry import Primitive, apply_pose
 from pipeline.retrieve.icp import icp_restarts, initial_transforms
-from pipeline.retrieve.model import Primitive, apply_pose, model_normals, model_points
+from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
 
 __all__ = ["min_clearance", "Choice", "choose", "confidence_notes", "Estimate", "estimate_run"]

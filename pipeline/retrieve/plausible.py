@@ -31,9 +31,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.retrieve.model import Primitive, outline_point, wrap_angle
+from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
+from pipeline.retrieve.model import outline_point
 
-__all__ = ["PlausibleParams", "Terms", "primitive_sdf", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
+__all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
            "fit_segment", "consensus", "com_pose", "primitive_pose"]
 
 
@@ -140,32 +141,10 @@ class PlausibleParams:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def primitive_sdf(prim: Primitive, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distance (...), metres, and its gradient (..., 2) at points q (..., 2) in the primitive's frame.
-
-    Finite everywhere: at the centre of a cylinder or on a box's medial axis a valid subgradient is used.
-    """
-    if prim.kind == "cylinder":
-        r = np.linalg.norm(q, axis=-1)
-        safe = np.where(r > 1e-12, r, 1.0)
-        g = np.where((r > 1e-12)[..., None], q / safe[..., None], np.array([1.0, 0.0]))
-        return r - prim.half[0], g
-    d = np.abs(q) - np.asarray(prim.half[:2])
-    sign = np.where(q >= 0.0, 1.0, -1.0)
-    pos = np.maximum(d, 0.0)
-    out = np.linalg.norm(pos, axis=-1)
-    axis = np.argmax(d, axis=-1)
-    inside = np.minimum(np.take_along_axis(d, axis[..., None], axis=-1)[..., 0], 0.0)
-    g_out = pos * sign / np.where(out > 0.0, out, 1.0)[..., None]
-    g_in = np.where(axis[..., None] == np.arange(2), sign, 0.0)
-    return out + inside, np.where((out > 0.0)[..., None], g_out, g_in)
-
-
 def _to_local(world: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World points (P, 2) in each primitive pose's frame (B, P, 2), and their offsets from the centre."""
-    c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
     d = world[None, :, :] - pose[:, None, :2]
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1), d
+    return rotate(d, pose[:, 2, None], inverse=True), d
 
 
 @dataclass
@@ -205,9 +184,8 @@ def evaluate_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
             costs.append(params.free_weight * 0.5 * (r * r).sum(axis=1))
             weight, resid, scale = np.where(r < 0.0, params.free_weight, 0.0), r, np.full((1, 1), 1.0 / s0)
         if jacobian:
-            c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
-            gx = c * g_local[..., 0] - s * g_local[..., 1]
-            gy = s * g_local[..., 0] + c * g_local[..., 1]
+            g = rotate(g_local, pose[:, 2, None])
+            gx, gy = g[..., 0], g[..., 1]
             # d sd / d centre = -g ; d sd / d yaw = -g . (-dy, dx) for the offset d of the point from the centre
             J = np.stack([-gx, -gy, gx * d[..., 1] - gy * d[..., 0]], axis=-1) * scale[..., None]
             pieces.append((resid, weight, J))
@@ -263,9 +241,7 @@ def initial_poses(prim: Primitive, points: np.ndarray, n: int, rng: np.random.Ge
     else:
         hx, hy = prim.half
         u = outline_point(rng.uniform(0.0, 4.0 * (hx + hy), n), hx, hy)
-    c, s = np.cos(theta), np.sin(theta)
-    ru = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]])
-    return np.column_stack([points.mean(axis=0) - ru, theta])
+    return np.column_stack([points.mean(axis=0) - rotate(u, theta), theta])
 
 
 def primitive_pose(prim: Primitive, com: np.ndarray) -> np.ndarray:
@@ -278,9 +254,8 @@ def com_pose(prim: Primitive, pose: np.ndarray) -> np.ndarray:
     """COM poses (..., 3) of primitive poses (..., 3) (inverse of :func:`primitive_pose`)."""
     pose = np.asarray(pose, dtype=np.float64)
     yaw = pose[..., 2] - prim.yaw
-    c, s = np.cos(yaw), np.sin(yaw)
-    cx, cy = prim.centre
-    return np.stack([pose[..., 0] - (c * cx - s * cy), pose[..., 1] - (s * cx + c * cy), yaw], axis=-1)
+    c = rotate(np.asarray(prim.centre, dtype=np.float64), yaw)
+    return np.stack([pose[..., 0] - c[..., 0], pose[..., 1] - c[..., 1], yaw], axis=-1)
 
 
 # ---------------------------------------------------------------------------------------------------------------

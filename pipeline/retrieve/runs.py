@@ -11,7 +11,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import schema
-from pipeline.retrieve.model import Primitive, target_primitive
+from pipeline.geometry import Primitive
+from pipeline.retrieve.model import target_primitive
 from pipeline.scenes import load_scene
 
 __all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", ]

@@ -10,6 +10,7 @@ import numpy as np
 import pyarrow as pa
 from joblib import Parallel, delayed
 
+from pipeline.grasp import GraspParams, grasp_at
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
@@ -62,9 +63,6 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], method: str, root_seed: in
                position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
                icp_s=est.icp_s, grasp_s=None)
     if grasp:
-        # pybullet is imported only when a grasp is simulated (about a second of start-up).
-        from pipeline.grasp import GraspParams, grasp_at
-
         g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, grasp_params or GraspParams())
         row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
     cand = dict(est.candidates)

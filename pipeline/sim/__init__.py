@@ -6,7 +6,7 @@ import sys as _sys
 
 if "pybullet" not in _sys.modules:
     # `import pybullet` writes a build-time banner straight to file descriptor 2; stages must not chatter
-    # (a known pybullet behaviour), so the banner is swallowed once here, before any submodule imports pybullet.
+    # on stderr), so the banner is swallowed once here, before any submodule imports pybullet.
     _saved = _os.dup(2)
     try:
         with open(_os.devnull, "w") as _null:

@@ -18,7 +18,8 @@ def action_noise(rng: np.random.Generator, n: int, noise_mm: float, scale: float
     """Uniform replay noise for ``n`` actions, in normalised action units.
 
     The authors add ``(U[0,1) - 0.5) * c`` to each normalised component, drawn once for the whole sequence
-    (as in the authors' code); here ``c`` is expressed as a half-width in millimetres of displacement.
+    (docs/simulation.md, "Effects: only what a scene calls for"); here ``c`` is expressed as a half-width in
+    millimetres of displacement.
 
     Parameters
     ----------
@@ -45,9 +46,10 @@ def read_contacts(client: int, gripper: int, base: tuple[float, float, float], i
                   wrench: bool, truth: bool) -> tuple[tuple[float, ...] | None, float, float, int, int]:
     """Contact wrench on the gripper and the ground truth of one sim step, from one getContactPoints call.
 
-    As in the authors' code (paper §IV-A): over every contact of any gripper link with a scene object or wall
-    (not the plane), force = normalForce * contactNormalOnB + lateralFriction1 * dir1 + lateralFriction2 * dir2 (B = the object,
-    so the normal points from the object to the gripper) and torque = (positionOnA - base) x force, summed.
+    As in docs/simulation.md, "Effects: only what a scene calls for": over every contact of any gripper link with a
+    scene object or wall (not the plane), force = normalForce * contactNormalOnB + lateralFriction1 * dir1 +
+    lateralFriction2 * dir2 (B = the object, so the normal points from the object to the gripper) and torque =
+    (positionOnA - base) x force, summed.
     One ``getContactPoints(bodyA=gripper)`` call covers every object, instead of one call per object.
 
     Parameters

@@ -1,10 +1,10 @@
 """The floating Franka Panda hand: pybullet's own collision meshes, assembled with createMultiBody.
 
-REFERENCE_SPEC §1.2: hand (0.81 kg) plus two prismatic fingers (0.1 kg each) at z = 0.0584 in the hand frame,
-the right finger mesh turned by pi about z; orientation Euler (0, pi/2, 0) so the fingers point along world +x
-and open along world y; the base is held by a fixed constraint (max force 30 N) at z = 0.1 m; fingers are kept
-closed by position control (target 0, force 30); finger contacts are compliant (stiffness 30000, damping 1000,
-spinning friction 0.1) with lateral friction 2 (the authors' override of the URDF's 1.0).
+As in docs/simulation.md, "World, gripper, stepping": hand (0.81 kg) plus two prismatic fingers (0.1 kg each) at z =
+0.0584 in the hand frame, the right finger mesh turned by pi about z; orientation Euler (0, pi/2, 0) so the fingers
+point along world +x and open along world y; the base is held by a fixed constraint (max force 30 N) at z = 0.1 m;
+fingers are kept closed by position control (target 0, force 30); finger contacts are compliant (stiffness 30000,
+damping 1000, spinning friction 0.1) with lateral friction 2 (the authors' override of the URDF's 1.0).
 
 Assembling the body from the two OBJ files with ``createMultiBody`` (instead of writing a URDF) needs no files
 of our own; pybullet collides with each mesh's convex hull either way, and computes the link inertias from the
@@ -15,16 +15,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import pybullet as p
+
+# The hand's collision meshes, their orientation and the finger joints' height are the same facts as the grid's
+# (one place: pipeline.robot.panda_mesh), so the simulated gripper and pxpen cannot drift apart.
+from pipeline.robot.panda_mesh import FINGER_JOINT_Z, GRIPPER_EULER, mesh_paths
 
 __all__ = ["Gripper", "create_gripper", "GRIPPER_Z", "GRIPPER_EULER", "MAX_FORCE", "mesh_paths"]
 
 #: Height of the gripper base, m (FIXED_Z).
 GRIPPER_Z = 0.1
-#: Fixed orientation (roll, pitch, yaw): hand z -> world +x, hand y -> world y, hand x -> world -z.
-GRIPPER_EULER = (0.0, math.pi / 2, 0.0)
 #: Maximum force of the holding constraint, N (FloatingGripperEnv.MAX_FORCE).
 MAX_FORCE = 30.0
 #: Finger position-control force, N (MAX_GRIPPER_FORCE), and target opening, m (CLOSE_ANGLE).
@@ -33,17 +34,8 @@ FINGER_CLOSED = 0.0
 #: Finger lateral friction set by the authors' _setup_gripper (URDF value 1.0).
 FINGER_FRICTION = 2.0
 _FINGER_URDF_FRICTION = 1.0
-_FINGER_JOINT_Z = 0.0584
 _HAND_MASS = 0.81
 _FINGER_MASS = 0.1
-
-
-def mesh_paths() -> tuple[Path, Path]:
-    """pybullet_data's Panda hand and finger collision meshes."""
-    import pybullet_data
-
-    base = Path(pybullet_data.getDataPath()) / "franka_panda" / "meshes" / "collision"
-    return base / "hand.obj", base / "finger.obj"
 
 
 @dataclass
@@ -110,7 +102,7 @@ def create_gripper(client: int, x: float, y: float, *, friction: bool = True) ->
         baseMass=_HAND_MASS, baseCollisionShapeIndex=hand, baseVisualShapeIndex=-1,
         basePosition=(x, y, GRIPPER_Z), baseOrientation=q,
         linkMasses=[_FINGER_MASS, _FINGER_MASS], linkCollisionShapeIndices=[left, right],
-        linkVisualShapeIndices=[-1, -1], linkPositions=[(0.0, 0.0, _FINGER_JOINT_Z)] * 2,
+        linkVisualShapeIndices=[-1, -1], linkPositions=[(0.0, 0.0, FINGER_JOINT_Z)] * 2,
         linkOrientations=[ident, ident], linkInertialFramePositions=[(0.0, 0.0, 0.0)] * 2,
         linkInertialFrameOrientations=[ident, ident], linkParentIndices=[0, 0],
         linkJointTypes=[p.JOINT_PRISMATIC, p.JOINT_PRISMATIC], linkJointAxis=[(0.0, 1.0, 0.0), (0.0, -1.0, 0.0)],

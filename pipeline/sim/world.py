@@ -1,4 +1,4 @@
-"""A pybullet world built from a :class:`pipeline.scenes.Scene`, and the action stepping of REFERENCE_SPEC §2.1.
+"""A pybullet world built from a :class:`pipeline.scenes.Scene`, and the action stepping (docs/simulation.md).
 
 One :class:`World` = one ``p.connect(p.DIRECT)`` client (no GUI, no camera), built fresh per run and closed
 after it; every call passes ``physicsClientId``. Only what the scene's effects ask for is built: walls,
@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
+from pipeline.geometry import quat_yaw
 from pipeline.scenes import Effects, ObjectSpec, Scene, WallSpec
 from pipeline.sim.effects import read_contacts
 from pipeline.sim.gripper import GRIPPER_Z, Gripper, create_gripper
@@ -29,7 +30,8 @@ __all__ = ["World", "ActionTrace", "TIME_STEP", "GRAVITY", "MINI_STEPS", "STEPS_
 
 TIME_STEP = 1.0 / 240.0
 GRAVITY = -10.0
-#: An action is 15 linear interpolation targets (mini steps) of 21 sim steps each (REFERENCE_SPEC §2.1).
+#: An action is 15 linear interpolation targets (mini steps) of 21 sim steps each (docs/simulation.md, "World,
+#: gripper, stepping").
 MINI_STEPS = 15
 STEPS_PER_MINI = 21
 STEPS_PER_ACTION = MINI_STEPS * STEPS_PER_MINI
@@ -69,11 +71,6 @@ class ActionTrace:
     truth_xy: np.ndarray
     truth_first: np.ndarray
     truth_last: np.ndarray
-
-
-def _quat_yaw(q: tuple[float, float, float, float]) -> float:
-    x, y, z, w = q
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 class World:
@@ -215,7 +212,7 @@ class World:
         return np.array(pos), np.array(q)
 
     def act(self, dx: float, dy: float) -> ActionTrace:
-        """Execute one displacement of the gripper (REFERENCE_SPEC §2.1).
+        """Execute one displacement of the gripper (docs/simulation.md, "World, gripper, stepping").
 
         The start is the observed base position; the pivot goes to start + f (dx, dy) for f = 1/15 .. 15/15,
         each held for 21 sim steps, and the gripper is observed after every sim step (315 in all).
@@ -263,7 +260,7 @@ class World:
         out = np.full((len(self.scene.body_names), 3), np.nan)
         for i, b in self.body_of.items():
             pos, q = p.getBasePositionAndOrientation(b, physicsClientId=self.client)
-            out[i] = (pos[0], pos[1], _quat_yaw(q))
+            out[i] = (pos[0], pos[1], quat_yaw(q))
         return out
 
     def object_distances(self) -> np.ndarray:

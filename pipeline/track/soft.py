@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.segment import segment_points
+from pipeline.segment import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.track import kernels
 from pipeline.track.base import params_from_dict
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
@@ -63,9 +63,9 @@ class SoftTrackingParams:
         particle that was unlucky once can recover; 0 disables the floor.
     """
 
-    length: float = 0.02
+    length: float = DEFAULT_LENGTH
     penetration_length: float = 0.002
-    alpha: float = 0.4
+    alpha: float = DEFAULT_ALPHA
     n_particles: int = 100
     tolerance: float = 0.002
     ess_threshold: float = 0.8

@@ -1,0 +1,36 @@
+"""Scene files -> typed, frozen scene objects (no pybullet here).
+
+A scene is one TOML file under ``data/scenes/`` (docs/simulation.md, "Scenes are data"); the files are the
+built-in scenes (the retrieval tasks FB, BC, IB, TC and the training scenes SELECT1-4), so no scene is defined in
+code. One role per module:
+
+* :mod:`~pipeline.scenes.types`: the frozen dataclasses (:class:`Scene`, :class:`ObjectSpec`, :class:`WallSpec`,
+  :class:`Plane`, :class:`Effects`, :class:`WalkSpec`) and :class:`SceneError`;
+* :mod:`~pipeline.scenes.parse`: :func:`parse_scene`, a decoded TOML document validated into a :class:`Scene`;
+* :mod:`~pipeline.scenes.files`: :data:`SCENE_DIR`, finding a scene by name or path, :func:`load_scene`,
+  :func:`load_all`, and :func:`scene_hash` for seeding.
+
+Every problem is a :class:`SceneError` whose one-line message names the file and the offending key.
+"""
+from pipeline.scenes.files import SCENE_DIR, load_all, load_scene, scene_hash, scene_names, scene_path
+from pipeline.scenes.parse import parse_scene
+from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
+                                   WallSpec)
+
+__all__ = [
+    "SCENE_DIR",
+    "SceneError",
+    "Plane",
+    "ObjectSpec",
+    "WallSpec",
+    "Effects",
+    "WalkSpec",
+    "Scene",
+    "scene_names",
+    "scene_path",
+    "load_scene",
+    "load_all",
+    "scene_hash",
+    "parse_scene",
+    "DEFAULT_ACTION_SCALE",
+]

@@ -1,0 +1,68 @@
+"""Scene files: where the shipped scenes live, finding one by name or path, reading and validating it.
+
+A scene is one TOML file under ``data/scenes/``; :func:`load_scene` reads one and :func:`parse_scene
+<pipeline.scenes.parse.parse_scene>` validates it. :func:`scene_hash` turns a scene name into the stable
+integer every job's random stream is seeded with (docs/simulation.md, "`stucco collect`").
+"""
+from __future__ import annotations
+
+import hashlib
+import tomllib
+from pathlib import Path
+
+from pipeline.scenes.parse import parse_scene
+from pipeline.scenes.types import Scene, SceneError
+
+__all__ = ["SCENE_DIR", "scene_names", "scene_path", "scene_hash", "load_scene", "load_all"]
+
+#: Directory of the shipped scene files (``data/scenes/`` at the repository root).
+SCENE_DIR = Path(__file__).resolve().parents[2] / "data" / "scenes"
+
+
+def scene_names(directory: Path = SCENE_DIR) -> list[str]:
+    """Names of the scene files in ``directory``, sorted."""
+    return sorted(p.stem for p in Path(directory).glob("*.toml"))
+
+
+def scene_path(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Path:
+    """The file of a scene given by name (``"FB"``) or by path to a ``.toml`` file."""
+    text = str(name_or_path)
+    if text.endswith(".toml") or "/" in text or "\\" in text:
+        path = Path(text)
+        if not path.is_file():
+            raise SceneError(f"{path}: scene file does not exist")
+        return path
+    path = Path(directory) / f"{text}.toml"
+    if not path.is_file():
+        known = ", ".join(scene_names(directory)) or "none"
+        raise SceneError(f"{path}: unknown scene {text!r} (known: {known})")
+    return path
+
+
+def scene_hash(name: str) -> int:
+    """A stable 32-bit integer for a scene name, the middle entry of every job's SeedSequence."""
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little")
+
+
+def load_all(directory: Path = SCENE_DIR) -> list[Scene]:
+    """Every scene in ``directory``, sorted by name."""
+    return [load_scene(n, directory) for n in scene_names(directory)]
+
+
+def load_scene(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Scene:
+    """Read and validate a scene by name (``"FB"``) or path.
+
+    Raises
+    ------
+    SceneError
+        Unknown scene, unreadable or invalid TOML, or a missing/ill-typed key; one line naming file and key.
+    """
+    path = scene_path(name_or_path, directory)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_scene(data, path)

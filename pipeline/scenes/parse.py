@@ -1,0 +1,252 @@
+"""Scene parsing: a decoded TOML document -> a validated :class:`~pipeline.scenes.types.Scene`.
+
+Every problem is a :class:`~pipeline.scenes.types.SceneError` whose one-line message names the file and the
+offending dotted key; unknown keys are errors too, so typos do not pass silently (docs/simulation.md, "Scenes are
+data", lists the keys).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
+                                   WallSpec)
+
+__all__ = ["parse_scene"]
+
+
+class _Reader:
+    """Typed access to a TOML table that reports the file and the dotted key on every error."""
+
+    def __init__(self, path: Path, table: dict[str, Any], prefix: str = "") -> None:
+        self.path = path
+        self.table = table
+        self.prefix = prefix
+
+    def key(self, k: str) -> str:
+        return f"{self.prefix}{k}"
+
+    def fail(self, k: str, msg: str) -> SceneError:
+        return SceneError(f"{self.path}: key '{self.key(k)}': {msg}")
+
+    def check_keys(self, allowed: set[str]) -> None:
+        for k in self.table:
+            if k not in allowed:
+                raise self.fail(k, f"unknown key (allowed: {', '.join(sorted(allowed))})")
+
+    def get(self, k: str, default: Any = ..., *, required: bool = False) -> Any:
+        if k not in self.table:
+            if required or default is ...:
+                raise self.fail(k, "missing")
+            return default
+        return self.table[k]
+
+    def number(self, k: str, default: Any = ..., *, positive: bool = False, nonneg: bool = False) -> Any:
+        if k not in self.table and default is not ...:
+            return default
+        v = self.get(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.fail(k, f"expected a finite number, got {v!r}")
+        if positive and v <= 0:
+            raise self.fail(k, f"expected a positive number, got {v!r}")
+        if nonneg and v < 0:
+            raise self.fail(k, f"expected a non-negative number, got {v!r}")
+        return float(v)
+
+    def integer(self, k: str, default: Any = ..., *, minimum: int = 0) -> int:
+        v = self.get(k, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+            raise self.fail(k, f"expected an integer >= {minimum}, got {v!r}")
+        return int(v)
+
+    def boolean(self, k: str, default: Any = ...) -> bool:
+        v = self.get(k, default)
+        if not isinstance(v, bool):
+            raise self.fail(k, f"expected true or false, got {v!r}")
+        return v
+
+    def string(self, k: str, default: Any = ..., *, choices: tuple[str, ...] | None = None) -> str:
+        v = self.get(k, default)
+        if not isinstance(v, str):
+            raise self.fail(k, f"expected a string, got {v!r}")
+        if choices is not None and v not in choices:
+            raise self.fail(k, f"expected one of {', '.join(choices)}, got {v!r}")
+        return v
+
+    def vector(self, k: str, n: int, default: Any = ..., *, positive: bool = False) -> Any:
+        if k not in self.table and default is not ...:
+            return default
+        v = self.get(k)
+        ok = isinstance(v, list) and len(v) == n and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+        if not ok:
+            raise self.fail(k, f"expected a list of {n} finite numbers, got {v!r}")
+        if positive and any(x <= 0 for x in v):
+            raise self.fail(k, f"expected positive numbers, got {v!r}")
+        return tuple(float(x) for x in v)
+
+    def sub(self, k: str, *, required: bool = False) -> "_Reader | None":
+        v = self.get(k, None, required=required)
+        if v is None:
+            return None
+        if not isinstance(v, dict):
+            raise self.fail(k, f"expected a table, got {type(v).__name__}")
+        return _Reader(self.path, v, f"{self.key(k)}.")
+
+    def subs(self, k: str) -> list["_Reader"]:
+        v = self.get(k, [])
+        if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
+            raise self.fail(k, "expected an array of tables ([[" + k + "]])")
+        return [_Reader(self.path, t, f"{self.key(k)}[{i}].") for i, t in enumerate(v)]
+
+
+_TOP_KEYS = {"name", "description", "kind", "notes", "gripper", "plane", "effects", "objects", "walls", "actions",
+             "walk"}
+_OBJECT_KEYS = {"name", "shape", "size", "position", "yaw", "rp", "z", "mass", "lateral_friction",
+                "spinning_friction", "rolling_friction", "shape_offset", "shape_yaw", "com_offset", "com_yaw",
+                "model", "target"}
+
+
+def _parse_object(r: _Reader) -> ObjectSpec:
+    r.check_keys(_OBJECT_KEYS)
+    shape = r.string("shape", choices=("box", "cylinder"))
+    size = r.vector("size", 3 if shape == "box" else 2, positive=True)
+    return ObjectSpec(
+        name=r.string("name"),
+        shape=shape,
+        size=size,
+        position=r.vector("position", 2),
+        yaw=r.number("yaw", 0.0),
+        rp=r.vector("rp", 2, (0.0, 0.0)),
+        z=r.number("z", None, positive=True),
+        mass=r.number("mass", positive=True),
+        lateral_friction=r.number("lateral_friction", None, nonneg=True),
+        spinning_friction=r.number("spinning_friction", None, nonneg=True),
+        rolling_friction=r.number("rolling_friction", None, nonneg=True),
+        shape_offset=r.vector("shape_offset", 2, (0.0, 0.0)),
+        shape_yaw=r.number("shape_yaw", 0.0),
+        com_offset=r.vector("com_offset", 3, (0.0, 0.0, 0.0)),
+        com_yaw=r.number("com_yaw", 0.0),
+        model=r.string("model", ""),
+        target=r.boolean("target", False),
+    )
+
+
+def _parse_wall(r: _Reader, i: int) -> WallSpec:
+    r.check_keys({"name", "size", "position", "yaw", "z", "lateral_friction"})
+    return WallSpec(
+        name=r.string("name", f"wall{i}"),
+        size=r.vector("size", 3, positive=True),
+        position=r.vector("position", 2),
+        yaw=r.number("yaw", 0.0),
+        z=r.number("z", 0.1),
+        lateral_friction=r.number("lateral_friction", 0.7, nonneg=True),
+    )
+
+
+def _parse_effects(r: _Reader | None, object_names: list[str]) -> Effects:
+    if r is None:
+        return Effects()
+    r.check_keys({"noise_mm", "movable", "friction", "settle_steps", "wrench", "contact_truth", "walls"})
+    mov = r.get("movable", "all")
+    if mov == "all":
+        movable = None
+    elif isinstance(mov, list) and all(isinstance(m, str) for m in mov):
+        for m in mov:
+            if m not in object_names:
+                raise r.fail("movable", f"no object named {m!r} (objects: {', '.join(object_names)})")
+        movable = tuple(mov)
+    else:
+        raise r.fail("movable", f"expected \"all\" or a list of object names, got {mov!r}")
+    return Effects(
+        noise_mm=r.number("noise_mm", 0.5, nonneg=True),
+        movable=movable,
+        friction=r.boolean("friction", True),
+        settle_steps=r.integer("settle_steps", 1000),
+        wrench=r.boolean("wrench", True),
+        contact_truth=r.boolean("contact_truth", True),
+        walls=r.boolean("walls", True),
+    )
+
+
+def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] | None, float]:
+    if r is None:
+        return None, DEFAULT_ACTION_SCALE
+    r.check_keys({"scale", "sequence"})
+    scale = r.number("scale", DEFAULT_ACTION_SCALE, positive=True)
+    seq = r.get("sequence")
+    if not isinstance(seq, list) or not seq:
+        raise r.fail("sequence", "expected a non-empty list of [u_x, u_y] pairs")
+    out = []
+    for i, a in enumerate(seq):
+        ok = isinstance(a, list) and len(a) == 2 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and -1.0 <= x <= 1.0 for x in a)
+        if not ok:
+            raise r.fail(f"sequence[{i}]", f"expected [u_x, u_y] with each in [-1, 1], got {a!r}")
+        out.append((float(a[0]), float(a[1])))
+    return tuple(out), scale
+
+
+def _parse_walk(r: _Reader | None) -> WalkSpec | None:
+    if r is None:
+        return None
+    r.check_keys({"bounds", "min_start_goal_distance", "max_actions", "goal_tolerance", "walk_length",
+                  "n_candidates"})
+    d = WalkSpec()
+    bounds = r.vector("bounds", 2, d.bounds)
+    if bounds[0] >= bounds[1]:
+        raise r.fail("bounds", f"expected [low, high] with low < high, got {list(bounds)}")
+    return WalkSpec(
+        bounds=bounds,
+        min_start_goal_distance=r.number("min_start_goal_distance", d.min_start_goal_distance, nonneg=True),
+        max_actions=r.integer("max_actions", d.max_actions, minimum=1),
+        goal_tolerance=r.number("goal_tolerance", d.goal_tolerance, positive=True),
+        walk_length=r.integer("walk_length", d.walk_length),
+        n_candidates=r.integer("n_candidates", d.n_candidates, minimum=1),
+    )
+
+
+def parse_scene(data: dict[str, Any], path: Path) -> Scene:
+    """Validate a decoded TOML document into a :class:`Scene` (``path`` only names the file in errors)."""
+    r = _Reader(path, data)
+    r.check_keys(_TOP_KEYS)
+    name = r.string("name", path.stem)
+    kind = r.string("kind", choices=("retrieval", "training"))
+    g = r.sub("gripper")
+    start = None
+    if g is not None:
+        g.check_keys({"start"})
+        start = g.vector("start", 2, None)
+    p = r.sub("plane")
+    plane = Plane()
+    if p is not None:
+        p.check_keys({"lateral_friction", "spinning_friction"})
+        plane = Plane(p.number("lateral_friction", None, nonneg=True), p.number("spinning_friction", None,
+                                                                                 nonneg=True))
+    objects = tuple(_parse_object(o) for o in r.subs("objects"))
+    if not objects:
+        raise r.fail("objects", "a scene needs at least one [[objects]] entry")
+    walls = tuple(_parse_wall(w, i) for i, w in enumerate(r.subs("walls")))
+    names = [o.name for o in objects] + [w.name for w in walls]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise r.fail("objects", f"duplicate object/wall names: {', '.join(dup)}")
+    effects = _parse_effects(r.sub("effects"), [o.name for o in objects])
+    actions, scale = _parse_actions(r.sub("actions"))
+    walk = _parse_walk(r.sub("walk"))
+    if kind == "retrieval":
+        if actions is None:
+            raise r.fail("actions", "a retrieval scene needs [actions] with a sequence")
+        if start is None:
+            raise r.fail("gripper.start", "a retrieval scene needs the gripper start [x, y]")
+        if sum(o.target for o in objects) != 1:
+            raise r.fail("objects", "a retrieval scene needs exactly one object with target = true")
+    if kind == "training" and walk is None:
+        raise r.fail("walk", "a training scene needs a [walk] table (greedy random walk)")
+    desc = r.string("description", "")
+    if "\n" in desc.strip():
+        raise r.fail("description", "expected one line")
+    return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
+                 objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, walk=walk,
+                 notes=r.string("notes", ""))

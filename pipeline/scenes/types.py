@@ -1,0 +1,226 @@
+"""Scene types: the typed, frozen dataclasses a scene file becomes, and :class:`SceneError` (no pybullet here).
+
+A scene (docs/simulation.md, "Scenes are data") is the plane, the walls, the objects as primitive boxes and
+cylinders, where the gripper starts, how it moves (a hand-made action sequence for the retrieval tasks, a greedy
+random walk for the training scenes) and which simulation effects the world builds (:class:`Effects`).
+
+Coordinates are world metres on the plane (z up), angles radians. An object's ``position``/``yaw`` place its
+*link frame* (the authors' URDF frame); ``shape_offset`` places the primitive's centre in that frame and
+``com_offset``/``com_yaw`` the centre of mass, whose pose pybullet reports and every recorded pose uses.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+__all__ = ["DEFAULT_ACTION_SCALE", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects", "WalkSpec", "Scene"]
+
+#: Normalised actions are multiplied by this (m) to give a displacement (the authors' MAX_PUSH_DIST; docs/simulation.md,
+#: "Scenes are data").
+DEFAULT_ACTION_SCALE = 0.03
+
+
+class SceneError(ValueError):
+    """A scene that does not exist or whose file is malformed; the message is one line naming file and key."""
+
+
+@dataclass(frozen=True)
+class Plane:
+    """Ground plane friction overrides; None keeps pybullet's default (lateral 1.0, spinning 0, rolling 0)."""
+
+    lateral_friction: float | None = None
+    spinning_friction: float | None = None
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object: a primitive box or cylinder.
+
+    Attributes
+    ----------
+    name : str
+        Unique within the scene; ground-truth object ids follow the order of ``Scene.bodies``.
+    shape : {"box", "cylinder"}
+    size : tuple of float, metres
+        Box: full extents (x, y, z) in the shape frame. Cylinder: (radius, height), axis along the shape z.
+    position : (float, float), metres
+        Link-frame origin (x, y) at spawn.
+    yaw : float, radians
+        Link-frame yaw at spawn.
+    rp : (float, float), radians
+        Roll and pitch of the link frame at spawn (a cylinder lying on its side); (0, 0) for upright objects.
+    z : float or None, metres
+        Link-frame height at spawn; None rests the primitive on the plane (z = half its vertical extent).
+    mass : float, kg
+    lateral_friction, spinning_friction, rolling_friction : float or None
+        Friction overrides (None: pybullet default, lateral 0.5 for a created body).
+    shape_offset : (float, float), metres
+        Primitive centre in the link frame (the YCB collision hulls are not centred on their link frame).
+    shape_yaw : float, radians
+        Primitive yaw in the link frame.
+    com_offset : (float, float, float), metres
+        Centre of mass in the link frame (the URDF ``<inertial>`` origin times the global scaling).
+    com_yaw : float, radians
+        Yaw of the inertial frame in the link frame. Poses are reported in the inertial (COM) frame.
+    model : str
+        What the primitive stands for (e.g. "YcbCrackerBox x1.0"), informational.
+    target : bool
+        The object to retrieve (one per retrieval task).
+    """
+
+    name: str
+    shape: str
+    size: tuple[float, ...]
+    position: tuple[float, float]
+    yaw: float = 0.0
+    rp: tuple[float, float] = (0.0, 0.0)
+    z: float | None = None
+    mass: float = 1.0
+    lateral_friction: float | None = None
+    spinning_friction: float | None = None
+    rolling_friction: float | None = None
+    shape_offset: tuple[float, float] = (0.0, 0.0)
+    shape_yaw: float = 0.0
+    com_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    com_yaw: float = 0.0
+    model: str = ""
+    target: bool = False
+
+    @property
+    def half_height(self) -> float:
+        """float, metres: half the primitive's vertical extent when upright (or its radius lying down)."""
+        if self.rp != (0.0, 0.0):
+            return self.size[0] if self.shape == "cylinder" else max(self.size) / 2.0
+        return (self.size[1] if self.shape == "cylinder" else self.size[2]) / 2.0
+
+    @property
+    def spawn_z(self) -> float:
+        """float, metres: link-frame height at spawn."""
+        return self.half_height if self.z is None else self.z
+
+
+@dataclass(frozen=True)
+class WallSpec:
+    """A static box (mass 0) with full extents ``size`` centred at (``position``, ``z``) with ``yaw``."""
+
+    name: str
+    size: tuple[float, float, float]
+    position: tuple[float, float]
+    yaw: float = 0.0
+    z: float = 0.1
+    lateral_friction: float | None = 0.7
+
+
+@dataclass(frozen=True)
+class Effects:
+    """What the simulator builds for a scene; each can be switched off.
+
+    Attributes
+    ----------
+    noise_mm : float, millimetres
+        Half-width of the uniform replay noise added to each axis of each action (0 = off). The paper states
+        +-0.5 mm; the authors' code used +-0.075 mm (docs/simulation.md, "Effects: only what a scene calls for").
+    movable : tuple of str or None
+        Names of the objects that are dynamic; None = all objects. Others get mass 0 (static).
+    friction : bool
+        Apply the friction overrides (plane, objects, walls, finger lateral friction 2); off = pybullet defaults.
+    settle_steps : int
+        Sim steps at rest after building the world, before the first action.
+    wrench : bool
+        Compute the contact wrench on the gripper every sim step (needed for detection and isolation).
+    contact_truth : bool
+        Record the true contact point and touched object every sim step (labels, isolation error).
+    walls : bool
+        Build the scene's walls.
+    """
+
+    noise_mm: float = 0.5
+    movable: tuple[str, ...] | None = None
+    friction: bool = True
+    settle_steps: int = 1000
+    wrench: bool = True
+    contact_truth: bool = True
+    walls: bool = True
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly form for output metadata."""
+        return {
+            "noise_mm": self.noise_mm,
+            "movable": "all" if self.movable is None else list(self.movable),
+            "friction": self.friction,
+            "settle_steps": self.settle_steps,
+            "wrench": self.wrench,
+            "contact_truth": self.contact_truth,
+            "walls": self.walls,
+        }
+
+
+@dataclass(frozen=True)
+class WalkSpec:
+    """Greedy controller with a random walk on contact (training scenes; docs/simulation.md, "`stucco collect`")."""
+
+    bounds: tuple[float, float] = (-0.7, 0.7)
+    min_start_goal_distance: float = 0.7
+    max_actions: int = 299
+    goal_tolerance: float = 0.04
+    walk_length: int = 6
+    n_candidates: int = 100
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A parsed scene file.
+
+    Attributes
+    ----------
+    name : str
+        Scene name (the file stem), e.g. "FB".
+    description : str
+        One line.
+    kind : {"retrieval", "training"}
+    path : Path
+        The file it was read from.
+    gripper_start : (float, float) or None, metres
+        Gripper base (x, y) at the start (z is fixed at 0.1); None for sampled starts (greedy walk).
+    plane : Plane
+    objects : tuple of ObjectSpec
+    walls : tuple of WallSpec
+    effects : Effects
+    actions : tuple of (float, float) or None
+        The hand-made sequence in normalised units, each axis in [-1, 1].
+    action_scale : float, metres
+        Displacement per unit action.
+    walk : WalkSpec or None
+    """
+
+    name: str
+    description: str
+    kind: str
+    path: Path
+    gripper_start: tuple[float, float] | None
+    plane: Plane
+    objects: tuple[ObjectSpec, ...]
+    walls: tuple[WallSpec, ...]
+    effects: Effects
+    actions: tuple[tuple[float, float], ...] | None = None
+    action_scale: float = DEFAULT_ACTION_SCALE
+    walk: WalkSpec | None = None
+    notes: str = field(default="", compare=False)
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        """Names of every body that can be touched, objects then walls: position = ground-truth object id."""
+        return tuple(o.name for o in self.objects) + tuple(w.name for w in self.walls)
+
+    @property
+    def target(self) -> ObjectSpec | None:
+        """The object to retrieve, if any."""
+        return next((o for o in self.objects if o.target), None)
+
+    def with_effects(self, **changes: Any) -> "Scene":
+        """A copy with some effects changed, e.g. ``scene.with_effects(noise_mm=0.0, walls=False)``."""
+        try:
+            return replace(self, effects=replace(self.effects, **changes))
+        except TypeError as exc:
+            raise SceneError(f"{self.path}: [effects]: {exc}") from None
