@@ -23,6 +23,7 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
 from pipeline.sim.world import ActionTrace
 
 __all__ = ["POLICIES", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
-           "output_path", "collect_run", "collect", "summarize_action", "action_label", "representative_force",
+           "output_path", "collect_run", "collect_file", "collect", "summarize_action", "action_label", "representative_force",
            "discard_reason", "RunResult"]
 
 POLICIES = ("scripted", "greedy-walk")
@@ -381,13 +382,14 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
     return table, params, result
 
 
-def _job(scene: Scene, seed: int, root_seed: int, policy: str, out_dir: Path, max_actions: int | None,
-         keep_discarded: bool) -> RunResult:
+def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str = "scripted",
+                 max_actions: int | None = None, keep_discarded: bool = True) -> RunResult:
+    """The `collect` stage on a file: simulate one run (:func:`collect_run`) and write its ``sim_run`` table to
+    ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``."""
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions)
     if result.discarded is None or keep_discarded:
-        path = output_path(out_dir, scene.name, seed)
         write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
-        result.path = path
+        result.path = Path(path)
     return result
 
 
@@ -409,19 +411,21 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    args = [(scene, s, root_seed, policy, out_dir, max_actions, keep_discarded) for s in seeds]
+    job = partial(collect_file, root_seed=root_seed, policy=policy, max_actions=max_actions,
+                  keep_discarded=keep_discarded)
+    args = [(scene, s, output_path(out_dir, scene.name, s)) for s in seeds]
     bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
     results: list[RunResult] = []
     try:
         if jobs <= 1 or len(seeds) <= 1:
             for a in args:
-                results.append(_job(*a))
+                results.append(job(*a))
                 bar.update()
         else:
             from joblib import Parallel, delayed
 
             par = Parallel(n_jobs=min(jobs, len(seeds)), return_as="generator_unordered")
-            for r in par(delayed(_job)(*a) for a in args):
+            for r in par(delayed(job)(*a) for a in args):
                 results.append(r)
                 bar.update()
     finally:

@@ -18,6 +18,12 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.atomic import save_figure
+from pipeline import schema
+from pipeline.layout import partition
+from pipeline.report import METHOD_ORDER, METHOD_TITLE
+from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, primitive_of, read_retrieval
+from pipeline.score import read_scores
+from pipeline.segment import final_estimates
 
 __all__ = ["figure_path", "outline", "run_figure", "summary_figure"]
 
@@ -46,6 +52,8 @@ def _save(fig, path: Path) -> None:
 
 
 def _plt():
+    # matplotlib is imported when a figure is drawn, not with this module: about a second of start-up (measured)
+    # that every process importing the evaluation (the CLI, the workers) would pay, most of which draw nothing.
     import matplotlib
 
     matplotlib.use("Agg")
@@ -61,13 +69,6 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
 
     Returns the PNG path (:func:`figure_path` unless ``path`` is given).
     """
-    from pipeline import schema
-    from pipeline.evaluate import partition
-    from pipeline.report import METHOD_TITLE
-    from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, primitive_of, read_retrieval
-    from pipeline.score import read_scores
-    from pipeline.segment import final_estimates
-
     estimator = estimator or DEFAULT_ESTIMATOR
     plt = _plt()
     out = Path(out)
@@ -137,8 +138,6 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
 
 def summary_figure(rows, path: str | Path) -> Path:
     """GS %, FMI and CE cm per scene and method (bars, std as error bars) with the paper's values (black)."""
-    from pipeline.report import METHOD_ORDER, METHOD_TITLE
-
     plt = _plt()
     path = Path(path)
     scenes = list(dict.fromkeys(r.scene for r in rows))

@@ -35,6 +35,7 @@ __all__ = [
     "contact_window",
     "isolate_point",
     "isolate_runs",
+    "isolate_file",
     "IsolationResult",
 ]
 
@@ -354,3 +355,18 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
 def params_dict(det: DetectionParams, iso: IsolationParams) -> dict:
     """Both parameter sets, JSON-friendly, for output metadata."""
     return {"detection": asdict(det), "isolation": asdict(iso)}
+
+
+def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: DetectionParams = DetectionParams(),
+                 iso: IsolationParams = IsolationParams()) -> IsolationResult:
+    """The `isolate` stage on files: detect and isolate the contacts of collected run files and write the contacts
+    table (atomically), its metadata recording both parameter sets, the isolation error and the counts, and every
+    run file as an input (by stem). Returns the :class:`IsolationResult`."""
+    res = isolate_runs(files, det, iso)
+    params = params_dict(det, iso)
+    params["isolation_error"] = res.error_summary()
+    params["counts"] = {"runs": res.n_runs, "actions": res.n_actions, "in_contact": res.n_contact,
+                        "unisolated": res.n_unisolated}
+    schema.write_table(res.table, out_path, stage="isolate", params=params, seed=seed,
+                       inputs={f.stem: f for f in files}, kind="contacts")
+    return res

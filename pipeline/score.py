@@ -18,20 +18,23 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.geometry import primitive_of
-from pipeline.retrieve import load_run, run_files_by_name
+from pipeline.geometry import Primitive, primitive_of
+from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
+from pipeline.segment import final_estimates
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
-           "validate_scores", "read_scores", "diagnostics_path_for", "summary_lines"]
+           "validate_scores", "read_scores", "diagnostics_path_for", "summary_lines", "check_score_inputs",
+           "score_file"]
 
 
-def scene_signed_distance(points: np.ndarray, scene, poses: np.ndarray) -> np.ndarray:
+def scene_signed_distance(points: np.ndarray, scene, poses: np.ndarray,
+                          primitive: Callable[[Any], Primitive] = primitive_of) -> np.ndarray:
     """Signed distance (m) of world points to the nearest object or wall of a scene.
 
     Parameters
@@ -41,6 +44,10 @@ def scene_signed_distance(points: np.ndarray, scene, poses: np.ndarray) -> np.nd
     poses : ndarray, shape (B, 3)
         Every body's (x, y, yaw) in ``scene.body_names`` order (objects: inertial frame; walls: centre). Rows
         with NaN (bodies not built) are skipped.
+    primitive : callable
+        Body spec -> its horizontal slice (:class:`pipeline.retrieve.Primitive`); :func:`primitive_of`, which
+        refuses bodies that are not upright, unless the caller approximates those (the training study,
+        docs/studies.md).
 
     Returns
     -------
@@ -56,16 +63,18 @@ def scene_signed_distance(points: np.ndarray, scene, poses: np.ndarray) -> np.nd
     for spec, pose in zip(specs, poses):
         if not np.all(np.isfinite(pose)):
             continue
-        best = np.minimum(best, primitive_of(spec).signed_distance(pts, pose))
+        best = np.minimum(best, primitive(spec).signed_distance(pts, pose))
     return best
 
 
-def contact_error_cm(points: np.ndarray, scene, poses: np.ndarray) -> float | None:
-    """Mean |signed distance| of the points to the scene's surfaces, in cm; None without points."""
+def contact_error_cm(points: np.ndarray, scene, poses: np.ndarray,
+                     primitive: Callable[[Any], Primitive] = primitive_of) -> float | None:
+    """Mean |signed distance| of the points (M, 2), metres, to the scene's surfaces at ``poses`` (B, 3), in cm;
+    None without points. ``primitive`` as in :func:`scene_signed_distance`."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if len(pts) == 0:
         return None
-    return float(np.mean(np.abs(scene_signed_distance(pts, scene, poses))) * 100.0)
+    return float(np.mean(np.abs(scene_signed_distance(pts, scene, poses, primitive))) * 100.0)
 
 
 def fmi(truth: np.ndarray, segment: np.ndarray) -> float | None:
@@ -73,6 +82,7 @@ def fmi(truth: np.ndarray, segment: np.ndarray) -> float | None:
 
     Unassigned points (segment -1) are each given a cluster of their own.
     """
+    # Imported here: sklearn.metrics takes 0.8 s to import (measured), which only scoring pays.
     from sklearn.metrics import fowlkes_mallows_score
 
     truth = np.asarray(truth, dtype=np.int64)
@@ -131,8 +141,6 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
     pyarrow.Table
         The scores table (:data:`SCORES_COLUMNS`), one row per run of ``retrieval``, in its order.
     """
-    from pipeline.segment import final_estimates
-
     files = run_files_by_name(run_dir)
     final = final_estimates(segments)
     run = np.asarray(final.column("run").to_pylist(), dtype=object)
@@ -249,16 +257,45 @@ def summary_lines(scores: pa.Table) -> list[str]:
 
 def check_score_inputs(retrieval_path: str | Path, segments_path: str | Path, segments: pa.Table,
                        diagnostics: pa.Table | None = None, diagnostics_path: str | Path | None = None) -> None:
-    """Refuse (ValueError naming the file) inputs that do not belong together: a segments file other than the one
-    the retrieval recorded (its SHA-256 in the ``stucco.inputs`` metadata, docs/tables.md), or diagnostics that
-    lack a run of the segments table. Scoring them would pair FMI and timings with the wrong run."""
+    """Refuse (:class:`pipeline.schema.SchemaError` naming the file) inputs that do not belong together: a segments
+    file other than the one the retrieval recorded (its SHA-256 in the ``stucco.inputs`` metadata,
+    docs/tables.md), or diagnostics that lack a run of the segments table. Scoring them would pair FMI and timings
+    with the wrong run."""
     recorded = (schema.read_metadata(retrieval_path).get("inputs") or {}).get("segments") or {}
     digest = recorded.get("sha256")
     if digest and schema.file_digest(segments_path) != digest:
-        raise ValueError(f"{segments_path}: not the segments table {retrieval_path} was made from (it recorded "
-                         f"{recorded.get('file', '?')} with SHA-256 {digest[:12]}…, this file differs)")
+        raise schema.SchemaError(segments_path, None, None,
+                                 f"not the segments table {retrieval_path} was made from (it recorded "
+                                 f"{recorded.get('file', '?')} with SHA-256 {digest[:12]}…, this file differs)")
     if diagnostics is not None:
         missing = sorted(set(segments.column("run").to_pylist()) - set(diagnostics.column("run").to_pylist()))
         if missing:
-            raise ValueError(f"{diagnostics_path}: no diagnostics for run {missing[0]!r} of {segments_path} "
-                             f"({len(missing)} run(s) missing); pass the diagnostics of the same tracking")
+            raise schema.SchemaError(diagnostics_path, None, None,
+                                     f"no diagnostics for run {missing[0]!r} of {segments_path} "
+                                     f"({len(missing)} run(s) missing); pass the diagnostics of the same tracking")
+
+
+def score_file(retrieval_path: str | Path, segments_path: str | Path, run_dir: str | Path, out_path: str | Path,
+               *, seed: int, diagnostics_path: str | Path | None = None,
+               amend: Callable[[pa.Table], pa.Table] | None = None) -> pa.Table:
+    """The `score` stage on files: read and validate the retrieval, segments and (if given) track diagnostics
+    tables, refuse inputs that do not belong together (:func:`check_score_inputs`), :func:`score` them and write
+    the scores table (atomically, with provenance metadata: the run directory, every input file).
+
+    ``amend``, if given, turns the scores table into the one written (``stucco evaluate`` adds its stage times,
+    docs/evaluation.md). ``seed`` is the root seed. Returns the table written.
+    """
+    retrieval = read_retrieval(retrieval_path)
+    segments = schema.read_segments(segments_path)
+    diagnostics = schema.read_diagnostics(diagnostics_path) if diagnostics_path is not None else None
+    check_score_inputs(retrieval_path, segments_path, segments, diagnostics, diagnostics_path)
+    table = score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
+                  retrieval_path=str(retrieval_path))
+    if amend is not None:
+        table = amend(table)
+    inputs = {"retrieval": str(retrieval_path), "segments": str(segments_path)}
+    if diagnostics_path is not None:
+        inputs["diagnostics"] = str(diagnostics_path)
+    schema.write_table(table, out_path, stage="score", params={"runs": str(run_dir)}, seed=seed, inputs=inputs,
+                       kind="scores")
+    return table

@@ -118,8 +118,8 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.study import (_write_csv, accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
-                                summary_markdown)
+    from pipeline.study import (accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
+                                summary_markdown, write_csv)
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
@@ -133,7 +133,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
                                jobs=jobs or settings.jobs, progress=settings.progress)
         rows = summarise_settings(table)
-        _write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
+        write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
         png = pareto_figure(rows, out_dir / "pareto.png")
     click.echo(summary_markdown(rows), nl=False)
     k = [r["setting"] for r in rows if r.get("knee")]

@@ -46,8 +46,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     from pipeline import schema
     from pipeline.grasp import GraspParams
     from pipeline.report import METHOD_ORDER
-    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieval_metadata
-    from pipeline.retrieve import retrieve as run_retrieve
+    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieve_file
 
     def known(m: str) -> str:
         if m not in METHOD_ORDER:
@@ -59,27 +58,17 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
     check_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
-    with user_errors():
-        segments = schema.read_segments(segments_path)
+    with user_errors():  # a bad segments file is refused before --method is taken from its metadata
+        schema.read_segments(segments_path)
         meta = schema.read_metadata(segments_path)
     method = known(method or str((meta.get("params") or {}).get("method", "stucco")))
     with user_errors("retrieve"):
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
         plausible = PlausibleParams(**({} if hypotheses is None else {"n_hypotheses": hypotheses}))
-        gparams = GraspParams()
-        table, candidates = run_retrieve(segments, run_dir, method=method, root_seed=settings.seed, params=params,
-                                         grasp=grasp, grasp_params=gparams, jobs=settings.jobs,
-                                         progress=_progress(settings, "retrieve"),
-                                         segments_path=str(segments_path), estimator=estimator,
-                                         plausible_params=plausible)
-    meta_out = retrieval_metadata(estimator, params, plausible, method=method, grasp=grasp,
-                                  grasp_params=gparams if grasp else None)
-    inputs = {"segments": str(segments_path)}
-    with user_errors("retrieve"):  # candidates first: the retrieval, which later stages read, only once both can
-        schema.write_table(candidates, cand_path, stage="retrieve", params=meta_out, seed=settings.seed,
-                           inputs=inputs, kind="candidates")
-        schema.write_table(table, out_path, stage="retrieve", params=meta_out, seed=settings.seed, inputs=inputs,
-                           kind="retrieval")
+        table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, seed=settings.seed, method=method,
+                                 grasp_params=GraspParams(), estimator=estimator, params=params,
+                                 plausible_params=plausible, grasp=grasp, jobs=settings.jobs,
+                                 progress=_progress(settings, "retrieve"))
     if print_table:
         click.echo(f"{'run':<10} {'x_m':>7} {'y_m':>7} {'yaw':>6} {'seg':>4} {'pts':>4} {'pos_err_cm':>10} "
                    f"{'yaw_err':>7} {'grasp':>6}  notes / outcome")
@@ -112,27 +101,15 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
 def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir: Path, out_path: Path,
           diag_path: Path | None, print_table: bool) -> None:
     """Score runs: grasp success, FMI, contact error (cm), pose error and stage timings (scores.parquet)."""
-    from pipeline import schema
-    from pipeline.retrieve import read_retrieval
-    from pipeline.score import check_score_inputs, diagnostics_path_for, score as run_score, summary_lines
+    from pipeline.score import diagnostics_path_for, score_file, summary_lines
 
     check_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
-                   {"--out": out_path})
-    with user_errors():
-        retrieval = read_retrieval(retrieval_path)
-        segments = schema.read_segments(segments_path)
-        diag_path = diag_path or diagnostics_path_for(segments_path)
-        check_paths({"--diagnostics": diag_path}, {"--out": out_path})
-        diagnostics = schema.read_diagnostics(diag_path) if diag_path is not None else None
-        check_score_inputs(retrieval_path, segments_path, segments, diagnostics, diag_path)
+                {"--out": out_path})
+    diag_path = diag_path or diagnostics_path_for(segments_path)
+    check_paths({"--diagnostics": diag_path}, {"--out": out_path})
     with user_errors("score"):
-        table = run_score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
-                          retrieval_path=str(retrieval_path))
-    inputs = {"retrieval": str(retrieval_path), "segments": str(segments_path)}
-    if diag_path is not None:
-        inputs["diagnostics"] = str(diag_path)
-    schema.write_table(table, out_path, stage="score", params={"runs": str(run_dir)}, seed=settings.seed,
-                       inputs=inputs, kind="scores")
+        table = score_file(retrieval_path, segments_path, run_dir, out_path, seed=settings.seed,
+                           diagnostics_path=diag_path)
     if print_table:
         for line in summary_lines(table):
             click.echo(line)

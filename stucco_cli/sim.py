@@ -85,8 +85,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
 def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, force_overwrite: bool) -> None:
     """Detect contacts from the wrench residual and isolate them on the gripper surface -> contacts table."""
     check_paths({"--in": in_path}, {"--out": out_path})
-    from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict, run_files
-    from pipeline.schema import write_table
+    from pipeline.isolate import isolate_file, run_files
 
     if in_path.is_dir():
         files = run_files(in_path)
@@ -98,16 +97,9 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
         raise click.ClickException(f"{in_path}: does not exist")
     if out_path.exists() and not force_overwrite:
         raise click.ClickException(f"{out_path}: exists; pass --force-overwrite to replace it")
-    det, iso = DetectionParams(), IsolationParams()
     with user_errors():
-        res = isolate_runs(files, det, iso)
-        summary = res.error_summary()
-        params = params_dict(det, iso)
-        params["isolation_error"] = summary
-        params["counts"] = {"runs": res.n_runs, "actions": res.n_actions, "in_contact": res.n_contact,
-                            "unisolated": res.n_unisolated}
-        write_table(res.table, out_path, stage="isolate", params=params, seed=settings.seed,
-                    inputs={f.stem: f for f in files}, kind="contacts")
+        res = isolate_file(files, out_path, seed=settings.seed)
+    summary = res.error_summary()
     if report:
         if summary["n"]:
             click.echo(f"isolation error over {summary['n']} contacts: median {summary['median_m'] * 1000:.2f} mm, "

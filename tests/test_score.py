@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
@@ -79,17 +80,17 @@ def test_fmi_by_hand():
 
 
 def _run_file(path: Path, run="FB/4", seed=4):
-    poses = _poses()
-    n = 3
-    t = pa.table({
-        "run": [run] * n, "scene": ["FB"] * n, "seed": pa.array([seed] * n, pa.int64()),
-        "step": pa.array(np.arange(n), pa.int64()),
-        "ee_start_x_m": [0.0, 0.01, 0.02], "ee_start_y_m": [0.1, 0.1, 0.1],
-        "ee_x_m": [0.01, 0.02, 0.03], "ee_y_m": [0.1, 0.1, 0.1],
-        "obj_pose": pa.array([poses.tolist()] * n, pa.list_(pa.list_(pa.float64(), 3), len(poses))),
-    })
-    write_table(t, path, stage="collect", params={"scene": "FB", "bodies": list(SCENE.body_names)}, seed=0,
-                kind="sim_run")
+    """The stored FB run (data/regression, a valid ``sim_run`` file) as run ``run``, with the bodies at
+    :func:`_poses` after every action."""
+    stored = Path(__file__).resolve().parents[1] / "data" / "regression" / "FB-000.parquet"
+    t = pq.read_table(stored)
+    n = t.num_rows
+    over = {"run": pa.array([run] * n), "seed": pa.array([seed] * n, pa.int64()),
+            "obj_pose": pa.array([_poses().tolist()] * n, t.schema.field("obj_pose").type)}
+    for name, values in over.items():
+        t = t.set_column(t.column_names.index(name), name, values)
+    write_table(t.replace_schema_metadata(None), path, stage="collect", params=read_metadata(stored)["params"],
+                seed=0, kind="sim_run")
 
 
 def _segments(run="FB/4"):

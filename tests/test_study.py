@@ -1,4 +1,4 @@
-"""pipeline/study.py and its commands: Pareto front, knee, ambiguity, the tuning rule, tiny end-to-end grids."""
+"""pipeline/study/ and its commands: Pareto front, knee, ambiguity, the tuning rule, tiny end-to-end grids."""
 from __future__ import annotations
 
 import csv
@@ -164,7 +164,7 @@ def test_evaluate_suite_training_tiny(tmp_path):
 
 def test_toppled_cylinder_contact_error_uses_mean_half_extent_circle():
     from pipeline.scenes import load_scene
-    from pipeline.study import _training_primitive
+    from pipeline.study.training import _training_primitive
 
     scene = load_scene("SELECT2")
     spec = next(o for o in scene.objects if o.name == "topple_cylinder")

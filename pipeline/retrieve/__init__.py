@@ -10,7 +10,7 @@ The paper's §V-C and our plausible-set estimator, one role per module (docs/ret
 * :mod:`~pipeline.retrieve.estimators`: the estimators behind ``--estimator``, one call per run;
 * :mod:`~pipeline.retrieve.runs`: collected run files and the per-run random streams;
 * :mod:`~pipeline.retrieve.tables`: the ``retrieval`` and ``candidates`` tables;
-* :mod:`~pipeline.retrieve.stage`: the ``retrieve`` stage.
+* :mod:`~pipeline.retrieve.stage`: the ``retrieve`` stage, on tables and on files (:func:`retrieve_file`).
 
 The primitive and the planar rotations live in :mod:`pipeline.geometry`; this package's public names include them.
 """
@@ -24,7 +24,7 @@ from pipeline.retrieve.paper import Choice, Estimate, choose, confidence_notes, 
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
-from pipeline.retrieve.stage import final_segments_by_run, retrieve
+from pipeline.retrieve.stage import final_segments_by_run, retrieve, retrieve_file
 from pipeline.retrieve.tables import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS, candidates_table,
                                       read_retrieval, retrieval_table, validate_candidates, validate_retrieval)
 
@@ -35,6 +35,6 @@ __all__ = [
     "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
     "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "final_segments_by_run", "retrieve",
-    "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table", "read_retrieval",
-    "retrieval_table", "validate_candidates", "validate_retrieval",
+    "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",
+    "read_retrieval", "retrieval_table", "validate_candidates", "validate_retrieval",
 ]

@@ -10,8 +10,9 @@ import numpy as np
 import pyarrow as pa
 from joblib import Parallel, delayed
 
+from pipeline import schema
 from pipeline.grasp import GraspParams, grasp_at
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate
+from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, retrieval_metadata
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams
@@ -20,7 +21,7 @@ from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
-__all__ = ["final_segments_by_run", "retrieve"]
+__all__ = ["final_segments_by_run", "retrieve", "retrieve_file"]
 
 
 def final_segments_by_run(segments: pa.Table) -> dict[str, list[Segment]]:
@@ -127,3 +128,30 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
         results = progress(results, total=len(args))
     outs = list(results)
     return retrieval_table([o.row for o in outs]), candidates_table([o.candidates for o in outs])
+
+
+def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str | Path,
+                  candidates_path: str | Path, *, seed: int, method: str, grasp_params,
+                  estimator: str = DEFAULT_ESTIMATOR, params: RetrievalParams = RetrievalParams(),
+                  plausible_params: PlausibleParams = PlausibleParams(), grasp: bool = True, jobs: int = 1,
+                  progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
+    """The `retrieve` stage on files: read and validate a segments table, :func:`retrieve` its runs (files in
+    ``run_dir``), and write the candidates table, then the retrieval table (atomically, with provenance metadata:
+    :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input). The retrieval, which
+    later stages read, is written last, so that it exists only once both do. Returns (retrieval, candidates).
+
+    ``grasp_params`` (:class:`pipeline.grasp.GraspParams`) is used and recorded when ``grasp``; ``seed`` is the
+    root seed.
+    """
+    segments = schema.read_segments(segments_path)
+    table, candidates = retrieve(segments, run_dir, method=method, root_seed=seed, params=params, grasp=grasp,
+                                 grasp_params=grasp_params, jobs=jobs, progress=progress,
+                                 segments_path=str(segments_path), estimator=estimator,
+                                 plausible_params=plausible_params)
+    meta = retrieval_metadata(estimator, params, plausible_params, method=method, grasp=grasp,
+                              grasp_params=grasp_params if grasp else None)
+    inputs = {"segments": str(segments_path)}
+    schema.write_table(candidates, candidates_path, stage="retrieve", params=meta, seed=seed, inputs=inputs,
+                       kind="candidates")
+    schema.write_table(table, out_path, stage="retrieve", params=meta, seed=seed, inputs=inputs, kind="retrieval")
+    return table, candidates

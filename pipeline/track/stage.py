@@ -255,7 +255,7 @@ def _diagnostics_table(results: list[RunResult]) -> pa.Table:
     return pa.table(cols)
 
 
-def diagnostics_path_for(out_path: "str | Path") -> "Path":
+def diagnostics_path_for(out_path: str | Path) -> Path:
     """Where the diagnostics side table of a tracks file goes by default: ``<name>.diagnostics.parquet``."""
     out_path = Path(out_path)
     return out_path.with_name(out_path.name.removesuffix(".parquet") + ".diagnostics.parquet")

@@ -1,0 +1,40 @@
+"""The ``evaluate`` stage: the (scene, seed, method) grid of the paper's Table II, end to end, resumable.
+
+Every job runs collect -> isolate -> track -> segment -> retrieve -> score by calling the stage functions (the
+same calls, parameters and metadata as the CLI), and keeps each stage's table under a hive-partitioned output
+directory, one file per partition (:mod:`pipeline.layout`). One role per module (docs/evaluation.md):
+
+* :mod:`~pipeline.evaluate.config`: the grid's names, :class:`EvalConfig` (``DIR/evaluation.json``), :class:`Job`;
+* :mod:`~pipeline.evaluate.freshness`: which stages of a job are out of date (``make`` on recorded digests);
+* :mod:`~pipeline.evaluate.stages`: each stage through its ``<stage>_file`` function, as the CLI runs it, with
+  its wall time;
+* :mod:`~pipeline.evaluate.jobs`: a (scene, seed)'s run and a job brought up to date;
+* :mod:`~pipeline.evaluate.parallel`: joblib/loky or Dask across jobs, one thread per library inside one;
+* :mod:`~pipeline.evaluate.run`: the driver, :func:`evaluate`;
+* :mod:`~pipeline.evaluate.results`: reading a directory back, the scores of a grid, the report files;
+* :mod:`~pipeline.evaluate.regression`: the regression snapshot.
+
+Jobs are pure functions of (root seed, scene, seed, method, :class:`EvalConfig`): every random stream comes from
+the stages' own ``SeedSequence`` derivations (collect: ``[root, scene_hash(scene), seed]``; track:
+``[root, run_key(run)]``; retrieve: ``[root, run_key(run), sha256("retrieve")]``), so all methods of a seed see
+the same collected run (actions, noise), results do not depend on ``jobs`` or on the order of jobs (up to the
+last bits of Open3D's ICP, which vary from run to run anyway), and a stage rerun with ``stucco --seed ROOT
+<stage>`` reproduces its file (byte for byte for isolate, track and segment). Outputs are written atomically
+(:func:`pipeline.schema.write_table`).
+"""
+from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES, EvalConfig, Job, parse_methods,
+                                      parse_scenes)
+from pipeline.evaluate.freshness import stale_stages
+from pipeline.evaluate.jobs import JobResult, prepare_run, run_job
+from pipeline.evaluate.parallel import BACKENDS, map_jobs, parallel_backend, single_threaded
+from pipeline.evaluate.regression import SNAPSHOT_SCORE_COLUMNS, snapshot, write_snapshot
+from pipeline.evaluate.results import gather_scores, read_kind, write_report
+from pipeline.evaluate.run import Evaluation, evaluate
+from pipeline.evaluate.stages import STAGE_COLUMNS
+from pipeline.layout import CONFIG, KINDS, PART, STAGES, WALL, partition
+
+__all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGES", "STAGE_COLUMNS", "PART", "WALL",
+           "CONFIG", "EvalConfig", "Job", "JobResult", "Evaluation", "parse_scenes", "parse_methods", "partition",
+           "stale_stages", "prepare_run", "run_job", "evaluate", "read_kind", "gather_scores", "write_report",
+           "snapshot", "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded", "BACKENDS",
+           "parallel_backend", "map_jobs"]

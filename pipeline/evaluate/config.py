@@ -1,0 +1,150 @@
+"""What an evaluation is made of: the grid's scenes and methods, :class:`EvalConfig` and :class:`Job`.
+
+The configuration is stored in ``DIR/evaluation.json`` (:func:`check_config`) and an existing directory is only
+resumed with the same one (docs/evaluation.md, "Resuming and skipping").
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from pipeline.layout import CONFIG
+from pipeline.report import METHOD_ORDER
+from pipeline.retrieve.estimators import ESTIMATORS
+from pipeline.scenes import SceneError, load_scene, scene_names
+
+__all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
+           "parse_methods", "check_config"]
+
+#: The paper's Table II tasks, in its order.
+SCENES = ("FB", "BC", "IB", "TC")
+#: STUCCO and the baselines, in the order of Table II.
+METHODS = METHOD_ORDER
+#: `stucco evaluate --quick`: a couple of seeds of one scene.
+QUICK_SCENES = ("FB",)
+QUICK_SEEDS = (0, 1)
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What an evaluation directory is made with; stored in ``DIR/evaluation.json``, checked on resume.
+
+    Attributes
+    ----------
+    root_seed : int
+        Root of every job's SeedSequence (the CLI's ``--seed``).
+    max_actions : int or None
+        Cut every scripted run after this many actions (short test grids); None = the whole sequence.
+    restarts : int
+        ICP restarts per segment (30, the paper's).
+    grasp : bool
+        Simulate the grasp (grasp success is null without it).
+    robot : str
+        Gripper grid for tracking and retrieval.
+    source : str or None
+        Directory of stored run files replayed instead of simulating (``--from-runs``); None = simulate.
+    estimators : tuple of str
+        Pose estimators run on every job's segments (:data:`pipeline.retrieve.ESTIMATORS`), each into its own
+        ``estimator=`` partition; the report shows them side by side.
+    """
+
+    root_seed: int = 0
+    max_actions: int | None = None
+    restarts: int = 30
+    grasp: bool = True
+    robot: str = "panda"
+    source: str | None = None
+    estimators: tuple[str, ...] = ESTIMATORS
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "estimators", tuple(self.estimators))
+        bad = [e for e in self.estimators if e not in ESTIMATORS]
+        if not self.estimators or bad:
+            raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+        if self.max_actions is not None and self.max_actions < 1:
+            raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
+        if self.restarts < 2:
+            raise ValueError(f"restarts must be at least 2, got {self.restarts!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form kept in ``DIR/evaluation.json`` (estimators as a list)."""
+        return dict(asdict(self), estimators=list(self.estimators))
+
+
+@dataclass(frozen=True, order=True)
+class Job:
+    """One cell of the grid: a run of ``scene`` with ``seed``, tracked by ``method``."""
+
+    scene: str
+    seed: int
+    method: str
+
+    def __str__(self) -> str:
+        return f"{self.scene}/{self.seed}/{self.method}"
+
+
+def _split(text: str) -> list[str]:
+    return [p.strip() for p in str(text).split(",") if p.strip()]
+
+
+def parse_scenes(text: str) -> tuple[str, ...]:
+    """``"FB,BC"`` or ``"all"`` -> scene names; ValueError (one line) for a scene that cannot be evaluated.
+
+    A scene can be evaluated when it has a scripted action sequence and a target (``kind = "retrieval"``).
+    """
+    names = _split(text)
+    if not names:
+        raise ValueError("no scene given; expected a comma-separated list such as FB,BC,IB,TC or 'all'")
+    if names == ["all"]:
+        return SCENES
+    out: list[str] = []
+    for n in names:
+        try:
+            sc = load_scene(n)
+        except SceneError:
+            raise ValueError(f"unknown scene {n!r}; expected some of {', '.join(scene_names())} "
+                             f"(retrieval tasks: {', '.join(SCENES)})") from None
+        if sc.actions is None or sc.target is None:
+            raise ValueError(f"scene {n!r} is a training scene (no scripted actions or no target); "
+                             f"evaluate retrieval tasks: {', '.join(SCENES)}")
+        if sc.name not in out:
+            out.append(sc.name)
+    return tuple(out)
+
+
+def parse_methods(text: str) -> tuple[str, ...]:
+    """``"stucco,kmeans"`` or ``"all"`` -> method names in Table II order; ValueError for an unknown one."""
+    names = _split(text)
+    if not names:
+        raise ValueError(f"no method given; expected some of {', '.join(METHODS)} or 'all'")
+    if names == ["all"]:
+        return METHODS
+    bad = [n for n in names if n not in METHODS]
+    if bad:
+        raise ValueError(f"unknown method {bad[0]!r}; expected some of {', '.join(METHODS)} or 'all'")
+    return tuple(m for m in METHODS if m in names)
+
+
+def check_config(out: Path, cfg: EvalConfig) -> None:
+    """Write ``cfg`` to ``out/evaluation.json`` (atomically, creating ``out``), or check that an existing one
+    matches it; ValueError (one line) naming the first differing field otherwise."""
+    path = out / CONFIG
+    want = cfg.to_dict()
+    if path.is_file():
+        try:
+            have = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"{path}: unreadable ({e}); remove it or use another --out") from None
+        diff = sorted(k for k in set(want) | set(have) if have.get(k) != want.get(k))
+        if diff:
+            k = diff[0]
+            raise ValueError(f"{out}: was made with {k}={have.get(k)!r}, this evaluation asks for "
+                             f"{k}={want.get(k)!r}; use another --out (or delete {out})")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{CONFIG}.tmp")
+    tmp.write_text(json.dumps(want, indent=1, sort_keys=True) + "\n")
+    os.replace(tmp, path)

@@ -1,0 +1,90 @@
+"""Where jobs run: local processes (joblib/loky) or a Dask cluster across jobs, one thread per library inside one.
+
+Parallelism is over jobs (docs/evaluation.md, "Parallelism"; docs/studies.md, "Beyond one machine"); the studies
+(:mod:`pipeline.study`) use the same :func:`map_jobs` and :func:`single_threaded`.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Callable
+
+from joblib import Parallel, delayed, parallel_config
+
+__all__ = ["BACKENDS", "parallel_backend", "map_jobs", "single_threaded"]
+
+#: Values of ``--backend``.
+BACKENDS = ("loky", "dask")
+
+
+@contextmanager
+def parallel_backend(backend: str = "loky", scheduler: str | None = None):
+    """Where :func:`map_jobs` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's Dask backend on the
+    ``distributed`` scheduler at ``scheduler``, e.g. ``tcp://10.0.0.5:8786``; the optional extra
+    ``stucco[dask]``). Job functions write their own files under the evaluation directory, so Dask workers
+    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`map_jobs` for Dask (-1: every
+    worker of the cluster), or None for loky."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    if backend == "loky":
+        if scheduler is not None:
+            raise ValueError("--scheduler applies to --backend dask only")
+        yield None
+        return
+    if not scheduler:
+        raise ValueError("--backend dask needs --scheduler ADDRESS (e.g. tcp://127.0.0.1:8786)")
+    try:
+        # Imported here: an optional extra, needed only with --backend dask.
+        from distributed import Client
+    except ImportError:
+        raise ValueError("--backend dask needs the optional extra: pip install 'stucco[dask]'") from None
+
+    with Client(scheduler) as client, parallel_config(backend="dask", wait_for_workers_timeout=60):
+        client.wait_for_workers(1, timeout=60)
+        yield -1
+
+
+def map_jobs(fn: Callable, args: list[tuple], jobs: int, bar) -> list:
+    """fn(*a) for every a, in ``jobs`` processes (joblib/loky) or in this one; results in completion order.
+
+    ``jobs == -1``: the active joblib backend decides (the Dask cluster's workers, :func:`parallel_backend`).
+    ``bar`` (a tqdm bar) advances by one per finished call.
+    """
+    out = []
+    if (jobs > 1 or jobs == -1) and len(args) > 1:
+        par = Parallel(n_jobs=-1 if jobs == -1 else min(jobs, len(args)), return_as="generator_unordered")
+        for r in par(delayed(fn)(*a) for a in args):
+            out.append(r)
+            bar.update()
+    else:
+        for a in args:
+            out.append(fn(*a))
+            bar.update()
+    return out
+
+
+@contextmanager
+def single_threaded():
+    """Run the job's numeric libraries on one thread each (numba, OpenMP, BLAS), restoring them afterwards.
+
+    Parallelism is over jobs. The tracker's numba kernels and scikit-learn's k-means parallelise problems of a
+    few hundred points, where OpenMP threads only spin: measured on the 2-core machine beside one busy process,
+    one FB run of k-means tracking took 5-13 s with 2 OpenMP threads and 0.2 s with one (STUCCO 1.9 s and
+    0.03 s). ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's
+    ICP (which ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run
+    to the next, whatever ``jobs`` is (measured; tests/test_regression.py states the tolerance).
+    """
+    import numba
+
+    # numba's threading layer first: started after Open3D has loaded its older TBB, numba warns that it cannot
+    # use TBB (and falls back to OpenMP anyway).
+    prev = numba.get_num_threads()
+    import open3d  # noqa: F401  (any OpenMP runtime it brings)
+    import sklearn.cluster  # noqa: F401  (scikit-learn's OpenMP runtime)
+    from threadpoolctl import threadpool_limits
+
+    numba.set_num_threads(1)
+    try:
+        with threadpool_limits(1):
+            yield
+    finally:
+        numba.set_num_threads(prev)

@@ -1,0 +1,128 @@
+"""The evaluation driver: the (scene, seed, method) grid run or resumed, then the report and the figures.
+
+Order: every stale (scene, seed) is collected and isolated once (shared by its methods), then every stale job runs
+(:func:`pipeline.evaluate.run_job`), then the report and the figures are written; each of the three phases is
+spread over the workers of :func:`pipeline.evaluate.parallel_backend` (docs/evaluation.md, "Parallelism").
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import pyarrow as pa
+from tqdm import tqdm
+
+from pipeline.evaluate.config import EvalConfig, Job, check_config
+from pipeline.evaluate.freshness import figure_stale, run_stale, stale_stages
+from pipeline.evaluate.jobs import JobResult, prepare_one, run_job
+from pipeline.evaluate.parallel import map_jobs, parallel_backend
+from pipeline.evaluate.results import gather_scores, write_report
+from pipeline.figures import figure_path, run_figure, summary_figure
+from pipeline.layout import partition
+from pipeline.report import table_ii
+from pipeline.retrieve import load_run, run_files_by_name
+
+__all__ = ["Evaluation", "evaluate"]
+
+
+@dataclass
+class Evaluation:
+    """The outcome of :func:`evaluate`: the jobs of the grid, what each did, the gathered scores, the (scene,
+    seed) runs prepared (with the stages run) and the wall time in seconds."""
+
+    out: Path
+    jobs: list[Job]
+    results: list[JobResult]
+    scores: pa.Table
+    prepared: list[tuple[str, int, tuple[str, ...]]] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    @property
+    def skipped(self) -> int:
+        """Jobs that were already up to date."""
+        return sum(1 for r in self.results if not r.ran)
+
+
+def _runs_in(source: Path) -> list[tuple[str, int]]:
+    """(scene, seed) of every stored run file in ``source``."""
+    pairs = []
+    for _, path in sorted(run_files_by_name(source).items()):
+        info = load_run(path)
+        pairs.append((info.scene.name, info.seed))
+    if not pairs:
+        raise ValueError(f"{source}: no collected run files (*.parquet written by `stucco collect`)")
+    return sorted(pairs)
+
+
+def evaluate(out: str | Path, scenes: Sequence[str] | None, seeds: Sequence[int] | None, methods: Sequence[str],
+             cfg: EvalConfig = EvalConfig(), *, jobs: int = 1, progress: bool | None = None,
+             figures: bool = True, backend: str = "loky", scheduler: str | None = None) -> Evaluation:
+    """Run (or resume) the grid and write the report.
+
+    Parameters
+    ----------
+    out : path
+        Evaluation directory (created; an existing one must have been made with the same ``cfg``).
+    scenes, seeds : sequence
+        The grid; with ``cfg.source`` (stored runs) None takes every (scene, seed) found there, and given values
+        filter them.
+    methods : sequence of str
+    cfg : EvalConfig
+    jobs : int
+        Worker processes (joblib/loky) over (scene, seed) preparations, then over jobs, then figures.
+    progress : bool or None
+        tqdm's ``disable`` (True: no bars; None: bars on a TTY).
+    figures : bool
+        Draw a figure per (scene, seed) and the summary figure.
+    backend, scheduler : str
+        ``"loky"`` (``jobs`` local processes) or ``"dask"`` with the scheduler's address (every worker of the
+        cluster; ``jobs`` is ignored): :func:`~pipeline.evaluate.parallel_backend`.
+
+    Returns
+    -------
+    Evaluation
+    """
+    with parallel_backend(backend, scheduler) as cluster_jobs:
+        return _evaluate(out, scenes, seeds, methods, cfg, jobs=jobs if cluster_jobs is None else cluster_jobs,
+                         progress=progress, figures=figures)
+
+
+def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> Evaluation:
+    t0 = time.perf_counter()
+    out = Path(out)
+    methods = tuple(methods)
+    if cfg.source is not None:
+        pairs = [(sc, s) for sc, s in _runs_in(Path(cfg.source))
+                 if (scenes is None or sc in scenes) and (seeds is None or s in seeds)]
+        if not pairs:
+            raise ValueError(f"{cfg.source}: no stored run matches the requested scenes and seeds")
+    else:
+        if scenes is None or seeds is None:
+            raise ValueError("scenes and seeds are required unless runs are replayed from a directory")
+        pairs = [(sc, int(s)) for sc in scenes for s in seeds]
+    check_config(out, cfg)
+    job_list = [Job(sc, s, m) for sc, s in pairs for m in methods]
+
+    need = [(out, sc, s, cfg) for sc, s in pairs if run_stale(out, sc, s)]
+    with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
+        prepared = map_jobs(prepare_one, need, jobs, bar)
+    todo = [(out, j, cfg) for j in job_list if stale_stages(out, j, cfg.estimators)]
+    pending = {t[1] for t in todo}
+    done = [JobResult(j, (), 0.0) for j in job_list if j not in pending]
+    with tqdm(total=len(todo), desc="jobs", unit="job", disable=progress or not todo) as bar:
+        results = done + map_jobs(run_job, todo, jobs, bar)
+    results.sort(key=lambda r: r.job)
+    scores = gather_scores(out, job_list, cfg.estimators)
+    write_report(out, scores)
+    if figures:
+        # The figures show the first pose estimator's estimate (the report's first GS column).
+        stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
+                      if figure_stale(figure_path(out, sc, s),
+                                      [partition(out, "scores", sc, s, m, cfg.estimators[0]) for m in methods])]
+        with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
+            map_jobs(run_figure, stale_figs, jobs, bar)
+        summary_figure(table_ii(scores), out / "summary.png")
+    return Evaluation(out=out, jobs=job_list, results=results, scores=scores,
+                      prepared=[p for p in prepared if p[2]], wall_s=time.perf_counter() - t0)
