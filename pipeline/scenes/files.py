@@ -63,6 +63,8 @@ def load_scene(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Scene:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{path}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a TOML text file (byte {exc.start} is not UTF-8)") from None
     except OSError as exc:
         raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
     return parse_scene(data, path)

@@ -7,13 +7,36 @@ data", lists the keys).
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
 from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
                                    WallSpec)
 
-__all__ = ["parse_scene"]
+__all__ = ["parse_scene", "NAME_PATTERN", "MAX_EXTENT_M", "MAX_SIZE_M", "MAX_MASS_KG", "MAX_FRICTION",
+           "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS"]
+
+#: A scene name is a plain identifier: it becomes part of file names (``<out>/<scene>-<seed>.parquet``), so a
+#: path separator or ``..`` could write outside ``--out``, and ``-`` would make those names ambiguous.
+NAME_PATTERN = r"[A-Za-z][A-Za-z0-9_]{0,63}"
+# Physical bounds of a table-top scene (docs/simulation.md, "Scenes are data"). Beyond them a value is a unit
+# error or a typo, and some would make a run last for ever (settle steps, actions) or exhaust memory.
+#: Positions (objects, walls, gripper start, walk bounds), metres from the origin per axis.
+MAX_EXTENT_M = 10.0
+#: Object and wall sizes, offsets of shapes and centres of mass, metres.
+MAX_SIZE_M = 5.0
+MAX_MASS_KG = 1000.0
+#: Friction coefficients (lateral, spinning, rolling).
+MAX_FRICTION = 10.0
+#: Metres per unit action (the paper's 3 cm).
+MAX_ACTION_SCALE_M = 0.5
+#: Replay noise half-width, mm.
+MAX_NOISE_MM = 50.0
+#: Sim steps of settling before the first action (1000 by default; 100000 is 7 minutes of simulated time).
+MAX_SETTLE_STEPS = 100_000
+#: Actions of a scripted sequence or of a walk.
+MAX_ACTIONS = 100_000
 
 
 class _Reader:
@@ -42,7 +65,9 @@ class _Reader:
             return default
         return self.table[k]
 
-    def number(self, k: str, default: Any = ..., *, positive: bool = False, nonneg: bool = False) -> Any:
+    def number(self, k: str, default: Any = ..., *, positive: bool = False, nonneg: bool = False,
+               maximum: float | None = None) -> Any:
+        """A finite number; `maximum` bounds its magnitude (the physical bound of the key)."""
         if k not in self.table and default is not ...:
             return default
         v = self.get(k)
@@ -52,12 +77,15 @@ class _Reader:
             raise self.fail(k, f"expected a positive number, got {v!r}")
         if nonneg and v < 0:
             raise self.fail(k, f"expected a non-negative number, got {v!r}")
+        if maximum is not None and abs(v) > maximum:
+            raise self.fail(k, f"expected at most {maximum:g} in magnitude, got {v!r}")
         return float(v)
 
-    def integer(self, k: str, default: Any = ..., *, minimum: int = 0) -> int:
+    def integer(self, k: str, default: Any = ..., *, minimum: int = 0, maximum: int | None = None) -> int:
         v = self.get(k, default)
-        if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-            raise self.fail(k, f"expected an integer >= {minimum}, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, int) or v < minimum or (maximum is not None and v > maximum):
+            rule = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+            raise self.fail(k, f"expected an integer {rule}, got {v!r}")
         return int(v)
 
     def boolean(self, k: str, default: Any = ...) -> bool:
@@ -74,7 +102,9 @@ class _Reader:
             raise self.fail(k, f"expected one of {', '.join(choices)}, got {v!r}")
         return v
 
-    def vector(self, k: str, n: int, default: Any = ..., *, positive: bool = False) -> Any:
+    def vector(self, k: str, n: int, default: Any = ..., *, positive: bool = False,
+               maximum: float | None = None) -> Any:
+        """A list of `n` finite numbers; `maximum` bounds each one's magnitude."""
         if k not in self.table and default is not ...:
             return default
         v = self.get(k)
@@ -84,6 +114,8 @@ class _Reader:
             raise self.fail(k, f"expected a list of {n} finite numbers, got {v!r}")
         if positive and any(x <= 0 for x in v):
             raise self.fail(k, f"expected positive numbers, got {v!r}")
+        if maximum is not None and any(abs(x) > maximum for x in v):
+            raise self.fail(k, f"expected numbers of at most {maximum:g} in magnitude, got {v!r}")
         return tuple(float(x) for x in v)
 
     def sub(self, k: str, *, required: bool = False) -> "_Reader | None":
@@ -111,22 +143,22 @@ _OBJECT_KEYS = {"name", "shape", "size", "position", "yaw", "rp", "z", "mass", "
 def _parse_object(r: _Reader) -> ObjectSpec:
     r.check_keys(_OBJECT_KEYS)
     shape = r.string("shape", choices=("box", "cylinder"))
-    size = r.vector("size", 3 if shape == "box" else 2, positive=True)
+    size = r.vector("size", 3 if shape == "box" else 2, positive=True, maximum=MAX_SIZE_M)
     return ObjectSpec(
         name=r.string("name"),
         shape=shape,
         size=size,
-        position=r.vector("position", 2),
+        position=r.vector("position", 2, maximum=MAX_EXTENT_M),
         yaw=r.number("yaw", 0.0),
         rp=r.vector("rp", 2, (0.0, 0.0)),
-        z=r.number("z", None, positive=True),
-        mass=r.number("mass", positive=True),
-        lateral_friction=r.number("lateral_friction", None, nonneg=True),
-        spinning_friction=r.number("spinning_friction", None, nonneg=True),
-        rolling_friction=r.number("rolling_friction", None, nonneg=True),
-        shape_offset=r.vector("shape_offset", 2, (0.0, 0.0)),
+        z=r.number("z", None, positive=True, maximum=MAX_EXTENT_M),
+        mass=r.number("mass", positive=True, maximum=MAX_MASS_KG),
+        lateral_friction=r.number("lateral_friction", None, nonneg=True, maximum=MAX_FRICTION),
+        spinning_friction=r.number("spinning_friction", None, nonneg=True, maximum=MAX_FRICTION),
+        rolling_friction=r.number("rolling_friction", None, nonneg=True, maximum=MAX_FRICTION),
+        shape_offset=r.vector("shape_offset", 2, (0.0, 0.0), maximum=MAX_SIZE_M),
         shape_yaw=r.number("shape_yaw", 0.0),
-        com_offset=r.vector("com_offset", 3, (0.0, 0.0, 0.0)),
+        com_offset=r.vector("com_offset", 3, (0.0, 0.0, 0.0), maximum=MAX_SIZE_M),
         com_yaw=r.number("com_yaw", 0.0),
         model=r.string("model", ""),
         target=r.boolean("target", False),
@@ -137,11 +169,11 @@ def _parse_wall(r: _Reader, i: int) -> WallSpec:
     r.check_keys({"name", "size", "position", "yaw", "z", "lateral_friction"})
     return WallSpec(
         name=r.string("name", f"wall{i}"),
-        size=r.vector("size", 3, positive=True),
-        position=r.vector("position", 2),
+        size=r.vector("size", 3, positive=True, maximum=MAX_SIZE_M),
+        position=r.vector("position", 2, maximum=MAX_EXTENT_M),
         yaw=r.number("yaw", 0.0),
-        z=r.number("z", 0.1),
-        lateral_friction=r.number("lateral_friction", 0.7, nonneg=True),
+        z=r.number("z", 0.1, maximum=MAX_EXTENT_M),
+        lateral_friction=r.number("lateral_friction", 0.7, nonneg=True, maximum=MAX_FRICTION),
     )
 
 
@@ -160,10 +192,10 @@ def _parse_effects(r: _Reader | None, object_names: list[str]) -> Effects:
     else:
         raise r.fail("movable", f"expected \"all\" or a list of object names, got {mov!r}")
     return Effects(
-        noise_mm=r.number("noise_mm", 0.5, nonneg=True),
+        noise_mm=r.number("noise_mm", 0.5, nonneg=True, maximum=MAX_NOISE_MM),
         movable=movable,
         friction=r.boolean("friction", True),
-        settle_steps=r.integer("settle_steps", 1000),
+        settle_steps=r.integer("settle_steps", 1000, maximum=MAX_SETTLE_STEPS),
         wrench=r.boolean("wrench", True),
         contact_truth=r.boolean("contact_truth", True),
         walls=r.boolean("walls", True),
@@ -174,10 +206,10 @@ def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] |
     if r is None:
         return None, DEFAULT_ACTION_SCALE
     r.check_keys({"scale", "sequence"})
-    scale = r.number("scale", DEFAULT_ACTION_SCALE, positive=True)
+    scale = r.number("scale", DEFAULT_ACTION_SCALE, positive=True, maximum=MAX_ACTION_SCALE_M)
     seq = r.get("sequence")
-    if not isinstance(seq, list) or not seq:
-        raise r.fail("sequence", "expected a non-empty list of [u_x, u_y] pairs")
+    if not isinstance(seq, list) or not seq or len(seq) > MAX_ACTIONS:
+        raise r.fail("sequence", f"expected a non-empty list of at most {MAX_ACTIONS} [u_x, u_y] pairs")
     out = []
     for i, a in enumerate(seq):
         ok = isinstance(a, list) and len(a) == 2 and all(
@@ -194,16 +226,17 @@ def _parse_walk(r: _Reader | None) -> WalkSpec | None:
     r.check_keys({"bounds", "min_start_goal_distance", "max_actions", "goal_tolerance", "walk_length",
                   "n_candidates"})
     d = WalkSpec()
-    bounds = r.vector("bounds", 2, d.bounds)
+    bounds = r.vector("bounds", 2, d.bounds, maximum=MAX_EXTENT_M)
     if bounds[0] >= bounds[1]:
         raise r.fail("bounds", f"expected [low, high] with low < high, got {list(bounds)}")
     return WalkSpec(
         bounds=bounds,
-        min_start_goal_distance=r.number("min_start_goal_distance", d.min_start_goal_distance, nonneg=True),
-        max_actions=r.integer("max_actions", d.max_actions, minimum=1),
-        goal_tolerance=r.number("goal_tolerance", d.goal_tolerance, positive=True),
-        walk_length=r.integer("walk_length", d.walk_length),
-        n_candidates=r.integer("n_candidates", d.n_candidates, minimum=1),
+        min_start_goal_distance=r.number("min_start_goal_distance", d.min_start_goal_distance, nonneg=True,
+                                          maximum=2 * MAX_EXTENT_M),
+        max_actions=r.integer("max_actions", d.max_actions, minimum=1, maximum=MAX_ACTIONS),
+        goal_tolerance=r.number("goal_tolerance", d.goal_tolerance, positive=True, maximum=2 * MAX_EXTENT_M),
+        walk_length=r.integer("walk_length", d.walk_length, maximum=MAX_ACTIONS),
+        n_candidates=r.integer("n_candidates", d.n_candidates, minimum=1, maximum=10_000),
     )
 
 
@@ -212,18 +245,21 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     r = _Reader(path, data)
     r.check_keys(_TOP_KEYS)
     name = r.string("name", path.stem)
+    if not re.fullmatch(NAME_PATTERN, name):
+        raise r.fail("name", f"expected a plain identifier (a letter, then letters, digits or '_'; at most 64), "
+                             f"got {name!r}{' (from the file name)' if 'name' not in data else ''}")
     kind = r.string("kind", choices=("retrieval", "training"))
     g = r.sub("gripper")
     start = None
     if g is not None:
         g.check_keys({"start"})
-        start = g.vector("start", 2, None)
+        start = g.vector("start", 2, None, maximum=MAX_EXTENT_M)
     p = r.sub("plane")
     plane = Plane()
     if p is not None:
         p.check_keys({"lateral_friction", "spinning_friction"})
-        plane = Plane(p.number("lateral_friction", None, nonneg=True), p.number("spinning_friction", None,
-                                                                                 nonneg=True))
+        plane = Plane(p.number("lateral_friction", None, nonneg=True, maximum=MAX_FRICTION),
+                      p.number("spinning_friction", None, nonneg=True, maximum=MAX_FRICTION))
     objects = tuple(_parse_object(o) for o in r.subs("objects"))
     if not objects:
         raise r.fail("objects", "a scene needs at least one [[objects]] entry")
