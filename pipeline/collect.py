@@ -227,6 +227,15 @@ def _fixed_list(a: np.ndarray) -> pa.Array:
     return arr
 
 
+def _body_list(a: np.ndarray) -> pa.Array:
+    """Per-body values from an (A, bodies, ...) array: a list per action (its length is the scene's number of
+    bodies, which differs between scenes, so run files of several scenes still read as one table)."""
+    a = np.ascontiguousarray(a)
+    n, nb = a.shape[:2]
+    inner = _fixed_list(a.reshape(n * nb, *a.shape[2:])) if a.ndim > 2 else pa.array(a.reshape(-1))
+    return pa.ListArray.from_arrays(pa.array(np.arange(0, n * nb + 1, nb, dtype=np.int32)), inner)
+
+
 def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
     n = len(rows)
     name = run_name(scene.name, seed)
@@ -259,8 +268,8 @@ def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
     fr = np.array([r["force_rep"] for r in rows]).reshape(n, 2)
     data["force_rep_x_n"] = pa.array(fr[:, 0])
     data["force_rep_y_n"] = pa.array(fr[:, 1])
-    data["obj_pose"] = _fixed_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
-    data["obj_distance_m"] = _fixed_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
+    data["obj_pose"] = _body_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
+    data["obj_distance_m"] = _body_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
     assert tuple(data) == SIM_RUN.names
     return pa.table(data)
 

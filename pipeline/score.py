@@ -132,7 +132,7 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
     retrieval : pyarrow.Table
         A validated retrieval table (one row per run).
     run_dir : path
-        Directory of the collected run files (final object poses for the contact error).
+        Directory of the collected run files, or one of them (final object poses for the contact error).
     diagnostics : pyarrow.Table, optional
         The track diagnostics table (per-run tracking time).
 

@@ -35,11 +35,12 @@ pass_settings = click.make_pass_decorator(Settings, ensure=True)
 @contextmanager
 def user_errors(what: str | None = None):
     """Turn the errors a user can fix (bad files, bad values) into one-line :class:`click.ClickException`."""
+    from pipeline.atomic import FolderBusy
     from pipeline.schema import SchemaError
 
     try:
         yield
-    except SchemaError as e:
+    except (SchemaError, FolderBusy) as e:
         raise click.ClickException(str(e)) from None
     except (ValueError, FileNotFoundError) as e:
         msg = " ".join(str(e).split())

@@ -22,7 +22,7 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
               help="Segments table (Parquet) from `stucco segment`.")
 @click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
-              help="Directory of the collected run files (`stucco collect --out`).")
+              help="Directory of the collected run files (`stucco collect --out`), or one run file.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path),
               help="Retrieval table to write (one row per run).")
 @click.option("--candidates", "cand_path", type=click.Path(path_type=Path), default=None,
@@ -92,7 +92,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
 @click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
               help="The segments table the retrieval was made from.")
 @click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
-              help="Directory of the collected run files.")
+              help="Directory of the collected run files, or one run file.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Scores table to write.")
 @click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
               help="Track diagnostics table for tracking times [default: found next to the segments file].")

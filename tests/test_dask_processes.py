@@ -31,7 +31,7 @@ def _free_port() -> int:
 
 def _scores(out: Path):
     rows = []
-    for f in sorted((out / "scores").rglob("part.parquet")):
+    for f in sorted((out / "scores").glob("*.parquet")):
         rows += pq.read_table(f, columns=COMPARED).to_pylist()
     return sorted(rows, key=lambda r: (r["scene"], r["seed"], r["method"], r["estimator"]))
 

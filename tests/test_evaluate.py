@@ -110,7 +110,7 @@ def test_a_stage_rewritten_with_different_content_reruns_what_follows(copy):
     path = partition(copy, "contacts", "IB", 0)
     t = schema.read_contacts(path)
     schema.write_table(t.slice(0, t.num_rows - 1), path, stage="isolate", params={}, seed=0,
-                       inputs={"part": partition(copy, "runs", "IB", 0)}, kind="contacts")
+                       inputs={"IB-000": partition(copy, "runs", "IB", 0)}, kind="contacts")
     assert stale_stages(copy, Job("IB", 0, "gmphd")) == STAGES[2:]
     ev = _run(copy)
     assert [r.ran for r in ev.results] == [STAGES[2:], STAGES[2:]]

@@ -6,12 +6,12 @@ resumed with the same one (docs/evaluation.md, "Resuming and skipping").
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.layout import CONFIG
+from pipeline.atomic import write_text
+from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline.report import METHOD_ORDER
 from pipeline.retrieve.estimators import ESTIMATORS
 from pipeline.scenes import SceneError, load_scene, scene_names
@@ -132,19 +132,20 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
     """Write ``cfg`` to ``out/evaluation.json`` (atomically, creating ``out``), or check that an existing one
     matches it; ValueError (one line) naming the first differing field otherwise."""
     path = out / CONFIG
-    want = cfg.to_dict()
+    want = dict(cfg.to_dict(), layout=LAYOUT_VERSION)
     if path.is_file():
         try:
             have = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise ValueError(f"{path}: unreadable ({e}); remove it or use another --out") from None
         diff = sorted(k for k in set(want) | set(have) if have.get(k) != want.get(k))
+        if "layout" in diff:
+            raise ValueError(f"{out}: was made with another layout of the output folder (layout "
+                             f"{have.get('layout', 1)!r}, this version writes {LAYOUT_VERSION}); use another --out "
+                             f"(or delete {out})")
         if diff:
             k = diff[0]
             raise ValueError(f"{out}: was made with {k}={have.get(k)!r}, this evaluation asks for "
                              f"{k}={want.get(k)!r}; use another --out (or delete {out})")
         return
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{CONFIG}.tmp")
-    tmp.write_text(json.dumps(want, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(want, indent=1, sort_keys=True) + "\n")

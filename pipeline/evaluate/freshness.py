@@ -52,7 +52,7 @@ def _stage_inputs(p: dict[str, Path]) -> dict[str, tuple[tuple[str, dict[str, Pa
     """Stage -> ((output kind, {role: input file}), ...) as the stages record them."""
     return {
         "collect": (("runs", {}),),
-        "isolate": (("contacts", {"part": p["runs"]}),),
+        "isolate": (("contacts", {p["runs"].stem: p["runs"]}),),  # isolate names a run file's role by its stem
         "track": (("diagnostics", {"contacts": p["contacts"]}), ("tracks", {"contacts": p["contacts"]})),
         "segment": (("segments", {"tracks": p["tracks"]}),),
         "retrieve": (("candidates", {"segments": p["segments"]}), ("retrieval", {"segments": p["segments"]})),
@@ -83,7 +83,8 @@ def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT
 def run_stale(out: Path, scene: str, seed: int) -> bool:
     """The (scene, seed)'s collected run is missing, or its contacts are not up to date with it."""
     runs = partition(out, "runs", scene, seed)
-    return not runs.is_file() or not up_to_date(partition(out, "contacts", scene, seed), {"part": runs}, Digests())
+    return not runs.is_file() or not up_to_date(partition(out, "contacts", scene, seed), {runs.stem: runs},
+                                                Digests())
 
 
 def figure_stale(png: Path, inputs: Iterable[Path]) -> bool:

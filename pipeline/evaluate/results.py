@@ -1,20 +1,21 @@
 """Reading an evaluation directory back: one kind as a table, the scores of a grid, and the report files.
 
-Each kind directory is a Parquet dataset read with ``pyarrow.dataset`` and an explicit hive partitioning schema,
-since ``seed`` would otherwise be inferred as int32 and clash with the files' int64 (docs/evaluation.md, "The
-output directory").
+Each kind directory is a Parquet dataset read with ``pyarrow.dataset``: a flat kind as it is (its files hold their
+keys), a hive-partitioned kind with an explicit partitioning schema, so its keys come back as string and int64
+like the flat kinds' (docs/evaluation.md, "The output directory").
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Sequence
 
 import pyarrow as pa
 
+from pipeline.atomic import write_text
+
 from pipeline.evaluate.config import Job
 from pipeline.evaluate.stages import STAGE_COLUMNS
-from pipeline.layout import KINDS, PER_ESTIMATOR, SHARED, partition
+from pipeline.layout import FLAT, KINDS, PER_ESTIMATOR, SHARED, partition
 from pipeline.report import claims, table_ii, to_csv, to_markdown
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR
 from pipeline.score import SCORES_COLUMNS, read_scores
@@ -26,6 +27,8 @@ def _partitioning(kind: str):
     # Imported here: pyarrow.dataset (80 ms to import, measured) is only needed to read a whole kind back.
     import pyarrow.dataset as ds
 
+    if kind in FLAT:
+        return None
     fields = [("scene", pa.string()), ("seed", pa.int64())]
     if kind not in SHARED:
         fields.append(("method", pa.string()))
@@ -37,8 +40,8 @@ def _partitioning(kind: str):
 def read_kind(out: str | Path, kind: str, filter=None) -> pa.Table:
     """Every partition of one kind under an evaluation directory as one table (``pyarrow.dataset``).
 
-    Partition keys (scene, seed[, method[, estimator]]) are columns of the result (they already are of runs,
-    retrieval and scores).
+    Partition keys (scene, seed[, method[, estimator]]) are columns of the result (the flat kinds' files hold them;
+    the hive kinds' come from the path).
     ``filter`` is a ``pyarrow.dataset`` expression, e.g. ``ds.field("method") == "stucco"``.
     """
     import pyarrow.dataset as ds
@@ -79,7 +82,5 @@ def write_report(out: str | Path, scores: pa.Table) -> tuple[Path, Path]:
         md += "\n" + "\n".join(f"- {n}" for n in notes) + "\n"
     paths = (Path(out) / "report.md", Path(out) / "report.csv")
     for path, text in zip(paths, (md, to_csv(rows))):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_text(path, text)
     return paths

@@ -14,13 +14,14 @@ from typing import Sequence
 import pyarrow as pa
 from tqdm import tqdm
 
+from pipeline.atomic import exclusive
 from pipeline.evaluate.config import EvalConfig, Job, check_config
 from pipeline.evaluate.freshness import figure_stale, run_stale, stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_one, run_job
 from pipeline.evaluate.parallel import map_jobs, parallel_backend
 from pipeline.evaluate.results import gather_scores, write_report
 from pipeline.figures import figure_path, run_figure, summary_figure
-from pipeline.layout import partition
+from pipeline.layout import LOCK, partition
 from pipeline.report import table_ii
 from pipeline.retrieve import load_run, run_files_by_name
 
@@ -102,27 +103,30 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         if scenes is None or seeds is None:
             raise ValueError("scenes and seeds are required unless runs are replayed from a directory")
         pairs = [(sc, int(s)) for sc in scenes for s in seeds]
-    check_config(out, cfg)
-    job_list = [Job(sc, s, m) for sc, s in pairs for m in methods]
+    # One evaluation at a time per folder: two with different settings would otherwise interleave their
+    # partitions and evaluation.json could describe settings the stored files were not made with.
+    with exclusive(out, LOCK):
+        check_config(out, cfg)
+        job_list = [Job(sc, s, m) for sc, s in pairs for m in methods]
 
-    need = [(out, sc, s, cfg) for sc, s in pairs if run_stale(out, sc, s)]
-    with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
-        prepared = map_jobs(prepare_one, need, jobs, bar)
-    todo = [(out, j, cfg) for j in job_list if stale_stages(out, j, cfg.estimators)]
-    pending = {t[1] for t in todo}
-    done = [JobResult(j, (), 0.0) for j in job_list if j not in pending]
-    with tqdm(total=len(todo), desc="jobs", unit="job", disable=progress or not todo) as bar:
-        results = done + map_jobs(run_job, todo, jobs, bar)
-    results.sort(key=lambda r: r.job)
-    scores = gather_scores(out, job_list, cfg.estimators)
-    write_report(out, scores)
-    if figures:
-        # The figures show the first pose estimator's estimate (the report's first GS column).
-        stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
-                      if figure_stale(figure_path(out, sc, s),
-                                      [partition(out, "scores", sc, s, m, cfg.estimators[0]) for m in methods])]
-        with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
-            map_jobs(run_figure, stale_figs, jobs, bar)
-        summary_figure(table_ii(scores), out / "summary.png")
-    return Evaluation(out=out, jobs=job_list, results=results, scores=scores,
-                      prepared=[p for p in prepared if p[2]], wall_s=time.perf_counter() - t0)
+        need = [(out, sc, s, cfg) for sc, s in pairs if run_stale(out, sc, s)]
+        with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
+            prepared = map_jobs(prepare_one, need, jobs, bar)
+        todo = [(out, j, cfg) for j in job_list if stale_stages(out, j, cfg.estimators)]
+        pending = {t[1] for t in todo}
+        done = [JobResult(j, (), 0.0) for j in job_list if j not in pending]
+        with tqdm(total=len(todo), desc="jobs", unit="job", disable=progress or not todo) as bar:
+            results = done + map_jobs(run_job, todo, jobs, bar)
+        results.sort(key=lambda r: r.job)
+        scores = gather_scores(out, job_list, cfg.estimators)
+        write_report(out, scores)
+        if figures:
+            # The figures show the first pose estimator's estimate (the report's first GS column).
+            stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
+                          if figure_stale(figure_path(out, sc, s),
+                                          [partition(out, "scores", sc, s, m, cfg.estimators[0]) for m in methods])]
+            with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
+                map_jobs(run_figure, stale_figs, jobs, bar)
+            summary_figure(table_ii(scores), out / "summary.png")
+        return Evaluation(out=out, jobs=job_list, results=results, scores=scores,
+                          prepared=[p for p in prepared if p[2]], wall_s=time.perf_counter() - t0)

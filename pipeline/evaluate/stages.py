@@ -13,18 +13,19 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 import time
 from pathlib import Path
 
 import pyarrow as pa
 
+from pipeline.atomic import atomic_path, write_text
+
 from pipeline.collect import collect_file, output_path
 from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
-from pipeline.layout import STAGE_KIND, STAGES, WALL
+from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, retrieve_file
 from pipeline.scenes import load_scene
 from pipeline.score import score_file
@@ -39,16 +40,13 @@ STAGE_COLUMNS = tuple(f"stage_{s}_s" for s in STAGES)
 
 def write_wall(path: Path, seconds: float) -> None:
     """``{"wall_s": seconds}`` (rounded to the microsecond) into the ``_wall_s.json`` beside ``path``."""
-    side = path.parent / WALL
-    tmp = side.with_name(f".{WALL}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"wall_s": round(float(seconds), 6)}))
-    os.replace(tmp, side)
+    write_text(wall_path(path), json.dumps({"wall_s": round(float(seconds), 6)}))
 
 
 def read_wall(path: Path) -> float | None:
     """The wall time (s) recorded beside ``path``; None if missing, unreadable or not finite."""
     try:
-        v = json.loads((path.parent / WALL).read_text())["wall_s"]
+        v = json.loads(wall_path(path).read_text())["wall_s"]
         return float(v) if math.isfinite(float(v)) else None
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -64,17 +62,15 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
         src = output_path(cfg.source, scene_name, seed)
         if not src.is_file():
             raise FileNotFoundError(f"{src}: no stored run for {scene_name} seed {seed}")
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
-        shutil.copyfile(src, tmp)
-        os.replace(tmp, dest)
+        with atomic_path(dest) as tmp:
+            shutil.copyfile(src, tmp)
         wall = None
     else:
         collect_file(load_scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy="scripted",
                      max_actions=cfg.max_actions, keep_discarded=True)
         wall = time.perf_counter() - t0
     if wall is None:
-        (dest.parent / WALL).unlink(missing_ok=True)
+        wall_path(dest).unlink(missing_ok=True)
     else:
         write_wall(dest, wall)
 
@@ -109,7 +105,7 @@ def run_retrieve(p: dict[str, Path], method: str, cfg: EvalConfig, estimator: st
     """Estimate the target's pose with ``estimator`` (and simulate the grasp if ``cfg.grasp``) into the
     retrieval and candidates partitions of that estimator (``p`` from :func:`pipeline.layout.job_paths`)."""
     t0 = time.perf_counter()
-    retrieve_file(p["segments"], p["runs"].parent, p["retrieval"], p["candidates"], seed=cfg.root_seed,
+    retrieve_file(p["segments"], p["runs"], p["retrieval"], p["candidates"], seed=cfg.root_seed,
                   method=method, grasp_params=GraspParams(), estimator=estimator,
                   params=RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot), grasp=cfg.grasp, jobs=1)
     write_wall(p["retrieval"], time.perf_counter() - t0)
@@ -125,7 +121,7 @@ def run_score(p: dict[str, Path], cfg: EvalConfig) -> None:
         walls["score"] = time.perf_counter() - t0
         return with_stage_times(table, walls)
 
-    score_file(p["retrieval"], p["segments"], p["runs"].parent, p["scores"], seed=cfg.root_seed,
+    score_file(p["retrieval"], p["segments"], p["runs"], p["scores"], seed=cfg.root_seed,
                diagnostics_path=p["diagnostics"], amend=timed)
 
 

@@ -86,10 +86,14 @@ def load_run(path: str | Path) -> RunInfo:
 
 
 def run_files_by_name(directory: str | Path) -> dict[str, Path]:
-    """Run name -> collected run file, for every ``*.parquet`` in ``directory`` (non-recursive)."""
+    """Run name -> collected run file, for every ``*.parquet`` in ``directory`` (non-recursive), or for the one
+    run file ``directory`` names."""
     directory = Path(directory)
+    if directory.is_file():
+        runs = schema.read_run(directory).column("run")
+        return {runs[0].as_py(): directory}
     if not directory.is_dir():
-        raise ValueError(f"{directory}: not a directory of collected runs")
+        raise ValueError(f"{directory}: not a directory of collected runs (nor a run file)")
     out: dict[str, Path] = {}
     for f in sorted(directory.glob("*.parquet")):
         try:

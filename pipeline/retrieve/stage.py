@@ -78,7 +78,7 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
              ) -> tuple[pa.Table, pa.Table]:
     """The ``retrieve`` stage: a segments table and the collected runs in, retrieval and candidates tables out.
 
-    Every run file in ``run_dir`` gets one row: a run absent from the segments table had no tracked contact
+    Every run file in ``run_dir`` (or the one run file it names) gets one row: a run absent from the segments table had no tracked contact
     (an empty segmentation) and is estimated as such (flagged ``no_points``). A run of the segments table
     without a run file is an error.
 
@@ -87,7 +87,7 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
     segments : pyarrow.Table
         A validated segments table (its final estimate per run is used).
     run_dir : path
-        Directory of ``stucco collect`` files.
+        Directory of ``stucco collect`` files, or one of them.
     method : str
         Tracking method, recorded in the output.
     root_seed : int

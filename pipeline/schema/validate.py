@@ -39,18 +39,30 @@ def _accepts(target: pa.DataType, t: pa.DataType) -> bool:
 def _accepts_column(c: Column, t: pa.DataType) -> bool:
     """Whether a column of type `t` is accepted for `c` (nested fixed-size lists of `c.shape` for a list column)."""
     for size in c.shape:
+        if size is None and (pa.types.is_list(t) or pa.types.is_large_list(t)):
+            t = t.value_type  # one length per file, checked on the values
+            continue
         if not pa.types.is_fixed_size_list(t) or (size is not None and t.list_size != size):
             return False
         t = t.value_type
     return _accepts(c.type, t) and not pa.types.is_null(t) if c.shape else _accepts(c.type, t)
 
 
-def _list_values(col: pa.ChunkedArray, c: Column) -> np.ndarray:
-    """A nested fixed-size-list column as a float array (rows, *sizes); null elements become NaN."""
+def _list_values(col: pa.ChunkedArray, c: Column, path: str) -> np.ndarray:
+    """A nested-list column as a float array (rows, *sizes); null elements become NaN. A variable-size level
+    (``None`` in ``c.shape``) must have one length in the whole file."""
     arr = col.combine_chunks()
     sizes = []
     for _ in c.shape:
-        sizes.append(arr.type.list_size)
+        if pa.types.is_fixed_size_list(arr.type):
+            sizes.append(arr.type.list_size)
+        else:
+            lengths = np.asarray(arr.value_lengths().fill_null(0).to_numpy(zero_copy_only=False))
+            rows = int(np.prod(sizes)) if sizes else 1
+            if lengths.size and (r := _first(lengths != lengths[0])) is not None:
+                raise SchemaError(path, c.name, r // rows, f"has {int(lengths[r])} elements where the first row has "
+                                                           f"{int(lengths[0])}; expected one length in a file")
+            sizes.append(int(lengths[0]) if lengths.size else 0)
         arr = arr.flatten()
     v = np.asarray(arr.to_numpy(zero_copy_only=False), dtype=np.float64)
     return v.reshape((len(col), *sizes))
@@ -142,7 +154,7 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
         if not c.nullable and (r := _first(null[c.name])) is not None:
             raise SchemaError(path, c.name, r, "is null; expected a value (this column is never null)")
         if c.shape:
-            v = _list_values(col, c)
+            v = _list_values(col, c, path)
         elif c.type == pa.float64():
             v = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)  # null -> NaN
         elif c.type == pa.string():

@@ -152,7 +152,9 @@ def two_runs(tmp_path_factory):
 
 
 def _part(out: Path, kind: str, scene: str) -> Path:
-    return next((out / kind / f"scene={scene}").rglob("part.parquet"))
+    from pipeline.layout import partition
+
+    return partition(out, kind, scene, 0, "stucco", "paper")
 
 
 @pytest.mark.parametrize("segments_of, diagnostics_of, culprit", [
