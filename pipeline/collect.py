@@ -37,8 +37,8 @@ from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
 from pipeline.sim.world import ActionTrace
 
 __all__ = ["POLICIES", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
-           "output_path", "collect_run", "collect_file", "collect", "summarize_action", "action_label", "representative_force",
-           "discard_reason", "RunResult"]
+           "output_path", "collect_run", "collect_file", "collect", "summarize_action", "action_label",
+           "representative_force", "discard_reason", "CollectResult"]
 
 POLICIES = ("scripted", "greedy-walk")
 RUN_KIND = SIM_RUN.name
@@ -204,7 +204,7 @@ def discard_reason(object_id: np.ndarray, force_rep: np.ndarray) -> str | None:
 
 
 @dataclass
-class RunResult:
+class CollectResult:
     """What one job did (returned to the parent process; the data itself is in ``path``)."""
 
     scene: str
@@ -290,7 +290,7 @@ def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> 
 
 def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "scripted",
                 max_actions: int | None = None, det: DetectionParams = DetectionParams()
-                ) -> tuple[pa.Table, dict, RunResult]:
+                ) -> tuple[pa.Table, dict, CollectResult]:
     """Simulate one run of a scene.
 
     Parameters
@@ -310,7 +310,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
         The sim_run table (one row per action).
     params : dict
         Metadata for the file (scene, effects, bodies, initial state, discard verdict, ...).
-    result : RunResult
+    result : CollectResult
         Summary (``path`` None).
     """
     if policy not in POLICIES:
@@ -385,14 +385,14 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
     }
-    result = RunResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
+    result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),
                        touched=touched, discarded=discarded, wall_s=time.perf_counter() - t0, sim_s=sim_s)
     return table, params, result
 
 
 def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str = "scripted",
-                 max_actions: int | None = None, keep_discarded: bool = True) -> RunResult:
+                 max_actions: int | None = None, keep_discarded: bool = True) -> CollectResult:
     """The `collect` stage on a file: simulate one run (:func:`collect_run`) and write its ``sim_run`` table to
     ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``."""
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions)
@@ -404,7 +404,7 @@ def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 
 
 def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str = "scripted", root_seed: int = 0,
             jobs: int = 1, progress: bool | None = None, max_actions: int | None = None,
-            keep_discarded: bool = False) -> list[RunResult]:
+            keep_discarded: bool = False) -> list[CollectResult]:
     """Collect runs of ``scene`` for ``seeds`` into ``out_dir``, ``jobs`` processes in parallel.
 
     Parameters
@@ -414,7 +414,7 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
 
     Returns
     -------
-    list of RunResult, in seed order.
+    list of CollectResult, in seed order.
     """
     from tqdm import tqdm
 
@@ -424,7 +424,7 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
                   keep_discarded=keep_discarded)
     args = [(scene, s, output_path(out_dir, scene.name, s)) for s in seeds]
     bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
-    results: list[RunResult] = []
+    results: list[CollectResult] = []
     try:
         if jobs <= 1 or len(seeds) <= 1:
             for a in args:

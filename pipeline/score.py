@@ -6,7 +6,7 @@
   primitives (boxes and upright cylinders have one cross-section over their height, so this equals the
   authors' pybullet closest-point query on objects extruded in z; pybullet's 1 mm collision margin is not
   added).
-* **FMI** (§6.2): ``sklearn.metrics.fowlkes_mallows_score`` between the ground-truth object id and the segment
+* **FMI** (paper §III): ``sklearn.metrics.fowlkes_mallows_score`` between the ground-truth object id and the segment
   over the final tracked points with a known object (``object_id >= 0``). An unassigned point (segment -1)
   counts as its own cluster.
 * **Grasp success and pose error**: from the retrieval table (:mod:`pipeline.retrieve`, :mod:`pipeline.grasp`).
@@ -25,11 +25,12 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.geometry import Primitive, primitive_of
+from pipeline.metrics import fmi
 from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
 from pipeline.segment import final_estimates
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
-           "validate_scores", "read_scores", "diagnostics_path_for", "summary_lines", "check_score_inputs",
+           "validate_scores", "read_scores", "diagnostics_beside", "summary_lines", "check_score_inputs",
            "score_file"]
 
 
@@ -77,25 +78,7 @@ def contact_error_cm(points: np.ndarray, scene, poses: np.ndarray,
     return float(np.mean(np.abs(scene_signed_distance(pts, scene, poses, primitive))) * 100.0)
 
 
-def fmi(truth: np.ndarray, segment: np.ndarray) -> float | None:
-    """Fowlkes-Mallows index over points with a known object (truth >= 0); None if there are none.
-
-    Unassigned points (segment -1) are each given a cluster of their own.
-    """
-    # Imported here: sklearn.metrics takes 0.8 s to import (measured), which only scoring pays.
-    from sklearn.metrics import fowlkes_mallows_score
-
-    truth = np.asarray(truth, dtype=np.int64)
-    seg = np.asarray(segment, dtype=np.int64).copy()
-    lone = seg < 0
-    seg[lone] = seg.max(initial=0) + 1 + np.arange(int(lone.sum()))
-    known = truth >= 0
-    if not known.any():
-        return None
-    return float(fowlkes_mallows_score(truth[known], seg[known]))
-
-
-def diagnostics_path_for(segments_path: str | Path) -> Path | None:
+def diagnostics_beside(segments_path: str | Path) -> Path | None:
     """The track diagnostics file next to a segments file, found through the segments' recorded input
     (``inputs.tracks.file``) and ``stucco track``'s default name; None if there is none."""
     segments_path = Path(segments_path)

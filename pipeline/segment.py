@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from pipeline import schema
 from pipeline.atomic import save_figure
+from pipeline.metrics import fmi
 
 #: Characteristic length l (m^2) of the connection probability exp(-d^2 / l), the paper's Table I (simulation).
 #: One fact for both users: STUCCO's tracker connects points with it (Alg. 1) and segmentation thresholds the same
@@ -141,10 +142,6 @@ def final_estimates(table):
 def summarise(segments) -> list[dict]:
     """One dict per (run, segment) of the final estimates: point count, centroid (m) and, when the table
     carries ground truth, the run's Fowlkes-Mallows index."""
-    # Imported here, not at the top: scikit-learn's metrics take 0.9 s to import (measured, -X importtime) and
-    # the tracker imports this module for segment_points on every run; only `stucco segment --report` needs it.
-    from sklearn.metrics import fowlkes_mallows_score
-
     final = final_estimates(segments)
     run = np.asarray(final.column("run").to_pylist(), dtype=object)
     seg = final.column("segment").to_numpy()
@@ -153,16 +150,12 @@ def summarise(segments) -> list[dict]:
     rows = []
     for r in dict.fromkeys(run):
         mask = run == r
-        fmi = None
-        if truth is not None:
-            known = mask & (truth >= 0)
-            if known.any():
-                fmi = float(fowlkes_mallows_score(truth[known], seg[known]))
+        run_fmi = fmi(truth[mask], seg[mask]) if truth is not None else None
         for s in np.unique(seg[mask]):
             sel = mask & (seg == s)
             c = xy[sel].mean(axis=0)
             rows.append(dict(run=r, segment=int(s), n_points=int(sel.sum()), centroid_x_m=float(c[0]),
-                             centroid_y_m=float(c[1]), run_fmi=fmi))
+                             centroid_y_m=float(c[1]), run_fmi=run_fmi))
     return rows
 
 

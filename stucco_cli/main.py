@@ -11,7 +11,7 @@ import logging
 import click
 
 from pipeline import __version__
-from stucco_cli import bench, evaluate, retrieve, sim, study, track
+from stucco_cli import bench, evaluate, retrieve, score, sim, study, track
 from stucco_cli.common import Settings
 
 
@@ -32,6 +32,6 @@ def cli(ctx: click.Context, seed: int, jobs: int, verbose: int, quiet: bool) -> 
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
 
 
-for _command in (sim.scenes, sim.collect, sim.isolate, track.track, track.segment, retrieve.retrieve, retrieve.score,
+for _command in (sim.scenes, sim.collect, sim.isolate, track.track, track.segment, retrieve.retrieve, score.score,
                  evaluate.evaluate, study.study, bench.bench):
     cli.add_command(_command)

@@ -1,4 +1,4 @@
-"""`stucco retrieve` (pose estimation + simulated grasp) and `stucco score` (Table II metrics)."""
+"""`stucco retrieve`: pose estimation of the target and the simulated grasp."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -84,34 +84,3 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         click.echo(f"retrieved {table.num_rows} run(s) with the {estimator} estimator -> {out_path} "
                    f"(candidates -> {cand_path}); estimation {icp:.2f} s"
                    + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""), err=True)
-
-
-@click.command()
-@click.option("--retrieval", "retrieval_path", required=True, type=click.Path(path_type=Path),
-              help="Retrieval table from `stucco retrieve`.")
-@click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
-              help="The segments table the retrieval was made from.")
-@click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
-              help="Directory of the collected run files, or one run file.")
-@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Scores table to write.")
-@click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
-              help="Track diagnostics table for tracking times [default: found next to the segments file].")
-@click.option("--print", "print_table", is_flag=True, help="Print a summary per (scene, method) to stdout.")
-@pass_settings
-def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir: Path, out_path: Path,
-          diag_path: Path | None, print_table: bool) -> None:
-    """Score runs: grasp success, FMI, contact error (cm), pose error and stage timings (scores.parquet)."""
-    from pipeline.score import diagnostics_path_for, score_file, summary_lines
-
-    check_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
-                {"--out": out_path})
-    diag_path = diag_path or diagnostics_path_for(segments_path)
-    check_paths({"--diagnostics": diag_path}, {"--out": out_path})
-    with user_errors("score"):
-        table = score_file(retrieval_path, segments_path, run_dir, out_path, seed=settings.seed,
-                           diagnostics_path=diag_path)
-    if print_table:
-        for line in summary_lines(table):
-            click.echo(line)
-    if settings.verbosity >= 0:
-        click.echo(f"scored {table.num_rows} run(s) -> {out_path}", err=True)

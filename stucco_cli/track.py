@@ -73,7 +73,7 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
 def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
           sets: tuple[str, ...], every_step: bool, threads: int | None, **stucco_opts) -> None:
     """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
-    from pipeline.track.stage import TrackConfig, diagnostics_path_for, track_file
+    from pipeline.track.stage import TrackConfig, default_diagnostics_path, track_file
 
     if threads is not None:
         from pipeline.track.kernels import set_threads
@@ -85,7 +85,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
         raise click.UsageError(f"--{option} applies to --method stucco only; "
                                "use --set KEY=VALUE for baseline parameters")
     params.update(_parse_sets(sets))
-    diag_path = diag_path or diagnostics_path_for(out_path)
+    diag_path = diag_path or default_diagnostics_path(out_path)
     check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
     with user_errors("track"):
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)

@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.retrieve import (CANDIDATES_COLUMNS, RETRIEVAL_COLUMNS, Primitive, RetrievalParams, choose,
+from pipeline.retrieve import (CANDIDATES_COLUMNS, RETRIEVAL_COLUMNS, Primitive, RetrievalParams, choose_segment,
                                estimate_run, icp_restarts, initial_transforms, load_run, min_clearance, model_normals,
                                model_points, pose_error, primitive_of, read_retrieval, retrieval_rng,
                                target_primitive)
@@ -208,7 +208,7 @@ def test_choose_takes_lowest_position_variance_segment():
     loose = np.array([0.1, 0.2]) + rng.normal(0, 0.02, (30, 2))
     z = np.zeros(30)
     ok = np.ones(30, bool)
-    c = choose([loose, tight], [z, z], [z + 0.01, z + 0.01], [ok, ok], 0.002)
+    c = choose_segment([loose, tight], [z, z], [z + 0.01, z + 0.01], [ok, ok], 0.002)
     assert c.segment_index == 1
     assert c.position_var[1] == pytest.approx(np.var(tight, axis=0, ddof=1).sum())
 
@@ -219,10 +219,10 @@ def test_choose_skips_segments_that_do_not_fit_while_one_does():
     ok = np.ones(30, bool)
     z = np.zeros(30)
     # The tight segment fits badly (3 cm), the other well: the fit gate keeps the variance rule to fitting ones.
-    assert choose([line_like, spread], [z, z], [z + 0.03, z + 0.001], [ok, ok], 0.01, 0.02).segment_index == 1
-    assert choose([line_like, spread], [z, z], [z + 0.03, z + 0.001], [ok, ok], 0.01, None).segment_index == 0
+    assert choose_segment([line_like, spread], [z, z], [z + 0.03, z + 0.001], [ok, ok], 0.01, 0.02).segment_index == 1
+    assert choose_segment([line_like, spread], [z, z], [z + 0.03, z + 0.001], [ok, ok], 0.01, None).segment_index == 0
     # No segment fits: back to the paper's rule over all.
-    assert choose([line_like, spread], [z, z], [z + 0.03, z + 0.04], [ok, ok], 0.01, 0.02).segment_index == 0
+    assert choose_segment([line_like, spread], [z, z], [z + 0.03, z + 0.04], [ok, ok], 0.01, 0.02).segment_index == 0
 
 
 def test_choose_variance_over_agreeing_restarts():
@@ -236,8 +236,8 @@ def test_choose_variance_over_agreeing_restarts():
     e1 = np.full(30, 0.004)
     ok = np.ones(30, bool)
     z = np.zeros(30)
-    assert choose([c0, c1], [z, z], [e0, e1], [ok, ok], 0.01, None, None).segment_index == 1
-    ch = choose([c0, c1], [z, z], [e0, e1], [ok, ok], 0.01, None, 0.002)
+    assert choose_segment([c0, c1], [z, z], [e0, e1], [ok, ok], 0.01, None, None).segment_index == 1
+    ch = choose_segment([c0, c1], [z, z], [e0, e1], [ok, ok], 0.01, None, 0.002)
     assert ch.segment_index == 0 and ch.position_var[0] == pytest.approx(0.0, abs=1e-20)
     assert ch.restart < 10
 
@@ -248,12 +248,12 @@ def test_choose_least_penetration_then_lowest_icp_error():
     # Penetration within the 2 mm tolerance ties; the tie goes to the lowest ICP error (the paper's rule).
     pen = [np.array([0.0, 0.0015, 0.01, 0.0])]
     err = [np.array([0.004, 0.002, 0.0001, 0.003])]
-    assert choose(centres, pen, err, ok, 0.002).restart == 1
+    assert choose_segment(centres, pen, err, ok, 0.002).restart == 1
     # Beyond the tolerance the penetration decides, whatever the error.
     pen = [np.array([0.02, 0.03, 0.01, 0.05])]
-    assert choose(centres, pen, err, ok, 0.002).restart == 2
+    assert choose_segment(centres, pen, err, ok, 0.002).restart == 2
     # Exact ties on both keys: the first restart.
-    assert choose(centres, [np.zeros(4)], [np.ones(4)], ok, 0.0).restart == 0
+    assert choose_segment(centres, [np.zeros(4)], [np.ones(4)], ok, 0.0).restart == 0
 
 
 def test_min_clearance_with_a_disc_robot():

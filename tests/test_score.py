@@ -179,7 +179,7 @@ def cli_inputs(tmp_path):
 
 
 def _invoke(args):
-    import stucco_cli.retrieve  # noqa: F401  (registers the commands)
+    import stucco_cli.score  # noqa: F401  (registers the commands)
     from stucco_cli.main import cli
 
     return CliRunner().invoke(cli, args)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.study import accuracy_settings, choose, knee, pareto_front, run_ambiguity
+from pipeline.study import accuracy_settings, choose_setting, knee, pareto_front, run_ambiguity
 from stucco_cli.main import cli
 
 
@@ -54,12 +54,12 @@ def test_choose_picks_known_best_of_synthetic_objective():
     # median FMI peaks at value 0.04 (1 - (v - 0.04)^2 * 100), CE is lowest at 0.02 but FMI there is 0.04 lower.
     values = [0.005, 0.01, 0.02, 0.04, 0.08]
     stats = [dict(fmi=1 - (v - 0.04) ** 2 * 100, ce_cm=1 + abs(v - 0.02) * 10) for v in values]
-    assert values[choose(stats)] == 0.04
+    assert values[choose_setting(stats)] == 0.04
 
 
 def test_choose_breaks_fmi_near_ties_by_ce():
     stats = [dict(fmi=0.900, ce_cm=2.0), dict(fmi=0.895, ce_cm=1.0), dict(fmi=0.5, ce_cm=0.1)]
-    assert choose(stats) == 1
+    assert choose_setting(stats) == 1
 
 
 def test_accuracy_settings_have_the_default_once():

@@ -8,7 +8,8 @@ import pytest
 
 from pipeline import schema
 from pipeline.track.soft import SoftTracker, SoftTrackingParams
-from pipeline.track.stage import TrackConfig, run_key, run_rng, track_table
+from pipeline.seeds import run_key, run_rng
+from pipeline.track.stage import TrackConfig, track_table
 
 DISC = "disc:0.05"
 CONFIG = TrackConfig(robot=DISC, params=dict(n_particles=16))

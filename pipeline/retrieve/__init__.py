@@ -20,7 +20,7 @@ from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, ESTIMATORS, Segment
 from pipeline.retrieve.icp import IcpResult, icp_error, icp_restarts, initial_transforms, layer_height
 from pipeline.retrieve.model import (model_normals, model_points, outline_point, pose_error, project_to_outline,
                                      target_primitive)
-from pipeline.retrieve.paper import Choice, Estimate, choose, confidence_notes, estimate_run, min_clearance
+from pipeline.retrieve.paper import Choice, Estimate, choose_segment, confidence_notes, estimate_run, min_clearance
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
@@ -32,7 +32,7 @@ __all__ = [
     "DEFAULT_ESTIMATOR", "ESTIMATORS", "Segment", "estimate", "estimate_plausible", "plausible_notes",
     "retrieval_metadata", "IcpResult", "icp_error", "icp_restarts", "initial_transforms", "layer_height",
     "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
-    "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose",
+    "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose_segment",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
     "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "final_segments_by_run", "retrieve",
     "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",

@@ -14,7 +14,7 @@ from pipeline.retrieve.icp import icp_restarts, initial_transforms
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
 
-__all__ = ["min_clearance", "Choice", "choose", "confidence_notes", "Estimate", "estimate_run"]
+__all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "Estimate", "estimate_run"]
 
 
 def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> np.ndarray:
@@ -52,12 +52,12 @@ class Choice:
     Attributes
     ----------
     segment_index : int
-        Index into the list of segments given to :func:`choose` (-1 if none).
+        Index into the list of segments given to :func:`choose_segment` (-1 if none).
     restart : int
         Restart of that segment (-1 if none).
     position_var : ndarray, shape (S,), m^2
         Per segment: unbiased variance of the restarts' estimated positions (x plus y), over the valid
-        restarts that agree (see :func:`choose`); inf when fewer than 2 are valid.
+        restarts that agree (see :func:`choose_segment`); inf when fewer than 2 are valid.
     rank : list of ndarray
         Per segment, each restart's rank under (excess penetration, ICP RMSE) (0 = best; invalid last).
     """
@@ -68,7 +68,7 @@ class Choice:
     rank: list[np.ndarray]
 
 
-def choose(centres: Sequence[np.ndarray], penetration: Sequence[np.ndarray], rmse: Sequence[np.ndarray],
+def choose_segment(centres: Sequence[np.ndarray], penetration: Sequence[np.ndarray], rmse: Sequence[np.ndarray],
            valid: Sequence[np.ndarray], tolerance: float, fit_gate: float | None = None,
            agreement: float | None = None) -> Choice:
     """The paper's selection rule over S segments of B restarts each.
@@ -233,7 +233,7 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
         pens.append(np.maximum(-clear, 0.0))
         rmses.append(res.rmse)
         valids.append(res.valid)
-    choice = choose(centres, pens, rmses, valids, params.penetration_tolerance, params.segment_fit_gate,
+    choice = choose_segment(centres, pens, rmses, valids, params.penetration_tolerance, params.segment_fit_gate,
                     params.agreement_tolerance)
     cand: dict[str, list] = {k: [] for k in ("segment", "restart", "n_points", "x_m", "y_m", "yaw_rad",
                                              "icp_rmse_m", "penetration_m", "valid", "position_var_m2", "rank",

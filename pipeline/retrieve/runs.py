@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 from pipeline import schema
 from pipeline.geometry import Primitive
 from pipeline.retrieve.model import target_primitive
+from pipeline.seeds import run_key
 from pipeline.scenes import load_scene
 
 __all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", ]
@@ -116,11 +117,6 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
     return out
 
 
-def _run_key(run: str) -> int:
-    # Same formula as pipeline.track.stage.run_key (sha256 of the name), without importing the tracker.
-    return int.from_bytes(hashlib.sha256(run.encode("utf-8")).digest()[:8], "little")
-
-
 #: Third entry of retrieval's SeedSequence: keeps its draws independent of the tracker's stream of the run.
 _STREAM = int.from_bytes(hashlib.sha256(b"retrieve").digest()[:4], "little")
 
@@ -130,4 +126,4 @@ def retrieval_rng(seed: int, run: str) -> tuple[np.random.Generator, np.random.G
     SeedSequence([seed, run_key(run), STREAM]).spawn(3). Children are keyed by their index, so the first two are
     the streams the paper's estimator always had."""
     return tuple(np.random.default_rng(c)
-                 for c in np.random.SeedSequence([int(seed), _run_key(run), _STREAM]).spawn(3))
+                 for c in np.random.SeedSequence([int(seed), run_key(run), _STREAM]).spawn(3))

@@ -10,7 +10,7 @@ One role per module (docs/studies.md):
   ambiguity, tracked and scored per method;
 * :mod:`~pipeline.study.figure5`: ``stucco study training``, the paper's Fig. 5 (:func:`training_study`);
 * :mod:`~pipeline.study.tuning`: ``stucco study tune``, one parameter per method swept on the training set, the
-  rule :func:`choose`;
+  rule :func:`choose_setting`;
 * :mod:`~pipeline.study.tables`: null-skipping statistics and atomic CSV files shared by the above.
 
 Every random stream comes from the stages' own derivations (collect: ``[root, scene, seed]``; track:
@@ -23,9 +23,9 @@ from pipeline.study.settings import Setting, accuracy_settings
 from pipeline.study.tables import write_csv
 from pipeline.study.training import (AMBIGUITY_DISTANCE_M, MIN_REP_FORCE_N, TRAINING_SCENES, TRAINING_SEEDS,
                                      collect_training, run_ambiguity, training_scores)
-from pipeline.study.tuning import TUNE_GRID, choose, dataclass_dict, tune
+from pipeline.study.tuning import TUNE_GRID, choose_setting, dataclass_dict, tune
 
 __all__ = ["Setting", "accuracy_settings", "pareto_front", "knee", "accuracy_bench", "summarise_settings",
            "summary_markdown", "pareto_figure", "run_ambiguity", "TRAINING_SCENES", "TRAINING_SEEDS",
            "AMBIGUITY_DISTANCE_M", "MIN_REP_FORCE_N", "collect_training", "training_scores", "training_study",
-           "fig5", "TUNE_GRID", "choose", "tune", "dataclass_dict", "write_csv"]
+           "fig5", "TUNE_GRID", "choose_setting", "tune", "dataclass_dict", "write_csv"]

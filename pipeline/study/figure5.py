@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import pyarrow as pa
 
+from pipeline.report import METHOD_ORDER
 from pipeline.study.tables import percentile_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 
@@ -18,7 +19,7 @@ __all__ = ["training_study", "fig5"]
 
 
 def training_study(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES, seeds: Sequence[int] = TRAINING_SEEDS,
-                   methods: Sequence[str] = ("stucco", "birch", "dbscan", "kmeans", "gmphd"), *,
+                   methods: Sequence[str] = METHOD_ORDER, *,
                    root_seed: int = 0, jobs: int = 1, progress: bool | None = None,
                    max_actions: int | None = None, min_ambiguity: float = 0.3) -> dict[str, Any]:
     """Collect (greedy walk, discard rule), isolate, track with every method at its defaults, score.

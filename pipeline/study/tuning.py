@@ -1,4 +1,4 @@
-"""``stucco study tune``: one parameter per method swept on the training set, the value chosen by :func:`choose`.
+"""``stucco study tune``: one parameter per method swept on the training set, chosen by :func:`choose_setting`.
 
 docs/studies.md, ``stucco study tune``; the defaults (Table I, §V-B) are not changed by the command.
 """
@@ -17,7 +17,7 @@ import pyarrow as pa
 from pipeline.study.tables import median_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 
-__all__ = ["TUNE_GRID", "choose", "tune", "dataclass_dict"]
+__all__ = ["TUNE_GRID", "choose_setting", "tune", "dataclass_dict"]
 
 #: Method -> (parameter, values). Table I / §V-B values are included (STUCCO l = 0.02, BIRCH 0.08, DBSCAN 0.05,
 #: k-means inertia ratio and GM-PHD detection at their defaults).
@@ -30,7 +30,7 @@ TUNE_GRID: dict[str, tuple[str, tuple[float, ...]]] = {
 }
 
 
-def choose(stats: Sequence[dict[str, float]], fmi_tolerance: float = 0.01) -> int:
+def choose_setting(stats: Sequence[dict[str, float]], fmi_tolerance: float = 0.01) -> int:
     """Index of the chosen setting: highest median FMI; among those within ``fmi_tolerance`` of it, the lowest
     median CE (the paper maximised median FMI and minimised median CE; FMI first, CE breaks near-ties)."""
     f = np.array([s["fmi"] for s in stats], dtype=float)
@@ -48,7 +48,7 @@ def tune(out: str | Path, grid: dict[str, tuple[str, Sequence[float]]] | None = 
          jobs: int = 1, progress: bool | None = None, max_actions: int | None = None) -> dict[str, Any]:
     """Sweep one parameter per method on the training set (collected if needed, as
     :func:`pipeline.study.training_study`); ``out/tune.csv`` holds the medians of every value; returns the chosen
-    value per method (:func:`choose`)."""
+    value per method (:func:`choose_setting`)."""
     # Imported here: the trackers load numba's kernels and scikit-learn (seconds), which only tracking needs.
     from pipeline.track.cluster import make_baseline
     from pipeline.track.soft import SoftTrackingParams
@@ -66,7 +66,7 @@ def tune(out: str | Path, grid: dict[str, tuple[str, Sequence[float]]] | None = 
             sub = [r for r in rows if r["method"] == m and json.loads(r["params"]) == {p: v}]
             stats.append(dict(method=m, parameter=p, value=v, runs=len(sub), fmi=median_of([r["fmi"] for r in sub]),
                               ce_cm=median_of([r["contact_error_cm"] for r in sub])))
-        i = choose(stats)
+        i = choose_setting(stats)
         default = (SoftTrackingParams().to_dict() if m == "stucco"
                    else dataclass_dict(make_baseline(m, None, np.random.default_rng(0)).params))[p]
         for j, s in enumerate(stats):

@@ -6,7 +6,6 @@ Every run of the contacts table is tracked independently with its own random str
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import logging
 import time
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.robot import load_robot
+from pipeline.seeds import run_rng
 from pipeline.track.soft import SoftTracker, SoftTrackingParams
 
 METHODS = ("stucco",)  # the baselines register here when available, see make_tracker
@@ -26,16 +26,6 @@ METHODS = ("stucco",)  # the baselines register here when available, see make_tr
 _CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}
 # Columns the tracks table computes; an extra contacts column with one of these names would be ambiguous.
 _PRODUCED = {c.name for c in schema.TRACKS_COLUMNS} - {c.name for c in schema.CONTACTS_COLUMNS}
-
-
-def run_key(run: str) -> int:
-    """Stable 64-bit integer of a run name (Python's hash() is salted per process)."""
-    return int.from_bytes(hashlib.sha256(run.encode("utf-8")).digest()[:8], "little")
-
-
-def run_rng(seed: int, run: str) -> np.random.Generator:
-    """The random stream of one run: independent of other runs and of the order they are processed in."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed), run_key(run)]))
 
 
 @dataclass(frozen=True)
@@ -69,7 +59,7 @@ def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
     return make_baseline(config.method, config.params, rng)
 
 
-def stucco_params(config: TrackConfig) -> dict[str, Any]:
+def method_params(config: TrackConfig) -> dict[str, Any]:
     """The method's full parameter set (defaults filled in), recorded in the output metadata.
 
     Raises ValueError for an unknown or out-of-range parameter, before any run is tracked.
@@ -123,7 +113,7 @@ def warm_up_kernels() -> float:
 
 
 @dataclass
-class RunResult:
+class TrackResult:
     """Rows of one tracked run, as column arrays."""
 
     run: str
@@ -132,7 +122,7 @@ class RunResult:
     diagnostics: dict[str, np.ndarray]
 
 
-def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot, seed: int) -> RunResult:
+def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot, seed: int) -> TrackResult:
     """Replay one run through a fresh tracker.
 
     Returns the estimate after the last step (or after every step with ``config.every_step``) and per-step
@@ -181,10 +171,10 @@ def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot
     for k in ("step", "contact_index", "estimate_step", "tracker_label"):
         tracks[k] = tracks[k].astype(np.int64)
     source = np.concatenate(rows_out) if rows_out else np.zeros(0, np.int64)
-    return RunResult(run, tracks, source, diag)
+    return TrackResult(run, tracks, source, diag)
 
 
-def _track_one(run: str, contacts: schema.RunContacts, config: TrackConfig, seed: int) -> RunResult:
+def _track_one(run: str, contacts: schema.RunContacts, config: TrackConfig, seed: int) -> TrackResult:
     # Worker entry point: each process loads the robot grid once per run (a millisecond cache read).
     return track_run(run, contacts, config, load_robot(config.robot), seed)
 
@@ -229,7 +219,7 @@ def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 
     return _tracks_table(table, results), _diagnostics_table(results)
 
 
-def _tracks_table(contacts: pa.Table, results: list[RunResult]) -> pa.Table:
+def _tracks_table(contacts: pa.Table, results: list[TrackResult]) -> pa.Table:
     n = [len(r.tracks["step"]) for r in results]
     cols: dict[str, pa.Array] = {
         "run": pa.array(np.repeat([r.run for r in results], n).astype(object) if results else [], pa.string()),
@@ -246,7 +236,7 @@ def _tracks_table(contacts: pa.Table, results: list[RunResult]) -> pa.Table:
     return pa.table(cols)
 
 
-def _diagnostics_table(results: list[RunResult]) -> pa.Table:
+def _diagnostics_table(results: list[TrackResult]) -> pa.Table:
     n = [len(r.diagnostics["step"]) for r in results]
     cols: dict[str, Any] = {"run": pa.array(np.repeat([r.run for r in results], n).astype(object)
                                             if results else [], pa.string())}
@@ -255,7 +245,7 @@ def _diagnostics_table(results: list[RunResult]) -> pa.Table:
     return pa.table(cols)
 
 
-def diagnostics_path_for(out_path: str | Path) -> Path:
+def default_diagnostics_path(out_path: str | Path) -> Path:
     """Where the diagnostics side table of a tracks file goes by default: ``<name>.diagnostics.parquet``."""
     out_path = Path(out_path)
     return out_path.with_name(out_path.name.removesuffix(".parquet") + ".diagnostics.parquet")
@@ -270,7 +260,7 @@ def track_file(in_path, out_path, config: TrackConfig, *, seed: int, jobs: int =
     raise :class:`pipeline.schema.SchemaError`.
     """
     grid = load_robot(config.robot)
-    full_params = stucco_params(config)
+    full_params = method_params(config)
     contacts = schema.read_contacts(in_path)
     try:
         tracks, diagnostics = track_table(contacts, config, seed=seed, jobs=jobs, progress=progress)
@@ -281,7 +271,7 @@ def track_file(in_path, out_path, config: TrackConfig, *, seed: int, jobs: int =
     inputs = {"contacts": str(in_path)}
     # The tracks are written last: an existing tracks file means the stage finished.
     # The diagnostics hold wall times, so unlike the tracks they differ between two identical runs.
-    schema.write_table(diagnostics, diagnostics_path or diagnostics_path_for(out_path), stage="track", params=meta,
+    schema.write_table(diagnostics, diagnostics_path or default_diagnostics_path(out_path), stage="track", params=meta,
                        seed=seed, inputs=inputs, kind="diagnostics")
     schema.write_table(tracks, out_path, stage="track", params=meta, seed=seed, inputs=inputs, kind="tracks")
     return tracks, diagnostics
