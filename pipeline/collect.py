@@ -31,6 +31,7 @@ import pyarrow as pa
 
 from pipeline.geometry import gripper_yaw
 from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
+from pipeline.parallel import run_calls
 from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
@@ -426,17 +427,9 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
     bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
     results: list[CollectResult] = []
     try:
-        if jobs <= 1 or len(seeds) <= 1:
-            for a in args:
-                results.append(job(*a))
-                bar.update()
-        else:
-            from joblib import Parallel, delayed
-
-            par = Parallel(n_jobs=min(jobs, len(seeds)), return_as="generator_unordered")
-            for r in par(delayed(job)(*a) for a in args):
-                results.append(r)
-                bar.update()
+        for r in run_calls(job, args, jobs, ordered=False):
+            results.append(r)
+            bar.update()
     finally:
         bar.close()
     return sorted(results, key=lambda r: r.seed)

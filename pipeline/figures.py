@@ -17,10 +17,10 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline.atomic import save_figure
 from pipeline import schema
+from pipeline.atomic import save_figure
 from pipeline.layout import partition
-from pipeline.report import METHOD_ORDER, METHOD_TITLE
+from pipeline.methods import METHOD_ORDER, METHOD_TITLE
 from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, primitive_of, read_retrieval
 from pipeline.score import read_scores
 from pipeline.segment import final_estimates

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-METHOD_ORDER = ("stucco", "birch", "dbscan", "kmeans", "gmphd")
-METHOD_TITLE = {"stucco": "ours (STUCCO)", "birch": "BIRCH", "dbscan": "DBSCAN", "kmeans": "k-means", "gmphd": "GM-PHD"}
+from pipeline.methods import METHOD_ORDER, METHOD_TITLE
+
 
 #: The paper's Table II (20 runs per task in simulation): GS %, FMI mean (std), CE cm mean (std).
 PAPER_TABLE_II = {

@@ -81,7 +81,7 @@ def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[f
 
 
 def _methods(text: str) -> tuple[str, ...]:
-    from pipeline.report import METHOD_ORDER
+    from pipeline.methods import METHOD_ORDER
 
     methods = tuple(m.strip() for m in text.split(",") if m.strip())
     unknown = [m for m in methods if m not in METHOD_ORDER]

@@ -45,7 +45,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     """Estimate the target pose of every run from its segments and grasp it in simulation."""
     from pipeline import schema
     from pipeline.grasp import GraspParams
-    from pipeline.report import METHOD_ORDER
+    from pipeline.methods import METHOD_ORDER
     from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieve_file
 
     def known(m: str) -> str:

@@ -12,7 +12,7 @@ from typing import Any
 
 from pipeline.atomic import write_text
 from pipeline.layout import CONFIG, LAYOUT_VERSION
-from pipeline.report import METHOD_ORDER
+from pipeline.methods import METHOD_ORDER
 from pipeline.retrieve.estimators import ESTIMATORS
 from pipeline.scenes import SceneError, load_scene, scene_names
 

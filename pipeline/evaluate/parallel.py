@@ -8,7 +8,9 @@ from __future__ import annotations
 from contextlib import contextmanager
 from typing import Callable
 
-from joblib import Parallel, delayed, parallel_config
+from joblib import parallel_config
+
+from pipeline.parallel import run_calls
 
 __all__ = ["BACKENDS", "parallel_backend", "map_jobs", "single_threaded"]
 
@@ -50,15 +52,9 @@ def map_jobs(fn: Callable, args: list[tuple], jobs: int, bar) -> list:
     ``bar`` (a tqdm bar) advances by one per finished call.
     """
     out = []
-    if (jobs > 1 or jobs == -1) and len(args) > 1:
-        par = Parallel(n_jobs=-1 if jobs == -1 else min(jobs, len(args)), return_as="generator_unordered")
-        for r in par(delayed(fn)(*a) for a in args):
-            out.append(r)
-            bar.update()
-    else:
-        for a in args:
-            out.append(fn(*a))
-            bar.update()
+    for r in run_calls(fn, args, jobs, ordered=False):
+        out.append(r)
+        bar.update()
     return out
 
 

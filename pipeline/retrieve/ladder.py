@@ -31,12 +31,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow.parquet as pq
-from joblib import Parallel, delayed
-
 from pipeline import schema
 from pipeline.evaluate import partition, single_threaded
 from pipeline.geometry import rot2
 from pipeline.grasp import GraspParams, grasp_at
+from pipeline.parallel import run_calls
 from pipeline.retrieve.estimators import Segment, estimate
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng
@@ -296,10 +295,7 @@ def ladder_rows(runs_from: Path, pairs: Sequence[tuple[str, int]], estimators: S
     ``progress`` wraps the iterable of finished runs (``progress(iterable, total=)``).
     """
     args = [(Path(runs_from), sc, int(s), tuple(estimators), method, root_seed) for sc, s in pairs]
-    if jobs > 1 and len(args) > 1:
-        results = Parallel(n_jobs=min(jobs, len(args)), return_as="generator")(delayed(_run_pair)(*a) for a in args)
-    else:
-        results = (_run_pair(*a) for a in args)
+    results = run_calls(_run_pair, args, jobs)
     if progress is not None:
         results = progress(results, total=len(args))
     return [r for chunk in results for r in chunk]

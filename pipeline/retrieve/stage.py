@@ -8,10 +8,9 @@ from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
-from joblib import Parallel, delayed
-
 from pipeline import schema
 from pipeline.grasp import GraspParams, grasp_at
+from pipeline.parallel import run_calls
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, retrieval_metadata
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
@@ -119,11 +118,7 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
     infos = [load_run(files[r]) for r in files]
     args = [(info, by_run.get(info.run, []), method, root_seed, params, grasp, grasp_params, estimator,
              plausible_params) for info in infos]
-    if jobs > 1 and len(args) > 1:
-        results = Parallel(n_jobs=min(jobs, len(args)), return_as="generator")(
-            delayed(_retrieve_one)(*a) for a in args)
-    else:
-        results = (_retrieve_one(*a) for a in args)
+    results = run_calls(_retrieve_one, args, jobs)
     if progress is not None:
         results = progress(results, total=len(args))
     outs = list(results)

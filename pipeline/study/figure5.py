@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 import pyarrow as pa
 
-from pipeline.report import METHOD_ORDER
+from pipeline.methods import METHOD_ORDER
 from pipeline.study.tables import percentile_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 

@@ -16,11 +16,12 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.methods import METHOD_ORDER
+from pipeline.parallel import run_calls
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.soft import SoftTracker, SoftTrackingParams
 
-METHODS = ("stucco",)  # the baselines register here when available, see make_tracker
 
 # Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
 _CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}
@@ -38,16 +39,8 @@ class TrackConfig:
     every_step: bool = False
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS + _baseline_names():
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS + _baseline_names())}")
-
-
-def _baseline_names() -> tuple[str, ...]:
-    try:
-        from pipeline.track import cluster  # noqa: F401
-    except ImportError:
-        return ()
-    return ("birch", "dbscan", "kmeans", "gmphd")
+        if self.method not in METHOD_ORDER:
+            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHOD_ORDER)}")
 
 
 def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
@@ -205,14 +198,7 @@ def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 
         raise ValueError(f"the contacts table has column(s) {', '.join(map(repr, clash))}, which the tracks table "
                          "writes itself; rename them")
     runs = schema.contacts_by_run(table)
-    if jobs > 1 and len(runs) > 1:
-        from joblib import Parallel, delayed
-
-        results = Parallel(n_jobs=jobs, return_as="generator")(
-            delayed(_track_one)(run, rc, config, seed) for run, rc in runs)
-    else:
-        robot = load_robot(config.robot)
-        results = (track_run(run, rc, config, robot, seed) for run, rc in runs)
+    results = run_calls(_track_one, [(run, rc, config, seed) for run, rc in runs], jobs)
     if progress is not None:
         results = progress(results, total=len(runs))
     results = list(results)

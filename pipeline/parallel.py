@@ -1,0 +1,23 @@
+"""Independent calls over processes: the one joblib loop of the pipeline (runs, seeds, jobs, figures).
+
+With ``jobs`` > 1 and more than one call, the calls run in joblib worker processes (loky, or the active joblib
+backend, e.g. a Dask cluster, with ``jobs == -1``); otherwise in this process, one after the other. Either way a
+call's result does not depend on ``jobs``: every random draw comes from the run's own stream (pipeline/seeds.py).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+
+from joblib import Parallel, delayed
+
+__all__ = ["run_calls"]
+
+
+def run_calls(fn: Callable, args: Sequence[tuple], jobs: int, *, ordered: bool = True) -> Iterator:
+    """``fn(*a)`` for every ``a`` in ``args``, lazily: in ``args`` order, or in completion order when not
+    ``ordered`` (the caller sorts). ``jobs == -1`` lets the active joblib backend choose the workers."""
+    if (jobs > 1 or jobs == -1) and len(args) > 1:
+        n_jobs = -1 if jobs == -1 else min(jobs, len(args))
+        calls: Iterable = (delayed(fn)(*a) for a in args)
+        return iter(Parallel(n_jobs=n_jobs, return_as="generator" if ordered else "generator_unordered")(calls))
+    return (fn(*a) for a in args)
