@@ -11,11 +11,11 @@ from __future__ import annotations
 import fcntl
 import os
 import secrets
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text", "save_figure", "exclusive", "FolderBusy"]
+__all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy"]
 
 
 class FolderBusy(RuntimeError):
@@ -47,6 +47,28 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def all_or_none(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
+    """Yield one temporary path per target, to write a stage's outputs to; after the block every one is renamed
+    onto its target, so the outputs appear together. If the block fails, no target is touched and the
+    temporaries are removed: a stage leaves all of its outputs or none (renames within a folder do not fail once
+    the files are written)."""
+    targets = [Path(p) for p in paths]
+    if len(set(targets)) != len(targets):
+        raise ValueError(f"two outputs share one path: {sorted(str(t) for t in targets)}")
+    tmps = [t.with_name(f".{t.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp") for t in targets]
+    for t in targets:
+        t.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        yield tmps
+        for tmp, target in zip(tmps, targets):
+            os.replace(tmp, target)
+    except BaseException:
+        for tmp in tmps:
+            tmp.unlink(missing_ok=True)
         raise
 
 

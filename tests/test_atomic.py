@@ -69,3 +69,61 @@ def test_one_writer_per_folder_and_a_killed_holder_releases_it(tmp_path):
             assert time.monotonic() < deadline
             time.sleep(0.05)
     assert (tmp_path / ".lock").read_text().strip() == str(os.getpid())
+
+
+def test_all_or_none_touches_no_target_when_a_later_write_fails(tmp_path):
+    from pipeline.atomic import all_or_none
+
+    a, b = tmp_path / "diagnostics.parquet", tmp_path / "tracks.parquet"
+    a.write_text("old diagnostics")
+    b.write_text("old tracks")
+    with pytest.raises(OSError):
+        with all_or_none([a, b]) as (ta, tb):
+            ta.write_text("new diagnostics")
+            raise OSError(28, "No space left on device")
+    assert (a.read_text(), b.read_text()) == ("old diagnostics", "old tracks")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["diagnostics.parquet", "tracks.parquet"]
+    with pytest.raises(ValueError, match="share one path"):
+        with all_or_none([a, a]):
+            pass
+
+
+@pytest.mark.parametrize("stage", ["track", "retrieve"])
+def test_a_stage_whose_second_output_fails_keeps_its_previous_outputs(tmp_path, monkeypatch, stage):
+    """The CLI's track (tracks + diagnostics) and retrieve (retrieval + candidates) write both or neither."""
+    import shutil
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    import pipeline.schema.io as io
+    from stucco_cli.main import cli
+
+    data = Path(__file__).resolve().parents[1] / "data"
+    contacts = tmp_path / "contacts.parquet"
+    shutil.copyfile(data / "contacts" / "FB-000.parquet", contacts)
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    shutil.copyfile(data / "regression" / "FB-000.parquet", runs / "FB-000.parquet")
+    args = {"track": ["track", "--in", str(contacts), "--out", str(tmp_path / "t.parquet"), "--robot", "disc:0.05",
+                      "--particles", "10"],
+            "retrieve": ["retrieve", "--segments", str(tmp_path / "s.parquet"), "--runs", str(runs), "--out",
+                         str(tmp_path / "r.parquet"), "--estimator", "paper", "--no-grasp"]}
+    runner = CliRunner()
+    for prep in (["-q", *args["track"]], ["-q", "segment", "--in", str(tmp_path / "t.parquet"), "--out",
+                                          str(tmp_path / "s.parquet")], ["-q", *args["retrieve"]]):
+        assert runner.invoke(cli, prep).exit_code == 0
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+
+    real, calls = io._write_parquet, []
+
+    def second_fails(table, sink):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real(table, sink)
+
+    monkeypatch.setattr(io, "_write_parquet", second_fails)
+    r = runner.invoke(cli, ["-q", "--seed", "5", *args[stage]])
+    assert r.exit_code == 1 and "No space left" in r.output, r.output
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

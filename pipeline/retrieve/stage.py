@@ -9,6 +9,7 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 from pipeline import schema
+from pipeline.atomic import all_or_none
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, retrieval_metadata
@@ -131,9 +132,9 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
                   plausible_params: PlausibleParams = PlausibleParams(), grasp: bool = True, jobs: int = 1,
                   progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
     """The `retrieve` stage on files: read and validate a segments table, :func:`retrieve` its runs (files in
-    ``run_dir``), and write the candidates table, then the retrieval table (atomically, with provenance metadata:
-    :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input). The retrieval, which
-    later stages read, is written last, so that it exists only once both do. Returns (retrieval, candidates).
+    ``run_dir``), and write the candidates and retrieval tables (with provenance metadata:
+    :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input), both or neither
+    (:func:`pipeline.atomic.all_or_none`; the retrieval is renamed last). Returns (retrieval, candidates).
 
     ``grasp_params`` (:class:`pipeline.grasp.GraspParams`) is used and recorded when ``grasp``; ``seed`` is the
     root seed.
@@ -146,7 +147,9 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     meta = retrieval_metadata(estimator, params, plausible_params, method=method, grasp=grasp,
                               grasp_params=grasp_params if grasp else None)
     inputs = {"segments": str(segments_path)}
-    schema.write_table(candidates, candidates_path, stage="retrieve", params=meta, seed=seed, inputs=inputs,
-                       kind="candidates")
-    schema.write_table(table, out_path, stage="retrieve", params=meta, seed=seed, inputs=inputs, kind="retrieval")
+    with all_or_none([candidates_path, out_path]) as (cand_tmp, retrieval_tmp):
+        schema.write_table(candidates, cand_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
+                           kind="candidates")
+        schema.write_table(table, retrieval_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
+                           kind="retrieval")
     return table, candidates

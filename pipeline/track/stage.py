@@ -16,6 +16,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.atomic import all_or_none
 from pipeline.methods import METHOD_ORDER
 from pipeline.parallel import run_calls
 from pipeline.robot import load_robot
@@ -255,9 +256,10 @@ def track_file(in_path, out_path, config: TrackConfig, *, seed: int, jobs: int =
     meta = dict(method=config.method, robot=config.robot, robot_digest=grid.digest, every_step=config.every_step,
                 **full_params)
     inputs = {"contacts": str(in_path)}
-    # The tracks are written last: an existing tracks file means the stage finished.
-    # The diagnostics hold wall times, so unlike the tracks they differ between two identical runs.
-    schema.write_table(diagnostics, diagnostics_path or default_diagnostics_path(out_path), stage="track", params=meta,
-                       seed=seed, inputs=inputs, kind="diagnostics")
-    schema.write_table(tracks, out_path, stage="track", params=meta, seed=seed, inputs=inputs, kind="tracks")
+    # Both outputs or neither (pipeline/atomic.py). The diagnostics hold wall times, so unlike the tracks they
+    # differ between two identical runs.
+    with all_or_none([diagnostics_path or default_diagnostics_path(out_path), out_path]) as (diag_tmp, tracks_tmp):
+        schema.write_table(diagnostics, diag_tmp, stage="track", params=meta, seed=seed, inputs=inputs,
+                           kind="diagnostics")
+        schema.write_table(tracks, tracks_tmp, stage="track", params=meta, seed=seed, inputs=inputs, kind="tracks")
     return tracks, diagnostics
