@@ -218,8 +218,9 @@ def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
 
 def _pybullet():
     """pybullet, imported through :mod:`pipeline.sim` (which swallows its stderr banner)."""
-    # On first use, not at the top (measured): importing pybullet when pipeline.retrieve.stage loads this module
-    # changed the paper estimator's poses in their last bits in a Dask worker (tests/test_dask_processes.py).
+    # On first use, not at the top: only a process that simulates a grasp pays for pybullet's import and banner
+    # (ICP's last-bit differences between processes, once blamed on this import, are Open3D's own: see
+    # tests/test_dask_processes.py).
     import pipeline.sim  # noqa: F401
     import pybullet
 
