@@ -1,4 +1,4 @@
-"""Hard-tracking baselines (REFERENCE_SPEC §5.1): BIRCH, DBSCAN, growing k-means, and GM-PHD through the wrapper."""
+"""Hard-tracking baselines (paper §V-A): BIRCH, DBSCAN, growing k-means, and GM-PHD through the wrapper."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,4 +1,5 @@
-"""GM-PHD kernels (Vo & Ma 2006, Tables 1-2) and the weight-integral target extraction (REFERENCE_SPEC §5.2)."""
+"""GM-PHD kernels (Vo & Ma 2006, Tables 1-2) and the weight-integral target extraction (the authors' baseline,
+paper §V-A)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,7 +1,7 @@
 """Hard-tracking baselines: one estimate of every contact point, clustered at each contact step (paper §V-A).
 
-REFERENCE_SPEC §5.1. At a contact step each new point enters at its pre-motion location (p - dx), all points are
-(re)clustered, and every point in a cluster that contains a new point is translated by the mean dx of the new
+As in the authors' baseline wrapper: at a contact step each new point enters at its pre-motion location (p - dx),
+all points are (re)clustered, and every point in a cluster that contains a new point is translated by the mean dx of the new
 points in that cluster. Noise labels (-1, DBSCAN) are never moved, and become singleton objects in
 :meth:`HardTrackingWrapper.labels`. Free-space steps change nothing.
 
@@ -131,7 +131,7 @@ class RefitLabeller:
 
 
 class GrowingKMeansLabeller:
-    """k-means whose k starts at 1 and only grows (REFERENCE_SPEC §5.1, ``OnlineSklearnFixedClusters``).
+    """k-means whose k starts at 1 and only grows (the authors' ``OnlineSklearnFixedClusters``, paper §V-A).
 
     Attributes
     ----------
@@ -187,7 +187,7 @@ def compact_labels(labels: np.ndarray) -> np.ndarray:
 
 
 class HardTrackingWrapper:
-    """Contact tracker that keeps one estimate per contact point and moves whole clusters (REFERENCE_SPEC §5.1).
+    """Contact tracker that keeps one estimate per contact point and moves whole clusters (paper §V-A).
 
     Implements :class:`pipeline.track.base.ContactTracker`.
 

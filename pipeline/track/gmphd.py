@@ -2,7 +2,7 @@
 
 Written from the equations of B.-N. Vo and W.-K. Ma, "The Gaussian mixture probability hypothesis density
 filter", IEEE Trans. Signal Processing 54(11), 2006 (Table 1: prediction and update; Table 2: pruning), with the
-model and the target extraction of REFERENCE_SPEC §5.2:
+model and the target extraction of the authors' baseline (paper §V-A):
 
 * state = a 2-D point, F = I (static targets), Q = q·I, H = I, R = r·I, survival p_S, no spawning;
 * birth intensity = a ``birth_grid`` × ``birth_grid`` grid of N(grid point, birth_variance·I) over ``bounds``,
@@ -29,6 +29,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import logsumexp
 
+from pipeline.track.spd import cho_solve_matrix, cholesky, solve_lower, symmetrise
+
 __all__ = [
     "GMPHDParams",
     "GMPHDFilter",
@@ -46,7 +48,7 @@ _LOG_2PI = float(np.log(2.0 * np.pi))
 
 @dataclass(frozen=True)
 class GMPHDParams:
-    """GM-PHD model and pruning parameters (defaults: REFERENCE_SPEC §5.2, tuned for BOR in simulation).
+    """GM-PHD model and pruning parameters (defaults: the authors', tuned for BOR in simulation).
 
     Attributes
     ----------
@@ -126,61 +128,6 @@ class GMPHDParams:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# linear algebra on stacks of small SPD matrices
-# ---------------------------------------------------------------------------------------------------------------
-def _symmetrise(a: np.ndarray) -> np.ndarray:
-    return 0.5 * (a + np.swapaxes(a, -1, -2))
-
-
-def _cholesky(covs: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factors of a stack (..., D, D) of symmetric matrices, flooring eigenvalues if needed.
-
-    numpy's batched Cholesky is used because scipy's batched ``cholesky``/``solve_triangular`` loop over the stack
-    in Python-level calls (measured ~50x slower for 2000 2x2 matrices).
-    """
-    covs = _symmetrise(covs)
-    try:
-        return np.linalg.cholesky(covs)
-    except np.linalg.LinAlgError:
-        # Round-off made some matrix indefinite: floor its spectrum relative to its largest eigenvalue.
-        vals, vecs = np.linalg.eigh(covs)
-        top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
-        vals = np.maximum(vals, top * 1e-12)
-        fixed = _symmetrise((vecs * vals[..., None, :]) @ np.swapaxes(vecs, -1, -2))
-        return np.linalg.cholesky(fixed)
-
-
-def _solve_lower(chol: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Forward substitution L y = b, broadcast over leading axes. chol (..., D, D), b (..., D) -> (..., D)."""
-    d = chol.shape[-1]
-    shape = np.broadcast_shapes(chol.shape[:-1], b.shape)
-    y = np.empty(shape)
-    for i in range(d):
-        acc = b[..., i] - (chol[..., i, :i] * y[..., :i]).sum(-1)
-        y[..., i] = acc / chol[..., i, i]
-    return y
-
-
-def _solve_upper_t(chol: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Back substitution L^T x = b, broadcast over leading axes. chol (..., D, D), b (..., D) -> (..., D)."""
-    d = chol.shape[-1]
-    shape = np.broadcast_shapes(chol.shape[:-1], b.shape)
-    x = np.empty(shape)
-    for i in range(d - 1, -1, -1):
-        acc = b[..., i] - (chol[..., i + 1:, i] * x[..., i + 1:]).sum(-1)
-        x[..., i] = acc / chol[..., i, i]
-    return x
-
-
-def _cho_solve_matrix(chol: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve (L L^T) X = B for a stack of matrices B. chol (J, D, D), rhs (J, D, n) -> (J, D, n)."""
-    cols = np.swapaxes(rhs, -1, -2)  # (J, n, D): one right-hand side per row
-    y = _solve_lower(chol[:, None], cols)
-    x = _solve_upper_t(chol[:, None], y)
-    return np.swapaxes(x, -1, -2)
-
-
-# ---------------------------------------------------------------------------------------------------------------
 # kernels (Vo & Ma 2006, Tables 1 and 2)
 # ---------------------------------------------------------------------------------------------------------------
 def birth_components(params: GMPHDParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -245,16 +192,16 @@ def update(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, z: np.ndarray
         keep = np.isfinite(missed_lw)
         return missed_lw[keep], means[keep], covs[keep]
 
-    s = _symmetrise(covs + r * eye)
-    chol_s = _cholesky(s)
+    s = symmetrise(covs + r * eye)
+    chol_s = cholesky(s)
     # Gain K = P S^-1 = (S^-1 P)^T, both symmetric.
-    gain = np.swapaxes(_cho_solve_matrix(chol_s, covs), -1, -2)  # (J, D, D)
+    gain = np.swapaxes(cho_solve_matrix(chol_s, covs), -1, -2)  # (J, D, D)
     ikh = eye - gain
     # Joseph form keeps the updated covariance symmetric positive definite under round-off.
-    cov_upd = _symmetrise(ikh @ covs @ np.swapaxes(ikh, -1, -2) + r * gain @ np.swapaxes(gain, -1, -2))
+    cov_upd = symmetrise(ikh @ covs @ np.swapaxes(ikh, -1, -2) + r * gain @ np.swapaxes(gain, -1, -2))
 
     innov = z[None, :, :] - means[:, None, :]  # (J, K, D)
-    white = _solve_lower(chol_s[:, None], innov)  # (J, K, D)
+    white = solve_lower(chol_s[:, None], innov)  # (J, K, D)
     log_det = 2.0 * np.log(np.diagonal(chol_s, axis1=-2, axis2=-1)).sum(-1)  # (J,)
     log_lik = -0.5 * (d * _LOG_2PI + log_det[:, None] + (white ** 2).sum(-1))  # (J, K)
     det_lw = np.log(detection) + log_w[:, None] + log_lik  # (J, K)
@@ -310,9 +257,9 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     keep = log_w > (np.log(truncation) if truncation > 0 else -np.inf)
     if not keep.any():
         keep[np.argmax(log_w)] = True
-    lw, m, p = log_w[keep], means[keep], _symmetrise(covs[keep])
+    lw, m, p = log_w[keep], means[keep], symmetrise(covs[keep])
     j = len(lw)
-    chol = _cholesky(p)
+    chol = cholesky(p)
 
     # Candidate pairs through a Euclidean gate: d_M(i, j) >= |m_i - m_j|^2 / lambda_max(P_i), so no pair farther
     # than sqrt(U max lambda_max) can merge. Exact Mahalanobis distances are then computed on the pairs only.
@@ -321,7 +268,7 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     pairs = cKDTree(m).query_pairs(radius, output_type="ndarray")
     cand = np.concatenate([pairs[:, 0], pairs[:, 1]]).astype(np.intp)
     seed = np.concatenate([pairs[:, 1], pairs[:, 0]]).astype(np.intp)
-    white = _solve_lower(chol[cand], m[cand] - m[seed])
+    white = solve_lower(chol[cand], m[cand] - m[seed])
     close = (white ** 2).sum(-1) <= merge_threshold
     cand, seed = cand[close], seed[close]
 
@@ -358,7 +305,7 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     g_m = np.add.reduceat(frac[:, None] * m_s, starts, axis=0)
     dev = np.repeat(g_m, counts, axis=0) - m_s
     spread = p_s + dev[:, :, None] * dev[:, None, :]
-    g_p = _symmetrise(np.add.reduceat(frac[:, None, None] * spread, starts, axis=0))
+    g_p = symmetrise(np.add.reduceat(frac[:, None, None] * spread, starts, axis=0))
 
     if len(g_lw) > max_components:
         top = np.argsort(-g_lw, kind="stable")[:max_components]
@@ -368,7 +315,7 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
 
 
 def extract_targets(log_w: np.ndarray, bias: float, max_doublings: int = 64) -> np.ndarray:
-    """Target extraction by the integral of the weights (REFERENCE_SPEC §5.2).
+    """Target extraction by the integral of the weights (as in the authors' baseline).
 
     n = round(bias · Σ w) (round half to even, as Python's ``round``); while n == 0 the bias is doubled (at most
     ``max_doublings`` times, then n = 1). Then n times: take the heaviest component, subtract 1 from its weight.
