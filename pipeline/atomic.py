@@ -79,13 +79,14 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def save_figure(fig, path: str | os.PathLike, dpi: int = 100) -> Path:
-    """Save a matplotlib figure to `path` atomically (format from the suffix) and close it; returns `path`."""
+def save_figure(fig, path: str | os.PathLike, dpi: int = 100, image_format: str | None = None) -> Path:
+    """Save a matplotlib figure to `path` atomically (format: `image_format`, else from the suffix, else PNG) and
+    close it; returns `path`."""
     import matplotlib.pyplot as plt  # only callers that draw pay for matplotlib
 
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png")
+            fig.savefig(tmp, dpi=dpi, format=image_format or Path(path).suffix.lstrip(".") or "png")
     finally:
         plt.close(fig)
     return Path(path)

@@ -159,9 +159,9 @@ def summarise(segments) -> list[dict]:
     return rows
 
 
-def plot_segments(segments, path, max_runs: int = 6) -> None:
-    """PNG of the final tracked points of up to ``max_runs`` runs, coloured by segment; where ground truth is
-    carried, the marker shape shows the true object."""
+def plot_segments(segments, path, max_runs: int = 6, image_format: str | None = None) -> None:
+    """PNG (or ``image_format``) of the final tracked points of up to ``max_runs`` runs, coloured by segment;
+    where ground truth is carried, the marker shape shows the true object."""
     # Imported here, not at the top: matplotlib.pyplot takes 0.8 s to import (measured, -X importtime) and only
     # `stucco segment --plot` draws.
     import matplotlib
@@ -197,7 +197,7 @@ def plot_segments(segments, path, max_runs: int = 6) -> None:
     fig.suptitle("tracked contact points: colour = segment" + ("" if truth is None else ", marker = true object"),
                  fontsize=10)
     fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=110, image_format=image_format)
 
 
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,

@@ -127,3 +127,30 @@ def test_a_stage_whose_second_output_fails_keeps_its_previous_outputs(tmp_path, 
     r = runner.invoke(cli, ["-q", "--seed", "5", *args[stage]])
     assert r.exit_code == 1 and "No space left" in r.output, r.output
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_segment_writes_no_table_when_its_plot_fails(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    import pipeline.segment
+    from stucco_cli.main import cli
+
+    contacts = Path(__file__).resolve().parents[1] / "data" / "contacts" / "FB-000.parquet"
+    tracks = tmp_path / "t.parquet"
+    runner = CliRunner()
+    r = runner.invoke(cli, ["-q", "track", "--in", str(contacts), "--out", str(tracks), "--robot", "disc:0.05",
+                            "--particles", "10"])
+    assert r.exit_code == 0, r.output
+
+    def plot_fails(segments, path, **kw):
+        Path(path).write_bytes(b"half a png")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pipeline.segment, "plot_segments", plot_fails)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = runner.invoke(cli, ["segment", "--in", str(tracks), "--out", str(tmp_path / "s.parquet"), "--plot",
+                            str(tmp_path / "s.png")])
+    assert r.exit_code == 1 and "No space left" in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # neither the table nor the plot, no temporaries
