@@ -10,6 +10,7 @@ from typing import Any, Sequence
 import numpy as np
 import pyarrow as pa
 
+from pipeline.atomic import save_figure
 from pipeline.study.tables import mean_of, median_of
 
 __all__ = ["pareto_front", "knee", "summarise_settings", "summary_markdown", "pareto_figure"]
@@ -120,14 +121,20 @@ def pareto_figure(rows: list[dict[str, Any]], path: str | Path) -> Path:
                                                  ("fmi", "median FMI", "front_fmi"),
                                                  ("gs", "grasp success rate", "front_gs"))):
         y = np.array([r[metric] for r in rows], dtype=float)
-        for r, xi, yi in zip(rows, t, y):
+        m = np.array([r[front] for r in rows])
+        labels: dict[tuple[float, float], list[str]] = {}
+        for r, xi, yi, on_front in zip(rows, t, y, m):
             c = "C0" if r["method"] == "stucco" else "C1"
             ax.scatter(xi, yi, color=c, s=30, zorder=3)
-            ax.annotate(r["setting"].replace("stucco ", ""), (xi, yi), fontsize=7, xytext=(3, 3),
-                        textcoords="offset points")
             if r.get("knee"):
                 ax.scatter(xi, yi, s=160, facecolors="none", edgecolors="red", zorder=4)
-        m = np.array([r[front] for r in rows])
+            # Only the front, the knee and the baselines are named (the rest are in the table); points that
+            # coincide on the plot share one label instead of printing over each other.
+            if on_front or r.get("knee") or r["method"] != "stucco":
+                key = (round(float(np.log10(max(xi, 1e-9))), 2), round(float(yi), 3))
+                labels.setdefault(key, []).append(r["setting"].replace("stucco ", ""))
+        for (lx, ly), names in labels.items():
+            ax.annotate(", ".join(names), (10 ** lx, ly), fontsize=7, xytext=(4, 4), textcoords="offset points")
         o = np.argsort(t[m])
         ax.step(t[m][o], y[m][o], where="post", color="grey", lw=1, zorder=2)
         ax.set_xscale("log")
@@ -135,10 +142,7 @@ def pareto_figure(rows: list[dict[str, Any]], path: str | Path) -> Path:
         ax.set_xlabel("median time per run (s): track + segment + pose estimation")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].set_title("blue: STUCCO settings, orange: baselines; grey: Pareto front; red ring: knee", fontsize=8)
+    fig.suptitle("blue: STUCCO settings (named on the front), orange: baselines; grey: Pareto front; red ring: knee",
+                 fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
