@@ -14,7 +14,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
 @click.option("--methods", default="all", show_default=True,
               help="Comma-separated: stucco, birch, dbscan, kmeans, gmphd; or 'all'.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Evaluation directory (hive-partitioned stage tables, report, figures) [out/evaluate; "
+              help="Evaluation directory (one folder per stage table, report, figures) [out/evaluate; "
                    "out/quick with --quick].")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
               help="Worker processes over jobs [the group's -j].")

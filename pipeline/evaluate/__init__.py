@@ -1,8 +1,8 @@
 """The ``evaluate`` stage: the (scene, seed, method) grid of the paper's Table II, end to end, resumable.
 
 Every job runs collect -> isolate -> track -> segment -> retrieve -> score by calling the stage functions (the
-same calls, parameters and metadata as the CLI), and keeps each stage's table under a hive-partitioned output
-directory, one file per partition (:mod:`pipeline.layout`). One role per module (docs/evaluation.md):
+same calls, parameters and metadata as the CLI), and keeps each stage's table in its own folder of the output
+directory, one file per partition, so each folder opens as one table (:mod:`pipeline.layout`). One role per module (docs/evaluation.md):
 
 * :mod:`~pipeline.evaluate.config`: the grid's names, :class:`EvalConfig` (``DIR/evaluation.json``), :class:`Job`;
 * :mod:`~pipeline.evaluate.freshness`: which stages of a job are out of date (``make`` on recorded digests);
