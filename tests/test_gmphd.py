@@ -1,22 +1,13 @@
-"""GM-PHD kernels (Vo & Ma 2006, Tables 1-2) and the weight-integral target extraction (the authors' baseline,
-paper §V-A)."""
+"""GM-PHD baseline (paper §V-A): the mixture maths (Vo & Ma 2006, Tables 1-2), the weight-integral target
+extraction of the authors' baseline, the filter and its labeller."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline.track.gmphd import (
-    GMPHDFilter,
-    GMPHDLabeller,
-    GMPHDParams,
-    birth_components,
-    extract_targets,
-    nearest_labels,
-    predict,
-    prune,
-    update,
-)
+from pipeline.track.gaussian_mixture import extract_targets, predict, prune, update
+from pipeline.track.gmphd import GMPHDFilter, GMPHDLabeller, GMPHDParams, birth_components, nearest_labels
 
 
 def _random_mixture(rng: np.random.Generator, j: int, spread: float = 0.5, var: float = 1e-3):
