@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from pipeline import schema
 from pipeline.atomic import save_figure
+from pipeline.labels import canonical_labels
 from pipeline.metrics import fmi
 
 #: Characteristic length l (m^2) of the connection probability exp(-d^2 / l), the paper's Table I (simulation).
@@ -23,17 +24,6 @@ from pipeline.metrics import fmi
 DEFAULT_LENGTH = 0.02
 #: Connection threshold alpha of segmentation (Alg. 3), the paper's Table I.
 DEFAULT_ALPHA = 0.4
-
-
-def canonical_labels(labels: np.ndarray) -> np.ndarray:
-    """Relabel to 0..k-1 in order of first appearance (so equal segmentations give equal label arrays)."""
-    labels = np.asarray(labels)
-    if labels.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
-    rank = np.empty(first.size, dtype=np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-    return rank[inverse.ravel()]
 
 
 def connection_radius(length: float, alpha: float) -> float:

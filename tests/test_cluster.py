@@ -174,7 +174,7 @@ def test_dbscan_noise_points_are_never_moved_and_become_singletons():
     tracker = _make("dbscan", params={"eps": 0.05, "min_samples": 2})
     d = np.array([[0.01, 0.0]])
     tracker.update(FREE, d, np.array([[-0.5, 0.0]]) + d)  # alone: noise
-    assert tracker.last_labels_[-1] == -1
+    assert (tracker.labeller.final_labels(tracker.points_) == -1).all()
     np.testing.assert_allclose(tracker.points_, [[-0.5, 0.0]])  # not moved by its own push
     for y in (0.0, 0.01, 0.02):  # a dense group far away
         tracker.update(FREE, d, np.array([[0.5, y]]) + d)

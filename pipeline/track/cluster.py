@@ -1,8 +1,8 @@
 """Hard-tracking baselines: one estimate of every contact point, clustered at each contact step (paper §V-A).
 
 As in the authors' baseline wrapper: at a contact step each new point enters at its pre-motion location (p - dx),
-all points are (re)clustered, and every point in a cluster that contains a new point is translated by the mean dx of the new
-points in that cluster. Noise labels (-1, DBSCAN) are never moved, and become singleton objects in
+all points are (re)clustered, and every point in a cluster that contains a new point is translated by the mean dx
+of the new points in that cluster. Noise labels (-1, DBSCAN) are never moved, and become singleton objects in
 :meth:`HardTrackingWrapper.labels`. Free-space steps change nothing.
 
 The clustering is a small *labeller* object (:class:`PointLabeller`), so the same wrapper serves BIRCH, DBSCAN,
@@ -19,6 +19,7 @@ import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans
 from sklearn.exceptions import ConvergenceWarning
 
+from pipeline.labels import canonical_labels
 from pipeline.track.base import ContactTracker, params_from_dict
 from pipeline.track.gmphd import GMPHDLabeller, GMPHDParams
 
@@ -180,10 +181,7 @@ def compact_labels(labels: np.ndarray) -> np.ndarray:
     if noise.any():
         top = labels.max(initial=-1)
         labels[noise] = top + 1 + np.arange(noise.sum())
-    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
-    rank = np.empty(len(first), dtype=np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
-    return rank[inverse.ravel()]
+    return canonical_labels(labels)
 
 
 class HardTrackingWrapper:
@@ -203,8 +201,6 @@ class HardTrackingWrapper:
     ----------
     labeller : PointLabeller
     params : dataclass instance or None
-    last_labels_ : ndarray, shape (M,), int64
-        Raw labels (-1 = noise) of the last contact step, before the points were moved.
     """
 
     def __init__(self, labeller: PointLabeller, params: Any = None) -> None:
@@ -212,7 +208,6 @@ class HardTrackingWrapper:
         self.params = params
         self._points: np.ndarray | None = None
         self._dim: int | None = None
-        self.last_labels_ = np.empty(0, dtype=np.int64)
 
     def update(self, x: np.ndarray, dx: np.ndarray | None, p: np.ndarray | None) -> None:
         """Advance by one control step (see :meth:`pipeline.track.base.ContactTracker.update`).
@@ -249,7 +244,6 @@ class HardTrackingWrapper:
                 continue
             points[labels == lab] += dx[new_labels == lab].mean(axis=0)
         self._points = points
-        self.last_labels_ = labels
 
     @property
     def points_(self) -> np.ndarray:
