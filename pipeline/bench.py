@@ -55,7 +55,7 @@ def score(stream: dict, points: np.ndarray, labels: np.ndarray) -> dict:
     return dict(fmi=float(fowlkes_mallows_score(truth, labels)), ce_cm=contact_error_cm(points, stream))
 
 
-def make_tracker(method: str, n_particles: int, seed: int, robot_spec: str, weighting: str = "reference"):
+def stream_tracker(method: str, n_particles: int, seed: int, robot_spec: str, weighting: str = "reference"):
     from pipeline.robot import load_robot
     from pipeline.track.stage import TrackConfig, make_tracker as build
 
@@ -68,7 +68,7 @@ def _warm_up(method: str, robot_spec: str) -> None:
     """Load (or compile) the kernels outside the timed region."""
     stream = load_stream(stream_path(50))
     short = {k: (v[:40] if getattr(v, "ndim", 0) and len(v) == len(stream["x"]) else v) for k, v in stream.items()}
-    replay(short, make_tracker(method, 4, 0, robot_spec))
+    replay(short, stream_tracker(method, 4, 0, robot_spec))
 
 
 def worker(T: int, N: int, method: str = "stucco", seed: int = 0, weighting: str = "reference",
@@ -77,7 +77,7 @@ def worker(T: int, N: int, method: str = "stucco", seed: int = 0, weighting: str
     _warm_up(method, robot_spec)
     rss_setup = _peak_rss_mb()
     stream = load_stream(stream_path(T, streams))
-    out = replay(stream, make_tracker(method, N, seed, robot_spec, weighting))
+    out = replay(stream, stream_tracker(method, N, seed, robot_spec, weighting))
     c = stream["in_contact"].astype(bool)
     ms = out["step_ms"]
     contact_ms = ms[c]

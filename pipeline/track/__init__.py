@@ -1,1 +1,1 @@
-"""Contact trackers: STUCCO soft tracking (:mod:`.soft`) and the baselines, behind one interface (:mod:`.base`)."""
+"""Contact trackers behind one interface (:mod:`.base`): STUCCO soft tracking (paper §IV-B), baselines (§V-A)."""

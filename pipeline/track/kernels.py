@@ -1,4 +1,4 @@
-"""Compiled kernels of the soft tracker: penetration bookkeeping on whole particle arrays.
+"""Compiled kernels of the soft tracker (paper §IV-B): penetration bookkeeping on whole particle arrays.
 
 All kernels work on the tracker's arrays in place:
 
@@ -29,8 +29,8 @@ PEN_EPS = 1e-12
 
 
 def set_threads(n: int) -> None:
-    """Threads the particle loops use. One by default: on a loaded 2-core machine numba's thread pool was
-    measured 8x slower than one thread (T=400 anchor stream: 33.8 s vs 4.1 s), and results do not depend on it."""
+    """Threads the particle loops use. One by default: numba's thread pool collapses when the cores are busy
+    (README.md, Benchmarks, has the figures), and results do not depend on it."""
     import numba
 
     numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
@@ -100,11 +100,6 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
         Robot-frame box outside which no query can penetrate deeper than the tolerance.
     tol : float
         Intersection tolerance (metres).
-
-    Returns
-    -------
-    n_moved : ndarray, shape (N,), int64
-        Old points moved in each particle.
     """
     N = P.shape[0]
     D = P.shape[2]
@@ -115,7 +110,6 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
     for k in range(K):
         for d in range(D):
             disp[k, d] = dx[k, d]
-    n_moved = np.zeros(N, np.int64)
     for n in prange(N):
         group = np.empty(m_old, np.int64)
         for j in range(m_old):
@@ -131,7 +125,6 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
                     best = k
             if u[n, j] < np.exp(-best_d2 / length):
                 group[j] = best
-                n_moved[n] += 1
                 for d in range(D):
                     P[n, j, d] += dx[best, d]
                     C[n, j, d] += dx[best, d]
@@ -204,7 +197,6 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
                 if c < 0.0:
                     colpen[n, j] += c
                     npen[n, j] += 1
-    return n_moved
 
 
 @njit(cache=True, parallel=True)
