@@ -3,7 +3,7 @@
 Each (T, N) combination runs in a fresh process (``python -m pipeline.bench worker ...``) so that peak memory is
 that process's own, as in the reference harness; compiled kernels are loaded and warmed up before the clock
 starts, as the reference's torch import and set-up are excluded from its figures. The reference figures come
-from ``data/anchors/reference.json`` (transcribed from ``../shared/anchors/ref_tracker_bench.txt``) or, with
+from ``data/anchors/reference.json`` (the authors' recorded timings, with their source in the file) or, with
 ``reference_python``, from rerunning the authors' harness on this machine.
 """
 from __future__ import annotations

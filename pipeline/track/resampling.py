@@ -11,8 +11,8 @@ import numpy as np
 def logsumexp(log_w: np.ndarray) -> float:
     """log(sum(exp(log_w))) with the max shifted out, so no term overflows and the largest never underflows.
 
-    The same arithmetic as ``scipy.special.logsumexp`` on a 1-D array, without its array-API dispatch, which
-    measured half of the whole replay time of the T=200 anchor stream (2592 calls, 0.32 of 0.63 s).
+    The same arithmetic as ``scipy.special.logsumexp`` on a 1-D array, without its array-API dispatch, whose
+    overhead dominates on the small arrays of a particle filter's update.
     """
     top = np.max(log_w)
     if not np.isfinite(top):
