@@ -10,13 +10,18 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 
 from joblib import Parallel, delayed
 
-__all__ = ["run_calls"]
+__all__ = ["run_calls", "in_process"]
+
+
+def in_process(jobs: int, n_calls: int) -> bool:
+    """Whether :func:`run_calls` runs ``n_calls`` calls in this process (so a caller can load shared inputs once)."""
+    return not ((jobs > 1 or jobs == -1) and n_calls > 1)
 
 
 def run_calls(fn: Callable, args: Sequence[tuple], jobs: int, *, ordered: bool = True) -> Iterator:
     """``fn(*a)`` for every ``a`` in ``args``, lazily: in ``args`` order, or in completion order when not
     ``ordered`` (the caller sorts). ``jobs == -1`` lets the active joblib backend choose the workers."""
-    if (jobs > 1 or jobs == -1) and len(args) > 1:
+    if not in_process(jobs, len(args)):
         n_jobs = -1 if jobs == -1 else min(jobs, len(args))
         calls: Iterable = (delayed(fn)(*a) for a in args)
         return iter(Parallel(n_jobs=n_jobs, return_as="generator" if ordered else "generator_unordered")(calls))

@@ -18,7 +18,7 @@ import pyarrow as pa
 from pipeline import schema
 from pipeline.atomic import all_or_none
 from pipeline.methods import METHOD_ORDER
-from pipeline.parallel import run_calls
+from pipeline.parallel import in_process, run_calls
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.soft import SoftTracker, SoftTrackingParams
@@ -168,9 +168,10 @@ def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot
     return TrackResult(run, tracks, source, diag)
 
 
-def _track_one(run: str, contacts: schema.RunContacts, config: TrackConfig, seed: int) -> TrackResult:
-    # Worker entry point: each process loads the robot grid once per run (a millisecond cache read).
-    return track_run(run, contacts, config, load_robot(config.robot), seed)
+def _track_one(run: str, contacts: schema.RunContacts, config: TrackConfig, seed: int, robot=None) -> TrackResult:
+    # In a worker process `robot` is None and the grid is read from its cache (a millisecond) rather than pickled
+    # with every run; in this process it is loaded once for all runs.
+    return track_run(run, contacts, config, robot if robot is not None else load_robot(config.robot), seed)
 
 
 def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 1,
@@ -199,7 +200,8 @@ def track_table(table: pa.Table, config: TrackConfig, *, seed: int, jobs: int = 
         raise ValueError(f"the contacts table has column(s) {', '.join(map(repr, clash))}, which the tracks table "
                          "writes itself; rename them")
     runs = schema.contacts_by_run(table)
-    results = run_calls(_track_one, [(run, rc, config, seed) for run, rc in runs], jobs)
+    robot = load_robot(config.robot) if in_process(jobs, len(runs)) else None
+    results = run_calls(_track_one, [(run, rc, config, seed, robot) for run, rc in runs], jobs)
     if progress is not None:
         results = progress(results, total=len(runs))
     results = list(results)
