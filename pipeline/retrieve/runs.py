@@ -86,31 +86,42 @@ def load_run(path: str | Path) -> RunInfo:
                    final_poses=final, target_id=tid, target=prim)
 
 
+def _run_name(f: Path) -> str | None:
+    """The run a collected run file holds (its first ``run``), or None for a Parquet file of another table kind;
+    SchemaError for a file that is not Parquet or has no rows."""
+    try:
+        names = pq.read_schema(f).names
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+        raise schema.SchemaError(f, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
+    if "run" not in names or "obj_pose" not in names:
+        return None
+    try:
+        runs = pq.read_table(f, columns=["run"]).column("run")
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
+        raise schema.SchemaError(f, None, None, f"unreadable ({' '.join(str(e).split())})") from None
+    if not len(runs):
+        raise schema.SchemaError(f, None, None, "has no actions; expected at least one row (a run file written by "
+                                                "stucco collect)")
+    return runs[0].as_py()
+
+
 def run_files_by_name(directory: str | Path) -> dict[str, Path]:
     """Run name -> collected run file, for every ``*.parquet`` in ``directory`` (non-recursive), or for the one
     run file ``directory`` names."""
+    # Only the `run` column is read here; the whole file is validated once, when load_run reads it.
     directory = Path(directory)
     if directory.is_file():
-        runs = schema.read_run(directory).column("run")
-        return {runs[0].as_py(): directory}
+        name = _run_name(directory)
+        if name is None:
+            schema.read_run(directory)  # another table kind: raises the one-line error naming it
+        return {name: directory}
     if not directory.is_dir():
         raise ValueError(f"{directory}: not a directory of collected runs (nor a run file)")
     out: dict[str, Path] = {}
     for f in sorted(directory.glob("*.parquet")):
-        try:
-            names = pq.read_schema(f).names
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
-            raise schema.SchemaError(f, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
-        if "run" not in names or "obj_pose" not in names:
+        name = _run_name(f)
+        if name is None:
             continue  # another table kind living in the same directory
-        try:
-            runs = pq.read_table(f, columns=["run"]).column("run")
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
-            raise schema.SchemaError(f, None, None, f"unreadable ({' '.join(str(e).split())})") from None
-        if not len(runs):
-            raise schema.SchemaError(f, None, None, "has no actions; expected at least one row (a run file written "
-                                                    "by stucco collect)")
-        name = runs[0].as_py()
         if name in out:
             raise ValueError(f"{directory}: run {name!r} is in both {out[name].name} and {f.name}")
         out[name] = f
