@@ -198,9 +198,6 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
     the tracking method recorded there decides what ``by="auto"`` means. Returns the segments table.
     """
     tracks = schema.read_tracks(in_path)
-    if "segment" in tracks.column_names:
-        raise schema.SchemaError(in_path, "segment", None, "present: this is a segments table; expected a tracks "
-                                                           "table (the output of stucco track)")
     tparams = schema.read_metadata(in_path).get("params") or {}
     length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))
     alpha = float(alpha if alpha is not None else tparams.get("alpha", DEFAULT_ALPHA))

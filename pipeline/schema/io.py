@@ -88,17 +88,23 @@ def read_parquet(path: str | os.PathLike) -> pa.Table:
 def read_table(path: str | os.PathLike, kind: str) -> pa.Table:
     """Read and validate a Parquet file of table kind `kind`; see :func:`validate_table`.
 
-    A file whose provenance says it is another table kind (``stucco.schema``, e.g. a segments file given where a
-    tracks file is expected) is refused by name before its columns are looked at.
+    A file of another table kind (e.g. a segments file given where a tracks file is expected) is refused by name:
+    before its columns are checked when its provenance records the kind (``stucco.schema``); otherwise (a file
+    written by other tools) when its columns, though valid for `kind`, are those of another kind
+    (:func:`_infer_kind`: a segments table holds every tracks column).
     """
     table = read_parquet(path)
     raw = table.schema.metadata or {}
-    found = raw.get(b"stucco.schema", b"").decode(errors="replace")
-    if found and found != kind and found in TABLES:
+    recorded = raw.get(b"stucco.schema", b"").decode(errors="replace")
+    if recorded != kind and recorded in TABLES:
         stage = raw.get(b"stucco.stage", b"").decode(errors="replace")
-        raise SchemaError(path, None, None, f"is a {found} table{f' (written by stucco {stage})' if stage else ''}; "
+        raise SchemaError(path, None, None, f"is a {recorded} table{f' (written by stucco {stage})' if stage else ''}; "
                                             f"expected a {kind} table")
-    return validate_table(table, kind, path)
+    valid = validate_table(table, kind, path)
+    inferred = _infer_kind(table.column_names)
+    if recorded not in TABLES and inferred != kind and inferred in TABLES:
+        raise SchemaError(path, None, None, f"has the columns of a {inferred} table; expected a {kind} table")
+    return valid
 
 
 def read_contacts(path: str | os.PathLike) -> pa.Table:
