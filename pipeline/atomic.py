@@ -22,6 +22,11 @@ class FolderBusy(RuntimeError):
     """Another process holds the folder's lock (the message names the folder and the holder's pid)."""
 
 
+def _temporary(path: Path) -> Path:
+    """A hidden name beside `path`, unique to this process and call, ending in ``.tmp``."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Path]:
     """Yield a temporary path to write `path`'s new content to; on success it is renamed onto `path`.
@@ -35,7 +40,7 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    tmp = _temporary(path)
     try:
         yield tmp
         if fsync:
@@ -59,7 +64,7 @@ def all_or_none(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
     targets = [Path(p) for p in paths]
     if len(set(targets)) != len(targets):
         raise ValueError(f"two outputs share one path: {sorted(str(t) for t in targets)}")
-    tmps = [t.with_name(f".{t.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp") for t in targets]
+    tmps = [_temporary(t) for t in targets]
     for t in targets:
         t.parent.mkdir(parents=True, exist_ok=True)
     try:
