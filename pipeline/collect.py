@@ -31,7 +31,7 @@ import pyarrow as pa
 
 from pipeline.geometry import gripper_yaw
 from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
-from pipeline.parallel import run_calls
+from pipeline.parallel import map_jobs
 from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
@@ -425,11 +425,8 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
                   keep_discarded=keep_discarded)
     args = [(scene, s, output_path(out_dir, scene.name, s)) for s in seeds]
     bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
-    results: list[CollectResult] = []
     try:
-        for r in run_calls(job, args, jobs, ordered=False):
-            results.append(r)
-            bar.update()
+        results = map_jobs(job, args, jobs, bar)
     finally:
         bar.close()
     return sorted(results, key=lambda r: r.seed)

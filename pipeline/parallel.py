@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 
 from joblib import Parallel, delayed
 
-__all__ = ["run_calls", "in_process"]
+__all__ = ["run_calls", "in_process", "map_jobs"]
 
 
 def in_process(jobs: int, n_calls: int) -> bool:
@@ -26,3 +26,14 @@ def run_calls(fn: Callable, args: Sequence[tuple], jobs: int, *, ordered: bool =
         calls: Iterable = (delayed(fn)(*a) for a in args)
         return iter(Parallel(n_jobs=n_jobs, return_as="generator" if ordered else "generator_unordered")(calls))
     return (fn(*a) for a in args)
+
+
+def map_jobs(fn: Callable, args: Sequence[tuple], jobs: int, bar) -> list:
+    """``fn(*a)`` for every ``a`` (:func:`run_calls`), results in completion order; ``bar`` (a tqdm bar) advances
+    by one per finished call. ``jobs == -1``: the active joblib backend decides (e.g. a Dask cluster's workers,
+    :func:`pipeline.evaluate.parallel_backend`)."""
+    out = []
+    for r in run_calls(fn, args, jobs, ordered=False):
+        out.append(r)
+        bar.update()
+    return out

@@ -26,12 +26,13 @@ from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES
                                       parse_scenes)
 from pipeline.evaluate.freshness import stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_run, run_job
-from pipeline.evaluate.parallel import BACKENDS, map_jobs, parallel_backend, single_threaded
+from pipeline.evaluate.parallel import BACKENDS, parallel_backend, single_threaded
 from pipeline.evaluate.regression import SNAPSHOT_SCORE_COLUMNS, snapshot, write_snapshot
 from pipeline.evaluate.results import gather_scores, read_kind, write_report
 from pipeline.evaluate.run import Evaluation, evaluate
 from pipeline.evaluate.stages import STAGE_COLUMNS
 from pipeline.layout import CONFIG, KINDS, PART, STAGES, WALL, partition
+from pipeline.parallel import map_jobs
 
 __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGES", "STAGE_COLUMNS", "PART", "WALL",
            "CONFIG", "EvalConfig", "Job", "JobResult", "Evaluation", "parse_scenes", "parse_methods", "partition",

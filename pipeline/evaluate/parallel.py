@@ -1,18 +1,15 @@
 """Where jobs run: local processes (joblib/loky) or a Dask cluster across jobs, one thread per library inside one.
 
 Parallelism is over jobs (docs/evaluation.md, "Parallelism"; docs/studies.md, "Beyond one machine"); the studies
-(:mod:`pipeline.study`) use the same :func:`map_jobs` and :func:`single_threaded`.
+(:mod:`pipeline.study`) use the same :func:`pipeline.parallel.map_jobs` and :func:`single_threaded`.
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Callable
 
 from joblib import parallel_config
 
-from pipeline.parallel import run_calls
-
-__all__ = ["BACKENDS", "parallel_backend", "map_jobs", "single_threaded"]
+__all__ = ["BACKENDS", "parallel_backend", "single_threaded"]
 
 #: Values of ``--backend``.
 BACKENDS = ("loky", "dask")
@@ -20,10 +17,10 @@ BACKENDS = ("loky", "dask")
 
 @contextmanager
 def parallel_backend(backend: str = "loky", scheduler: str | None = None):
-    """Where :func:`map_jobs` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's Dask backend on the
+    """Where :func:`~pipeline.parallel.map_jobs` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's Dask backend on the
     ``distributed`` scheduler at ``scheduler``, e.g. ``tcp://10.0.0.5:8786``; the optional extra
     ``stucco[dask]``). Job functions write their own files under the evaluation directory, so Dask workers
-    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`map_jobs` for Dask (-1: every
+    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`~pipeline.parallel.map_jobs` for Dask (-1: every
     worker of the cluster), or None for loky."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
@@ -43,19 +40,6 @@ def parallel_backend(backend: str = "loky", scheduler: str | None = None):
     with Client(scheduler) as client, parallel_config(backend="dask", wait_for_workers_timeout=60):
         client.wait_for_workers(1, timeout=60)
         yield -1
-
-
-def map_jobs(fn: Callable, args: list[tuple], jobs: int, bar) -> list:
-    """fn(*a) for every a, in ``jobs`` processes (joblib/loky) or in this one; results in completion order.
-
-    ``jobs == -1``: the active joblib backend decides (the Dask cluster's workers, :func:`parallel_backend`).
-    ``bar`` (a tqdm bar) advances by one per finished call.
-    """
-    out = []
-    for r in run_calls(fn, args, jobs, ordered=False):
-        out.append(r)
-        bar.update()
-    return out
 
 
 @contextmanager

@@ -18,10 +18,11 @@ from pipeline.atomic import exclusive
 from pipeline.evaluate.config import EvalConfig, Job, check_config
 from pipeline.evaluate.freshness import figure_stale, run_stale, stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_one, run_job
-from pipeline.evaluate.parallel import map_jobs, parallel_backend
+from pipeline.evaluate.parallel import parallel_backend
 from pipeline.evaluate.results import gather_scores, write_report
 from pipeline.figures import figure_path, run_figure, summary_figure
 from pipeline.layout import LOCK, partition
+from pipeline.parallel import map_jobs
 from pipeline.report import table_ii
 from pipeline.retrieve import load_run, run_files_by_name
 
