@@ -53,6 +53,7 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
     if json_path is not None:
         writable_file("--json", json_path)
     from pipeline.anchors import check_streams
+    from pipeline.atomic import write_text
     from pipeline.bench import check_reference, track_bench
 
     with user_errors("bench track"):
@@ -62,8 +63,7 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
         res = track_bench(ts, ns, repeats=repeats, acc_seeds=accuracy_seeds, streams=streams,
                           reference_python=reference_python, methods=method_list, echo=click.echo)
     if json_path:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(res, indent=1))
+        write_text(json_path, json.dumps(res, indent=1))  # atomically, like every other output
 
 
 def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[float, ...]:

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.atomic import atomic_path
 from pipeline.robot.grid import GridSDF
 from pipeline.robot.panda_mesh import PYBULLET_COLLISION_MARGIN, build_panda_grid, builder_digest
 
@@ -33,18 +33,9 @@ def _panda_cache_path(resolution: float, cache_dir: str | os.PathLike | None, co
 
 def _write_atomic_npz(path: Path, **arrays: np.ndarray) -> None:
     """Write ``arrays`` to the ``.npz`` file ``path`` through a temporary file in the same directory."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)  # atomic: concurrent workers see either no file or a complete one
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    # atomic: concurrent workers see either no file or a complete one
+    with atomic_path(path) as tmp, open(tmp, "xb") as f:
+        np.savez(f, **arrays)
 
 
 def _read_grid_npz(path: Path) -> GridSDF:

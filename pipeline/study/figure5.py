@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import pyarrow as pa
 
+from pipeline.atomic import save_figure
 from pipeline.methods import METHOD_ORDER
 from pipeline.study.tables import percentile_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
@@ -84,7 +85,4 @@ def fig5(summary: dict[str, dict[str, dict]], path: str | Path, min_ambiguity: f
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

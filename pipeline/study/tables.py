@@ -8,14 +8,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pcsv
 
+from pipeline.atomic import atomic_path
+
 __all__ = ["write_csv", "median_of", "mean_of", "percentile_of"]
 
 
 def write_csv(table: pa.Table, path: Path) -> None:
     """``table`` as CSV at ``path`` (pyarrow's writer), written to a temporary name and renamed."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    pcsv.write_csv(table, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        pcsv.write_csv(table, tmp)
 
 
 def median_of(v: list) -> float:
