@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 ANCHORS ?= data/anchors
 
-.PHONY: setup syslibs quick reproduce test bench clean
+.PHONY: setup syslibs lock quick reproduce test bench clean
 
 setup: syslibs $(STAMP)
 
@@ -18,16 +18,25 @@ syslibs:
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
 	fi
 
-# Reinstall only when the package metadata changes.
-$(STAMP): pyproject.toml
+# Reinstall only when the package metadata or the lock changes. requirements.lock pins every distribution (the
+# full transitive set), so every machine runs the same numpy/scipy/Open3D/numba and computes the same numbers.
+$(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
+	$(BIN)/pip install -q -c requirements.lock -e '.[dev]'
 	@echo "compiling the tracker's numba kernels once (cached on disk; about 30 s, never booked as tracking time)"
 	$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()"
 	@touch $(STAMP)
 
 # FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
+# Refresh the lock: resolve pyproject.toml's ranges afresh in a throw-away venv and pin what was installed.
+lock:
+	rm -rf .lock-venv && $(PYTHON) -m venv .lock-venv
+	.lock-venv/bin/pip install -q --upgrade pip && .lock-venv/bin/pip install -q -e '.[dev]'
+	{ sed -n '1,3p' requirements.lock; .lock-venv/bin/pip freeze --exclude-editable; } > requirements.lock.new
+	mv requirements.lock.new requirements.lock && rm -rf .lock-venv
+	@echo "requirements.lock refreshed; 'make setup' installs it (review the diff, rerun make test)"
+
 quick: setup
 	$(BIN)/stucco --seed 0 evaluate --quick --jobs 2
 

@@ -20,6 +20,7 @@ and effects give byte-identical files.
 """
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -281,7 +282,7 @@ def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> 
     for _ in range(10000):
         start = rng.uniform(lo, hi, 2)
         goal = rng.uniform(lo, hi, 2)
-        if np.linalg.norm(start - goal) < walk.min_start_goal_distance:
+        if math.hypot(*(start - goal)) < walk.min_start_goal_distance:
             continue
         if world.touches(*goal) or world.touches(*start):
             continue
@@ -352,7 +353,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
                 u = actions[k]
             else:
                 x = world.gripper_pose()[0][:2]
-                if np.linalg.norm(x - goal) < walk.goal_tolerance:
+                if math.hypot(*(x - goal)) < walk.goal_tolerance:
                     break
                 if last_contact:
                     remaining = walk.walk_length

@@ -9,6 +9,10 @@ Boxes and upright cylinders have one cross-section over their height, so a :clas
 gripper plane) is the whole shape for contact purposes (docs/retrieval.md). A primitive's pose is the body's
 inertial (COM) frame ``(x, y, yaw)``, the frame of the recorded ``obj_pose`` (docs/simulation.md, "Scenes are
 data").
+
+Rotations are applied element-wise (:func:`rotate`), never as matrix products: numpy's ``@`` goes through
+OpenBLAS, whose kernels (and so whose last bits) change with the CPU (docs/evaluation.md, "Same numbers on every
+machine").
 """
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["wrap_angle", "rot2", "rots2", "rotate", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
+__all__ = ["wrap_angle", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
            "primitive_sdf", "primitive_of"]
 
 
@@ -53,11 +57,17 @@ def rotate(v: np.ndarray, yaw, inverse: bool = False) -> np.ndarray:
     return np.stack([c * x - s * y, s * x + c * y], axis=-1)
 
 
+def dot2(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Dot products (...) of 2-vectors along the last axis, broadcast: v_x w_x + v_y w_y (element-wise, not BLAS)."""
+    v = np.asarray(v, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    return v[..., 0] * w[..., 0] + v[..., 1] * w[..., 1]
+
+
 def apply_pose(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """World coordinates of frame points: pose (..., 3) as (x, y, yaw), pts (..., N, 2) -> (..., N, 2), metres."""
     pose = np.asarray(pose, dtype=np.float64)
-    R = rots2(pose[..., 2])
-    return np.einsum("...ij,...nj->...ni", R, pts) + pose[..., None, :2]
+    return rotate(np.asarray(pts, dtype=np.float64), pose[..., None, 2]) + pose[..., None, :2]
 
 
 def quat_yaw(q) -> float:
@@ -118,13 +128,13 @@ class Primitive:
     def centre_world(self, pose: np.ndarray) -> np.ndarray:
         """World position (..., 2) of the primitive centre for COM poses (..., 3)."""
         pose = np.asarray(pose, dtype=np.float64)
-        return np.einsum("...ij,j->...i", rots2(pose[..., 2]), self.centre) + pose[..., :2]
+        return rotate(np.broadcast_to(self.centre, pose[..., :2].shape), pose[..., 2]) + pose[..., :2]
 
     def signed_distance(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """Signed distance (m, negative inside) of world points (N, 2) to the primitive at COM pose (3,)."""
         pose = np.asarray(pose, dtype=np.float64)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        q = (pts - self.centre_world(pose)) @ rot2(float(pose[2]) + self.yaw)
+        q = rotate(pts - self.centre_world(pose), float(pose[2]) + self.yaw, inverse=True)
         return primitive_sdf(self, q)[0]
 
     def canonical(self, pose: np.ndarray) -> np.ndarray:
@@ -140,7 +150,7 @@ class Primitive:
         else:
             sym = self.symmetry
             yaw = float((pose[2] + sym / 2) % sym - sym / 2)
-        xy = c - rot2(yaw) @ self.centre
+        xy = c - rotate(self.centre, yaw)
         return np.array([xy[0], xy[1], yaw])
 
 
@@ -182,6 +192,6 @@ def primitive_of(spec) -> Primitive:
     so = np.asarray(getattr(spec, "shape_offset", (0.0, 0.0)), dtype=np.float64)
     com = np.asarray(getattr(spec, "com_offset", (0.0, 0.0, 0.0))[:2], dtype=np.float64)
     com_yaw = float(getattr(spec, "com_yaw", 0.0))
-    centre = rot2(-com_yaw) @ (so - com)
+    centre = rotate(so - com, -com_yaw)
     return Primitive(kind=kind, half=tuple(float(h) for h in half), centre=centre,
                      yaw=float(getattr(spec, "shape_yaw", 0.0)) - com_yaw, name=spec.name)

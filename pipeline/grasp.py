@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.geometry import Primitive, primitive_of, quat_yaw, rot2
+from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "judge_box", "judge_can",
            "restore_world", "FingerContacts", "PLANS"]
@@ -279,11 +279,11 @@ def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
         if problem:
             return False, problem
         n = f.normals / np.maximum(np.linalg.norm(f.normals, axis=1, keepdims=True), 1e-12)
-        along = n @ ax
+        along = dot2(n, ax)
         if not (np.all(np.abs(along) >= cos_max) and (np.all(along > 0) or np.all(along < 0))):
             return False, f"finger {k} is not on a long face (contact normals at " \
                           f"{np.degrees(np.arccos(np.clip(np.abs(along).min(), 0, 1))):.0f} deg from its normal)"
-        y = float(np.mean((f.points - centre) @ ay))
+        y = float(np.mean(dot2(f.points - centre, ay)))
         if abs(y) > target.half[1] - params.corner_margin:
             return False, f"finger {k} is on a corner ({abs(y) * 100:.1f} cm from the centre of a " \
                           f"{target.half[1] * 200:.1f} cm face)"
@@ -317,7 +317,7 @@ def judge_can(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
         Unit direction the fingers point (world).
     """
     centre = target.centre_world(np.asarray(pose, dtype=np.float64))
-    a = np.asarray(approach, dtype=np.float64) / np.linalg.norm(approach)
+    a = np.asarray(approach, dtype=np.float64) / math.hypot(*approach)
     b = np.array([-a[1], a[0]])
     cos_max = math.cos(math.radians(params.can_angle_deg))
     sides = []
@@ -326,14 +326,14 @@ def judge_can(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
         if problem:
             return False, problem
         m = f.normals.mean(axis=0)
-        m = m / max(np.linalg.norm(m), 1e-12)
-        if abs(m @ b) < cos_max:
-            return False, f"finger {k} touches the can {np.degrees(np.arccos(min(abs(m @ b), 1))):.0f} deg " \
+        m = m / max(math.hypot(*m), 1e-12)
+        if abs(dot2(m, b)) < cos_max:
+            return False, f"finger {k} touches the can {np.degrees(np.arccos(min(abs(dot2(m, b)), 1))):.0f} deg " \
                           f"off the closing axis (less than half enclosed)"
-        sides.append(np.sign(m @ b))
+        sides.append(np.sign(dot2(m, b)))
     if sides[0] == sides[1]:
         return False, "both fingers on the same side of the can"
-    depth = float((centre - np.asarray(base, dtype=np.float64)) @ a)
+    depth = float(dot2(centre - np.asarray(base, dtype=np.float64), a))
     if not (PAD_FROM_BASE[0] <= depth <= PAD_FROM_BASE[1]):
         return False, f"can centre {depth * 100:.1f} cm ahead of the base, outside the finger pads " \
                       f"[{PAD_FROM_BASE[0] * 100:.1f}, {PAD_FROM_BASE[1] * 100:.1f}] cm"
@@ -374,13 +374,13 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
         for _ in range(params.max_moves):
             cur = world.gripper_pose()[0][:2]
             d = pre - cur
-            if np.linalg.norm(d) < params.reach_tolerance:
+            if math.hypot(*d) < params.reach_tolerance:
                 reached = True
                 break
             u = np.clip(d / scale, -1.0, 1.0)
             world.act(float(u[0] * scale), float(u[1] * scale))
         else:
-            reached = bool(np.linalg.norm(pre - world.gripper_pose()[0][:2]) < params.reach_tolerance)
+            reached = bool(math.hypot(*(pre - world.gripper_pose()[0][:2])) < params.reach_tolerance)
         # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
         world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
         world.act(0.0, 0.0)

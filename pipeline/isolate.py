@@ -23,7 +23,8 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.geometry import gripper_yaw, rot2
+from pipeline.geometry import gripper_yaw, rotate
+from pipeline.portable import argmin_tolerant
 from pipeline.robot import load_robot, surface_points
 
 __all__ = [
@@ -38,6 +39,10 @@ __all__ = [
     "isolate_file",
     "IsolationResult",
 ]
+
+#: Torque errors (N m) closer than this are a tie between surface points (the lower index wins): far above the
+#: last-bit differences between CPUs (~1e-16 N m), far below the errors that separate points 1 mm apart.
+TORQUE_TIE_NM = 1e-9
 
 
 @dataclass(frozen=True)
@@ -102,7 +107,8 @@ def residual(w: np.ndarray, sigma_inv: tuple[float, ...] = DetectionParams.sigma
         NaN where the wrench is NaN (not computed).
     """
     w = np.asarray(w, dtype=np.float64)
-    return np.einsum("...i,i,...i->...", w, np.asarray(sigma_inv, dtype=np.float64), w)
+    # Element-wise and summed in a fixed order (no einsum/BLAS): a residual near the threshold is a decision.
+    return np.sum(w * np.asarray(sigma_inv, dtype=np.float64) * w, axis=-1)
 
 
 def step_in_contact(w: np.ndarray, params: DetectionParams = DetectionParams()) -> np.ndarray:
@@ -181,7 +187,8 @@ def isolate_point(forces: np.ndarray, torques: np.ndarray, points: np.ndarray, n
     fn = np.linalg.norm(forces, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         # cos of the angle between each normal and each -F_k: (P, K)
-        cos = -(normals @ forces.T) / np.where(fn > 0, fn, np.nan)[None, :]
+        dots = normals[:, None, 0] * forces[None, :, 0] + normals[:, None, 1] * forces[None, :, 1]
+        cos = -dots / np.where(fn > 0, fn, np.nan)[None, :]
     ok = np.nan_to_num(cos, nan=-2.0) > cos_lim
     # expected torque of a contact at r: tau_z = -r_y F_x + r_x F_y  (P, K)
     tau = -points[:, 1:2] * forces[None, :, 0] + points[:, 0:1] * forces[None, :, 1]
@@ -191,7 +198,8 @@ def isolate_point(forces: np.ndarray, torques: np.ndarray, points: np.ndarray, n
         if valid.any():
             e = err[:, start:].sum(axis=1)
             e = np.where(valid, e, np.inf)
-            return int(np.argmin(e))
+            # Neighbouring surface points can fit within rounding of each other: ties go to the lower index.
+            return argmin_tolerant(e, TORQUE_TIE_NM)
     return None
 
 
@@ -270,14 +278,13 @@ def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionPa
         if len(idx):
             last = idx[-1]
             yaw = gripper_yaw(pose[i, last, 3:])
-            rot = rot2(yaw)
             # express the forces in the gripper's frame (world axes when the gripper is not turned)
-            f = win[i, idx, :2] @ rot
+            f = rotate(win[i, idx, :2], yaw, inverse=True)
             k = isolate_point(f, win[i, idx, 5], points, normals, iso.friction_cone_deg)
             if k is None:
                 unisolated += 1
             else:
-                point = pose[i, last, :2] + rot @ points[k]
+                point = pose[i, last, :2] + rotate(points[k], yaw)
                 t = truth[i, last]
                 if np.all(np.isfinite(t)):
                     errors.append(float(np.hypot(*(point - t))))

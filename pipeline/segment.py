@@ -6,6 +6,8 @@ is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an expo
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -32,7 +34,7 @@ def connection_radius(length: float, alpha: float) -> float:
         return 0.0
     if alpha <= 0.0:
         return np.inf
-    return float(np.sqrt(length * np.log(1.0 / alpha)))
+    return math.sqrt(length * math.log(1.0 / alpha))
 
 
 def segment_points(points: np.ndarray, length: float, alpha: float) -> np.ndarray:

@@ -16,6 +16,7 @@ from pipeline.atomic import write_text
 from pipeline.evaluate.config import Job
 from pipeline.evaluate.stages import STAGE_COLUMNS
 from pipeline.layout import FLAT, KINDS, PER_ESTIMATOR, SHARED, partition
+from pipeline.environment import environment_line
 from pipeline.report import claims, table_ii, to_csv, to_markdown
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR
 from pipeline.score import SCORES_COLUMNS, read_scores
@@ -80,6 +81,7 @@ def write_report(out: str | Path, scores: pa.Table) -> tuple[Path, Path]:
     notes = claims(rows)
     if notes:
         md += "\n" + "\n".join(f"- {n}" for n in notes) + "\n"
+    md += f"\nComputed with {environment_line()} (requirements.lock).\n"
     paths = (Path(out) / "report.md", Path(out) / "report.csv")
     for path, text in zip(paths, (md, to_csv(rows))):
         write_text(path, text)

@@ -19,7 +19,8 @@ from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
-from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
+from pipeline.portable import tie_key
+from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",
@@ -131,8 +132,6 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     ``icp_rmse_m`` = RMS distance of the points to the surface, ``valid`` = in the plausible set,
     ``position_var_m2`` = squared spread of the agreeing poses, ``rank`` by cost).
     """
-    import open3d  # noqa: F401  (imported before the clock starts, as the paper's estimator does)
-
     t0 = time.perf_counter()
     paper = estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
     if paper.segment < 0:
@@ -155,7 +154,7 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     fit = fit_segment(target, pts, recency_sigma(seg.steps, plausible), free, others, plausible, rngs[2], seeds)
     c = fit.chosen
     B = len(fit.poses)
-    order = np.argsort(fit.terms.total, kind="stable")
+    order = np.lexsort((np.arange(B), tie_key(fit.terms.total, COST_TIE)))  # last-bit ties: by index
     rank = np.empty(B, dtype=np.int64)
     rank[order] = np.arange(B)
     candidates = {

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from pipeline.portable import exp
 from pipeline.retrieve.plausible import PlausibleParams
 
 __all__ = ["recency_sigma", "gripper_lattice", "free_space_points"]
@@ -24,7 +25,7 @@ def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
     later = len(distinct) - np.searchsorted(distinct, steps, side="right")
     # log-space power, so a long history overflows to the cap, never to inf * 0.
     log_sigma = math.log(params.contact_sigma) + later * math.log(params.recency_growth)
-    return np.exp(np.minimum(log_sigma, math.log(params.max_sigma)))
+    return exp(np.minimum(log_sigma, math.log(params.max_sigma)))
 
 
 def gripper_lattice(sdf, resolution: float) -> np.ndarray:

@@ -1,22 +1,28 @@
-"""Planar ICP of a segment's points onto the target's model points from many restarts (Open3D), never mirrored.
+"""Planar ICP of a segment's points onto the target's model points from many restarts, in SE(2).
 
-With every point at one height, Open3D's point-to-point ICP can return a rotation by pi about an in-plane axis,
-a mirror image of the plane. Both clouds are given twice, at z = 0 and at z = h with h larger than the clouds:
-correspondences never cross layers, the z-block of the cross-covariance dominates every in-plane singular
-value, and Kabsch/Umeyama can only return a rotation about z with a proper in-plane part. Every result is still
-projected to SE(2) and checked; one that is not a rotation about z is marked invalid (docs/retrieval.md).
+Point-to-point ICP as Open3D's ``registration_icp`` runs it (nearest model point within the correspondence
+radius; the closed-form best rigid transform of the pairs; stop when fitness and inlier RMSE change by less than
+1e-9 or after ``max_iteration``), optionally followed by point-to-plane ICP onto the model's normals (the
+linearised step of Open3D's point-to-plane estimator, restricted to the plane). It is written here, in SE(2),
+batched over the restarts: Open3D's ICP (its own TBB threads and SIMD kernels) did not give the same bits twice
+on one machine, let alone across CPUs, and a 3-D ICP of planar points needs guarding against mirrored results.
+Nearest neighbours come from scipy's cKDTree; every sum runs in a fixed order and every angle through
+:mod:`pipeline.portable`, so the result is the same on every x86-64 CPU (docs/evaluation.md, "Same numbers on
+every machine").
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from pipeline.geometry import rot2, rots2, wrap_angle
+from pipeline.geometry import rotate, wrap_angle
+from pipeline.portable import atan2
 from pipeline.retrieve.params import RetrievalParams
+from pipeline.spd import solve_spd
 
-__all__ = ["IcpResult", "initial_transforms", "layer_height", "icp_error", "icp_restarts"]
+__all__ = ["IcpResult", "initial_transforms", "icp_error", "icp_restarts"]
 
 
 @dataclass(frozen=True)
@@ -33,7 +39,7 @@ class IcpResult:
         ICP error (:func:`icp_error`): root mean square over all points of the distance to the nearest model
         point (point-to-point) or of that distance along its normal (point-to-plane).
     valid : ndarray, shape (B,), bool
-        The Open3D result was a finite rotation about z (checked before projecting to SE(2)).
+        ICP left the points within ``max_point_distance`` (median) of the model points.
     """
 
     world_to_model: np.ndarray
@@ -56,45 +62,8 @@ def initial_transforms(points: np.ndarray, model: np.ndarray, n: int, rng: np.ra
     lo, hi = model.min(axis=0), model.max(axis=0)
     anchor = lo + rng.uniform(0.0, 1.0, (n, 2)) * (hi - lo)
     c = np.asarray(points, dtype=np.float64).mean(axis=0)
-    t = anchor - np.einsum("bij,j->bi", rots2(theta), c)
+    t = anchor - rotate(np.broadcast_to(c, (n, 2)), theta)
     return np.column_stack([t, theta])
-
-
-def _matrix(tf: np.ndarray) -> np.ndarray:
-    """4x4 homogeneous matrix of a planar (tx, ty, theta)."""
-    T = np.eye(4)
-    T[:2, :2] = rot2(float(tf[2]))
-    T[:2, 3] = tf[:2]
-    return T
-
-
-def _layered_cloud(pts: np.ndarray, h: float, normals: np.ndarray | None = None, floor: bool = False):
-    """Open3D cloud of planar points (N, 2) copied at z = 0 and z = h (and z = -h with ``floor``); with
-    ``normals`` (N, 2) the first two copies get them (horizontal) and the floor copy gets +z."""
-    import open3d as o3d
-
-    heights = (0.0, h, -h) if floor else (0.0, h)
-    xyz = np.vstack([np.column_stack([pts, np.full(len(pts), z)]) for z in heights])
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
-    if normals is not None:
-        n3 = np.column_stack([normals, np.zeros(len(normals))])
-        up = np.tile([0.0, 0.0, 1.0], (len(normals), 1))
-        cloud.normals = o3d.utility.Vector3dVector(np.vstack([n3, n3] + ([up] if floor else [])))
-    return cloud
-
-
-def layer_height(points: np.ndarray, model: np.ndarray) -> float:
-    """Height (m) of the second copy of both clouds.
-
-    Point-to-point: the z-entry of the cross-covariance is M h^2 / 2 and every in-plane singular value is at
-    most 2 M S T (S, T: largest distance of a point from its cloud's centroid), so h > 2 sqrt(S T) keeps the z
-    axis the dominant, never-reflected direction; h = max(1, 4 (S + T)) >= 8 sqrt(S T) leaves a wide margin.
-    Point-to-plane: the model normals are horizontal, so a tilt of the source would move its two layers
-    differently and only add residual; the same h serves.
-    """
-    s = float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1))) if len(points) else 0.0
-    t = float(np.max(np.linalg.norm(model - model.mean(axis=0), axis=1)))
-    return max(1.0, 4.0 * (s + t))
 
 
 def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
@@ -106,7 +75,7 @@ def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
     ICP minimises), but at least the distance to that point minus half the largest gap between neighbouring
     model points, so that a point slid past the end of a face (which the normal does not see) still counts.
     """
-    moved = np.einsum("bij,mj->bmi", rots2(world_to_model[:, 2]), points) + world_to_model[:, None, :2]
+    moved = rotate(points[None, :, :], world_to_model[:, 2, None]) + world_to_model[:, None, :2]
     diff = moved[:, :, None, :] - model[None, None, :, :]  # (B, M, N, 2)
     nearest = np.argmin(np.sum(diff ** 2, axis=-1), axis=2)  # (B, M)
     d = np.take_along_axis(diff, nearest[..., None, None], axis=2)[:, :, 0, :]  # (B, M, 2)
@@ -121,9 +90,88 @@ def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
     return np.sqrt(r2.mean(axis=1))
 
 
+def _correspond(tree: cKDTree, moved: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest model point of each moved point (B, M, 2) within ``radius``: (index (B, M), matched (B, M) bool)."""
+    d, idx = tree.query(moved.reshape(-1, 2), k=1)
+    idx = np.minimum(idx, tree.n - 1).reshape(moved.shape[:2])
+    return idx, (d <= radius).reshape(moved.shape[:2])
+
+
+def _fit_stats(moved: np.ndarray, target: np.ndarray, matched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Open3D's fitness (matched share) and inlier RMSE (metres) of B restarts, each (B,)."""
+    r2 = np.where(matched, np.sum((moved - target) ** 2, axis=-1), 0.0)
+    n = matched.sum(axis=1)
+    return n / matched.shape[1], np.sqrt(np.sum(r2, axis=1) / np.maximum(n, 1))
+
+
+def _point_to_point(points: np.ndarray, target: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """Closed-form rigid transforms (B, 3) (tx, ty, theta) taking points (M, 2) onto their matched targets
+    (B, M, 2): the 2-D Kabsch/Umeyama solution, theta = atan2 of the summed cross and dot products."""
+    w = matched.astype(np.float64)
+    n = np.maximum(w.sum(axis=1), 1.0)[:, None]
+    p_mean = np.sum(w[..., None] * points[None], axis=1) / n
+    q_mean = np.sum(w[..., None] * target, axis=1) / n
+    p = points[None] - p_mean[:, None, :]
+    q = target - q_mean[:, None, :]
+    cross = np.sum(w * (p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0]), axis=1)
+    dot = np.sum(w * (p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1]), axis=1)
+    theta = atan2(cross, dot)
+    return np.column_stack([q_mean - rotate(p_mean, theta), theta])
+
+
+def _point_to_plane_step(moved: np.ndarray, target: np.ndarray, normals: np.ndarray,
+                         matched: np.ndarray) -> np.ndarray:
+    """Linearised point-to-plane step (B, 3) (dx, dy, dtheta) for moved points (B, M, 2) against matched target
+    points and their normals (B, M, 2): least squares of (p + dtheta (-p_y, p_x) + d - q) . n."""
+    w = matched.astype(np.float64)
+    nx, ny = normals[..., 0], normals[..., 1]
+    r = (moved[..., 0] - target[..., 0]) * nx + (moved[..., 1] - target[..., 1]) * ny
+    J = np.stack([nx, ny, moved[..., 0] * ny - moved[..., 1] * nx], axis=-1)  # (B, M, 3)
+    wJ = J * w[..., None]
+    H = np.sum(wJ[..., :, None] * J[..., None, :], axis=1) + 1e-12 * np.eye(3)
+    g = np.sum(wJ * r[..., None], axis=1)
+    return -solve_spd(H, g)
+
+
+def _compose(step: np.ndarray, tf: np.ndarray) -> np.ndarray:
+    """The transform (B, 3) of applying ``tf`` then the small transform ``step`` (B, 3) (dx, dy, dtheta)."""
+    return np.column_stack([rotate(tf[:, :2], step[:, 2]) + step[:, :2], tf[:, 2] + step[:, 2]])
+
+
+def _icp(points: np.ndarray, model: np.ndarray, tree: cKDTree, inits: np.ndarray, params: RetrievalParams,
+         normals: np.ndarray | None) -> np.ndarray:
+    """ICP iterations from transforms (B, 3): point-to-point, or point-to-plane with ``normals``; the final
+    transforms (B, 3). Each restart stops on its own when fitness and inlier RMSE change by < 1e-9."""
+    tf = inits.copy()
+    radius = params.max_correspondence_distance
+
+    def state(tf):
+        moved = rotate(points[None], tf[:, 2, None]) + tf[:, None, :2]
+        idx, matched = _correspond(tree, moved, radius)
+        return moved, idx, matched, _fit_stats(moved, model[idx], matched)
+
+    moved, idx, matched, (fit, rmse) = state(tf)
+    active = np.ones(len(tf), dtype=bool)
+    for _ in range(params.max_iteration):
+        if not active.any():
+            break
+        if normals is None:
+            new = _point_to_point(points, model[idx], matched)
+        else:
+            new = _compose(_point_to_plane_step(moved, model[idx], normals[idx], matched), tf)
+        # A restart without any correspondence does not move (Open3D's update is then the identity).
+        new = np.where((active & matched.any(axis=1))[:, None], new, tf)
+        moved2, idx2, matched2, (fit2, rmse2) = state(new)
+        done = (np.abs(fit2 - fit) < 1e-9) & (np.abs(rmse2 - rmse) < 1e-9)
+        tf = new
+        moved, idx, matched, fit, rmse = moved2, idx2, matched2, fit2, rmse2
+        active &= ~done
+    return tf
+
+
 def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, params: RetrievalParams,
                  normals: np.ndarray | None = None) -> IcpResult:
-    """ICP of tracked points onto model points from each initial transform (Open3D ``registration_icp``).
+    """ICP of tracked points onto model points from each initial transform, batched over the restarts.
 
     Parameters
     ----------
@@ -134,23 +182,19 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
     inits : ndarray, shape (B, 3)
         Initial world -> model transforms (tx, ty, theta), e.g. from :func:`initial_transforms`.
     params : RetrievalParams
-        ``estimation``: Open3D's point-to-point estimator, or ("point_to_plane") point-to-point followed by
-        point-to-plane from its result.
+        ``estimation``: point-to-point, or ("point_to_plane") point-to-point followed by point-to-plane from
+        its result.
     normals : ndarray, shape (N, 2), optional
         Outward unit normals of the model points (:func:`model_normals`); required for point-to-plane.
 
     Returns
     -------
     IcpResult
-        Every result is a rotation about z: Open3D's 4x4 is checked (z-row (0, 0, 1, 0), finite, in-plane
-        determinant > 0) and projected to SE(2). A result failing the check, or leaving the points farther than
-        ``max_point_distance`` (median) from the model points (slid off the model), is not used: point-to-plane
-        falls back to its point-to-point start, otherwise the restart keeps its initial transform and is
-        marked invalid. ``rmse`` is :func:`icp_error` of the estimator used.
+        A result leaving the points farther than ``max_point_distance`` (median) from the model points (slid
+        off the model) is not used: point-to-plane falls back to its point-to-point start, otherwise the
+        restart keeps its initial transform and is marked invalid. ``rmse`` is :func:`icp_error` of the
+        estimator used.
     """
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     model = np.asarray(model, dtype=np.float64).reshape(-1, 2)
     inits = np.asarray(inits, dtype=np.float64).reshape(-1, 3)
@@ -159,51 +203,33 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
     plane = params.estimation == "point_to_plane"
     if plane and normals is None:
         raise ValueError("icp_restarts: point-to-plane ICP needs the model normals")
-    h = layer_height(points, model)
-    source = _layered_cloud(points, h)
-    # Point-to-plane with horizontal normals only leaves t_z (and with few points the tilts) unconstrained, and
-    # Open3D's solve then returned tilted matrices in 79 of 1470 refinements on FB/TC runs; a third copy of
-    # both clouds at z = -h with vertical normals pins z and the tilts without touching the in-plane residuals.
-    source_floor = _layered_cloud(points, h, floor=True) if plane else None
-    p2p = reg.TransformationEstimationPointToPoint(with_scaling=False)
-    p2p_target = _layered_cloud(model, h)
-    p2l = reg.TransformationEstimationPointToPlane()
-    p2l_target = _layered_cloud(model, h, normals, floor=True) if plane else None
-    crit = reg.ICPConvergenceCriteria(relative_fitness=1e-9, relative_rmse=1e-9, max_iteration=params.max_iteration)
+    tree = cKDTree(model)
 
-    def run(source, target, estimation, tf: np.ndarray) -> np.ndarray | None:
-        """Planar (tx, ty, theta) Open3D converged to from tf, or None if its matrix is not a rotation about z
-        (or leaves a point off the model)."""
-        T = np.asarray(reg.registration_icp(source, target, params.max_correspondence_distance, _matrix(tf),
-                                            estimation, crit).transformation)
-        planar = (np.all(np.isfinite(T)) and abs(T[2, 2] - 1.0) < 1e-6 and abs(T[2, 3]) < 1e-6
-                  and np.all(np.abs(T[2, :2]) < 1e-6) and np.all(np.abs(T[:2, 2]) < 1e-6)
-                  and np.linalg.det(T[:2, :2]) > 0.0)
-        if not planar:
-            return None
-        # Closest rotation to the 2x2 block (exactly it, up to rounding, for a proper planar result).
-        got = np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0] - T[0, 1], T[0, 0] + T[1, 1])])
-        moved = points @ rot2(got[2]).T + got[:2]
-        gap = np.median(np.sqrt(np.min(np.sum((moved[:, None, :] - model[None, :, :]) ** 2, axis=-1), axis=1)))
-        # Point-to-plane lets a few points slide along the model's tangent planes past its end (three points on
-        # a can slid hundreds of metres in a TC run): such a result fits no part of the model. (The median, so
-        # that one stray tracked point does not invalidate a segment.)
-        return got if gap <= params.max_point_distance else None
+    def on_model(tf: np.ndarray) -> np.ndarray:
+        """(B,) bool: the median point lies within max_point_distance of a model point. Point-to-plane lets a
+        few points slide along the tangent planes past the model's end (three points on a can slid hundreds
+        of metres in a TC run): such a result fits no part of the model. (The median, so that one stray
+        tracked point does not invalidate a segment.)"""
+        moved = rotate(points[None], tf[:, 2, None]) + tf[:, None, :2]
+        d, _ = tree.query(moved.reshape(-1, 2), k=1)
+        return np.all(np.isfinite(tf), axis=1) & (np.median(d.reshape(moved.shape[:2]), axis=1)
+                                                  <= params.max_point_distance)
 
-    out = inits.copy()
-    valid = np.zeros(len(inits), dtype=bool)
-    for b, tf in enumerate(inits):
-        got = run(source, p2p_target, p2p, tf)
-        if plane:
-            # Point-to-point first (correspondences settle), then point-to-plane slides the points along the
-            # faces past the 9 mm spacing of the model points; if that fails, keep the point-to-point result.
-            refined = run(source_floor, p2l_target, p2l, got if got is not None else tf)
-            got = refined if refined is not None else got
-        if got is not None:
-            out[b] = got
-            valid[b] = True
+    p2p = _icp(points, model, tree, inits, params, None)
+    ok = on_model(p2p)
+    out = np.where(ok[:, None], p2p, inits)
+    valid = ok.copy()
+    if plane:
+        # Point-to-point first (correspondences settle), then point-to-plane slides the points along the faces
+        # past the 9 mm spacing of the model points; if that fails, keep the point-to-point result.
+        start = np.where(ok[:, None], p2p, inits)
+        p2l = _icp(points, model, tree, start, params, np.asarray(normals, dtype=np.float64))
+        ok2 = on_model(p2l)
+        out = np.where(ok2[:, None], p2l, out)
+        valid |= ok2
+    out[:, 2] = wrap_angle(out[:, 2])
     theta = out[:, 2]
-    pos = -np.einsum("bij,bj->bi", rots2(-theta), out[:, :2])
+    pos = -rotate(out[:, :2], theta, inverse=True)
     poses = np.column_stack([pos, wrap_angle(-theta)])
     rmse = icp_error(out, points, model, normals if plane else None)
     return IcpResult(world_to_model=out, poses=poses, rmse=rmse, valid=valid)

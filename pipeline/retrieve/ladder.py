@@ -33,7 +33,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from pipeline import schema
 from pipeline.evaluate import partition, single_threaded
-from pipeline.geometry import rot2
+from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
 from pipeline.retrieve.estimators import Segment, estimate
@@ -134,8 +134,8 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
     for b in np.unique(body[keep]):
         m = keep & (body == b)
         at, final = poses[m, b], info.final_poses[b]
-        local = np.einsum("kji,kj->ki", np.stack([rot2(y) for y in at[:, 2]]), xy[m] - at[:, :2])
-        out.append(Segment(int(b), local @ rot2(float(final[2])).T + final[:2], steps[m].astype(np.int64)))
+        local = rotate(xy[m] - at[:, :2], at[:, 2], inverse=True)
+        out.append(Segment(int(b), rotate(local, float(final[2])) + final[:2], steps[m].astype(np.int64)))
     return out
 
 
@@ -186,9 +186,9 @@ def perturbed(target, pose: np.ndarray, dyaw: float, along: float, across: float
     axis_yaw = float(pose[2]) + target.yaw
     if target.kind == "box" and target.half[1] > target.half[0]:
         axis_yaw += math.pi / 2
-    shift = rot2(axis_yaw) @ np.array([along, across])
+    shift = rotate(np.array([along, across]), axis_yaw)
     new_yaw = float(pose[2]) + dyaw
-    xy = centre + shift - rot2(new_yaw) @ target.centre
+    xy = centre + shift - rotate(np.asarray(target.centre, dtype=np.float64), new_yaw)
     return np.array([xy[0], xy[1], new_yaw])
 
 

@@ -7,9 +7,11 @@ live in :mod:`pipeline.geometry`.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from pipeline.geometry import Primitive, primitive_of, rot2
+from pipeline.geometry import Primitive, primitive_of, rotate
 from pipeline.retrieve.params import RetrievalParams
 
 __all__ = ["target_primitive", "model_points", "model_normals", "outline_point", "project_to_outline", "pose_error"]
@@ -62,7 +64,7 @@ def model_points(prim: Primitive, params: RetrievalParams, rng: np.random.Genera
             raise ValueError(f"cannot place {n} model points {params.min_separation} m apart on a "
                              f"{2 * hx} x {2 * hy} m outline")
         local = np.array(accepted)
-    return local @ rot2(prim.yaw).T + prim.centre
+    return rotate(local, prim.yaw) + prim.centre
 
 
 def outline_point(s: np.ndarray, hx: float, hy: float) -> np.ndarray:
@@ -97,7 +99,7 @@ def model_normals(prim: Primitive, model: np.ndarray) -> np.ndarray:
 
     Box: the normal of the nearest side (x sides on ties, i.e. at exact corners); cylinder: radial.
     """
-    q = (np.asarray(model, dtype=np.float64) - prim.centre) @ rot2(prim.yaw)
+    q = rotate(np.asarray(model, dtype=np.float64) - prim.centre, prim.yaw, inverse=True)
     if prim.kind == "cylinder":
         n = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
     else:
@@ -106,7 +108,7 @@ def model_normals(prim: Primitive, model: np.ndarray) -> np.ndarray:
         n = np.zeros_like(q)
         n[on_x, 0] = np.where(q[on_x, 0] >= 0, 1.0, -1.0)
         n[~on_x, 1] = np.where(q[~on_x, 1] >= 0, 1.0, -1.0)
-    return n @ rot2(prim.yaw).T
+    return rotate(n, prim.yaw)
 
 
 def pose_error(target: Primitive, estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -118,7 +120,7 @@ def pose_error(target: Primitive, estimate: np.ndarray, truth: np.ndarray) -> tu
     """
     est = np.asarray(estimate, dtype=np.float64)
     tru = np.asarray(truth, dtype=np.float64)
-    pos = float(np.linalg.norm(target.centre_world(est) - target.centre_world(tru)))
+    pos = math.hypot(*(target.centre_world(est) - target.centre_world(tru)))
     sym = target.symmetry
     if sym == 0.0:
         return pos, 0.0

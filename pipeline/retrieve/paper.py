@@ -10,11 +10,13 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.geometry import Primitive, apply_pose
+from pipeline.portable import tie_key
 from pipeline.retrieve.icp import icp_restarts, initial_transforms
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
 
-__all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "Estimate", "estimate_run"]
+__all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "smallest_principal_std", "Estimate",
+           "estimate_run"]
 
 
 def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> np.ndarray:
@@ -109,7 +111,8 @@ def choose_segment(centres: Sequence[np.ndarray], penetration: Sequence[np.ndarr
             var[s] = float(np.var(np.asarray(c)[use], axis=0, ddof=1).sum())
         excess = np.maximum(np.asarray(pen) - tolerance, 0.0)
         key0 = np.where(ok, excess, np.inf)
-        order = np.lexsort((np.arange(len(ok)), np.where(ok, err, np.inf), key0))
+        # Restarts that converged to one minimum differ in the last bits: ties within 1e-9 m go to the index.
+        order = np.lexsort((np.arange(len(ok)), tie_key(np.where(ok, err, np.inf), 1e-9), tie_key(key0, 1e-9)))
         rank = np.empty(len(ok), dtype=np.int64)
         rank[order] = np.arange(len(ok))
         ranks.append(rank)
@@ -129,6 +132,16 @@ def choose_segment(centres: Sequence[np.ndarray], penetration: Sequence[np.ndarr
     return Choice(s_best, int(np.argmin(ranks[s_best])), var, ranks)
 
 
+def smallest_principal_std(points: np.ndarray) -> float:
+    """Smallest principal standard deviation (metres) of points (M, 2), M >= 1: the square root of the smaller
+    eigenvalue of their scatter matrix over M (closed form, no LAPACK: docs/evaluation.md)."""
+    d = points - points.mean(axis=0)
+    a, b, c = (float(np.sum(d[:, 0] * d[:, 0])), float(np.sum(d[:, 0] * d[:, 1])),
+               float(np.sum(d[:, 1] * d[:, 1])))
+    low = 0.5 * (a + c) - math.hypot(0.5 * (a - c), b)
+    return math.sqrt(max(low, 0.0) / len(points))
+
+
 def confidence_notes(points: np.ndarray | None, rmse: float, penetration: float, params: RetrievalParams) -> list[str]:
     """Why an estimate should not be trusted (empty list: confident).
 
@@ -144,8 +157,7 @@ def confidence_notes(points: np.ndarray | None, rmse: float, penetration: float,
     if len(points) < params.min_points:
         notes.append("few_points")
     if len(points) >= 2:
-        sv = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-        if sv[-1] / math.sqrt(len(points)) < params.collinear_tolerance:
+        if smallest_principal_std(points) < params.collinear_tolerance:
             notes.append("collinear")
     if not (rmse <= params.max_rmse):
         notes.append("poor_fit")
@@ -214,8 +226,6 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
     -------
     Estimate
     """
-    import open3d  # noqa: F401  (imported before the clock starts: the first import takes about a second)
-
     t0 = time.perf_counter()
     model = model_points(target, params, rng_model)
     normals = model_normals(target, model)

@@ -32,10 +32,16 @@ from typing import Any
 import numpy as np
 
 from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
+from pipeline.portable import argmin_tolerant, exp, tie_key
+from pipeline.spd import solve_spd
 from pipeline.retrieve.model import outline_point
 
 __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
            "fit_segment", "consensus", "com_pose", "primitive_pose"]
+
+#: Costs (squared contact sigmas) closer than this are tied (then the lower index wins): far above the last-bit
+#: differences between CPUs, far below any difference between two poses worth choosing between.
+COST_TIE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -196,8 +202,9 @@ def evaluate_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
     grad = np.zeros((B, 3))
     for resid, weight, J in pieces:
         wJ = J * weight[..., None]
-        H += np.einsum("bpi,bpj->bij", wJ, J)
-        grad += np.einsum("bpi,bp->bi", wJ, resid)
+        # Written out and summed over the points in a fixed order (no einsum/BLAS: docs/evaluation.md).
+        H += np.sum(wJ[..., :, None] * J[..., None, :], axis=1)
+        grad += np.sum(wJ * resid[..., None], axis=1)
     return terms, H, grad
 
 
@@ -215,7 +222,7 @@ def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndar
     for _ in range(params.iterations):
         diag = np.maximum(np.diagonal(H, axis1=1, axis2=2), 1e-9)
         A = H + lam[:, None, None] * (eye * diag[:, None, :]) + 1e-12 * eye
-        step = -np.linalg.solve(A, grad[..., None])[..., 0]
+        step = -solve_spd(A, grad)
         move = np.linalg.norm(step[:, :2], axis=1)
         shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
                                                                                             1e-12)))
@@ -320,22 +327,24 @@ def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry
     their share of the weight of the set).
     """
     idx = np.flatnonzero(plausible)
-    w = np.exp(-(cost[idx] - cost[idx].min()))
+    w = exp(-(cost[idx] - cost[idx].min()))
+    key = tie_key(cost[idx], COST_TIE)
     if symmetry == 0.0:
         near = np.ones((len(idx), len(idx)), dtype=bool)
     else:
         dyaw = (yaw[idx][:, None] - yaw[idx][None, :] + symmetry / 2) % symmetry - symmetry / 2
         near = np.abs(dyaw) < params.yaw_agreement
     if params.pose_rule == "vote":
-        votes = near @ w
-        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx], -np.round(votes, 12)))[0])
+        votes = np.sum(near * w[None, :], axis=1)
+        anchor = int(np.lexsort((np.arange(len(idx)), key, -tie_key(votes, COST_TIE)))[0])
     elif params.pose_rule == "uniform" and uniform is not None:
-        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx], uniform[idx]))[0])
+        anchor = int(np.lexsort((np.arange(len(idx)), key, tie_key(uniform[idx], COST_TIE)))[0])
     else:
-        anchor = int(np.lexsort((np.arange(len(idx)), cost[idx]))[0])
+        anchor = int(np.lexsort((np.arange(len(idx)), key))[0])
     agree = np.zeros_like(plausible)
     agree[idx[near[anchor]]] = True
-    chosen = idx[anchor] if params.pose_rule == "uniform" else int(np.flatnonzero(agree)[np.argmin(cost[agree])])
+    chosen = (idx[anchor] if params.pose_rule == "uniform"
+              else int(np.flatnonzero(agree)[argmin_tolerant(cost[agree], COST_TIE)]))
     return int(chosen), agree, float(w[near[anchor]].sum() / w.sum())
 
 

@@ -78,6 +78,12 @@ def builder_digest(resolution: float, collision_margin: float) -> str:
     return h.hexdigest()
 
 
+def _mat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Matrix product (N, K) x (K, M) written out with a fixed summation order: numpy's ``@`` goes through
+    OpenBLAS, whose last bits change with the CPU (docs/evaluation.md, "Same numbers on every machine")."""
+    return np.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
 def _rot_z(angle: float) -> np.ndarray:
     """3-D rotation matrix, shape (3, 3), about z by ``angle`` radians (mesh placement; planar rotations are in
     :mod:`pipeline.geometry`)."""
@@ -91,7 +97,7 @@ def _rot_euler_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cp, sp = math.cos(pitch), math.sin(pitch)
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    return _rot_z(yaw) @ ry @ rx
+    return _mat(_mat(_rot_z(yaw), ry), rx)
 
 
 def _panda_hulls() -> list[tuple[np.ndarray, np.ndarray]]:
@@ -121,8 +127,8 @@ def _panda_hulls() -> list[tuple[np.ndarray, np.ndarray]]:
     r = _rot_euler_xyz(*GRIPPER_EULER)
     joint = np.array([0.0, 0.0, FINGER_JOINT_Z])
     left = finger_v + joint + np.array([0.0, _FINGER_OPENING, 0.0])
-    right = finger_v @ _rot_z(_RIGHT_FINGER_YAW).T + joint - np.array([0.0, _FINGER_OPENING, 0.0])
-    return [(hand_v @ r.T, hand_t), (left @ r.T, finger_t), (right @ r.T, finger_t)]
+    right = _mat(finger_v, _rot_z(_RIGHT_FINGER_YAW).T) + joint - np.array([0.0, _FINGER_OPENING, 0.0])
+    return [(_mat(hand_v, r.T), hand_t), (_mat(left, r.T), finger_t), (_mat(right, r.T), finger_t)]
 
 
 def build_panda_grid(resolution: float = 0.001, collision_margin: float = PYBULLET_COLLISION_MARGIN) -> GridSDF:

@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 
 from pipeline import __version__
 from pipeline.atomic import atomic_path
+from pipeline.environment import environment
 from pipeline.schema.errors import SchemaError
 from pipeline.schema.specs import TABLES, validate_table
 
@@ -46,6 +47,8 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.params", "JSON object of the stage's parameters, keys sorted."),
     ("stucco.seed", "JSON integer root seed, or `null`."),
     ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
+    ("stucco.environment", "JSON object: Python's version and those of the libraries that compute (numpy, scipy, "
+                           "scikit-learn, numba, llvmlite, open3d-cpu, pybullet, pyarrow), pinned by `requirements.lock`."),
     ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own "
                       "kind)."),
 )
@@ -239,6 +242,7 @@ def write_table(
         "stucco.params": _dumps(dict(params)),
         "stucco.seed": _dumps(None if seed is None else int(seed)),
         "stucco.inputs": _dumps(recorded),
+        "stucco.environment": _dumps(environment()),
         "stucco.schema": kind,
     }
     table = table.replace_schema_metadata(meta).combine_chunks()
@@ -271,7 +275,7 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
         if not key.startswith("stucco."):
             continue
         name, text = key[len("stucco."):], v.decode()
-        if name in ("params", "inputs", "seed"):
+        if name in ("params", "inputs", "seed", "environment"):
             try:
                 out[name] = json.loads(text)
             except json.JSONDecodeError as e:

@@ -7,19 +7,22 @@ targets), Q = q·I, H = I, R = r·I, no spawning.
 
 A mixture is held as arrays (log-weights (J,), means (J, D), covariances (J, D, D)) and every function here is a
 pure function of those arrays and scalar parameters. Weights are logs throughout; Gaussian likelihoods come from
-Cholesky factors (log-determinant from the diagonal, :mod:`pipeline.track.spd`), never from explicit inverses.
+Cholesky factors (log-determinant from the diagonal, :mod:`pipeline.spd`), never from explicit inverses.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.special import logsumexp
 
-from pipeline.track.spd import cho_solve_matrix, cholesky, solve_lower, symmetrise
+from pipeline.portable import exp, log, logsumexp
+from pipeline.spd import (cho_solve_matrix, cholesky, largest_eigenvalue_bound, matmul, solve_lower,
+                                symmetrise)
 
 __all__ = ["predict", "update", "prune", "extract_targets"]
 
-_LOG_2PI = float(np.log(2.0 * np.pi))
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -32,7 +35,7 @@ def predict(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, survival: fl
     log_w (J,), means (J, D), covs (J, D, D) -> same shapes.
     """
     d = means.shape[1]
-    return log_w + np.log(survival), means.copy(), covs + q * np.eye(d)
+    return log_w + math.log(survival), means.copy(), covs + q * np.eye(d)
 
 
 def update(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, z: np.ndarray, detection: float, r: float,
@@ -63,7 +66,7 @@ def update(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, z: np.ndarray
     z = np.asarray(z, dtype=float).reshape(-1, d)
     k = len(z)
     eye = np.eye(d)
-    missed_lw = log_w + (np.log1p(-detection) if detection < 1 else -np.inf)
+    missed_lw = log_w + (math.log1p(-detection) if detection < 1 else -np.inf)
     if j == 0 or k == 0:
         keep = np.isfinite(missed_lw)
         return missed_lw[keep], means[keep], covs[keep]
@@ -74,20 +77,20 @@ def update(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, z: np.ndarray
     gain = np.swapaxes(cho_solve_matrix(chol_s, covs), -1, -2)  # (J, D, D)
     ikh = eye - gain
     # Joseph form keeps the updated covariance symmetric positive definite under round-off.
-    cov_upd = symmetrise(ikh @ covs @ np.swapaxes(ikh, -1, -2) + r * gain @ np.swapaxes(gain, -1, -2))
+    cov_upd = symmetrise(matmul(matmul(ikh, covs), np.swapaxes(ikh, -1, -2)) + r * matmul(gain, np.swapaxes(gain, -1, -2)))
 
     innov = z[None, :, :] - means[:, None, :]  # (J, K, D)
     white = solve_lower(chol_s[:, None], innov)  # (J, K, D)
-    log_det = 2.0 * np.log(np.diagonal(chol_s, axis1=-2, axis2=-1)).sum(-1)  # (J,)
+    log_det = 2.0 * log(np.diagonal(chol_s, axis1=-2, axis2=-1)).sum(-1)  # (J,)
     log_lik = -0.5 * (d * _LOG_2PI + log_det[:, None] + (white ** 2).sum(-1))  # (J, K)
-    det_lw = np.log(detection) + log_w[:, None] + log_lik  # (J, K)
-    log_kappa = np.log(clutter_intensity) if clutter_intensity > 0 else -np.inf
+    det_lw = math.log(detection) + log_w[:, None] + log_lik  # (J, K)
+    log_kappa = math.log(clutter_intensity) if clutter_intensity > 0 else -np.inf
     log_norm = logsumexp(np.vstack([np.full((1, k), log_kappa), det_lw]), axis=0)  # (K,)
     # κ > 0 keeps the normaliser finite; with κ = 0 and no finite term a measurement simply adds nothing.
     safe_norm = np.where(np.isfinite(log_norm), log_norm, 0.0)
     det_lw = np.where(np.isfinite(log_norm)[None, :], det_lw - safe_norm[None, :], -np.inf)
 
-    det_means = means[:, None, :] + np.einsum("jab,jkb->jka", gain, innov)  # (J, K, D)
+    det_means = means[:, None, :] + np.sum(gain[:, None, :, :] * innov[:, :, None, :], axis=-1)  # (J, K, D)
     out_lw = np.concatenate([missed_lw, det_lw.T.ravel()])
     out_means = np.concatenate([means, det_means.transpose(1, 0, 2).reshape(-1, d)])
     out_covs = np.concatenate([covs, np.broadcast_to(cov_upd, (k, j, d, d)).reshape(-1, d, d)])
@@ -99,7 +102,7 @@ def _group_logsumexp(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """logsumexp over contiguous groups beginning at ``starts`` of a 1-D array."""
     peak = np.maximum.reduceat(values, starts)
     counts = np.diff(np.append(starts, len(values)))
-    return peak + np.log(np.add.reduceat(np.exp(values - np.repeat(peak, counts)), starts))
+    return peak + log(np.add.reduceat(exp(values - np.repeat(peak, counts)), starts))
 
 
 def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: float, merge_threshold: float,
@@ -130,7 +133,7 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     if not np.isfinite(total):  # every weight zero: nothing to keep
         return np.empty(0), np.empty((0, d)), np.empty((0, d, d))
 
-    keep = log_w > (np.log(truncation) if truncation > 0 else -np.inf)
+    keep = log_w > (math.log(truncation) if truncation > 0 else -np.inf)
     if not keep.any():
         keep[np.argmax(log_w)] = True
     lw, m, p = log_w[keep], means[keep], symmetrise(covs[keep])
@@ -138,8 +141,9 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     chol = cholesky(p)
 
     # Candidate pairs through a Euclidean gate: d_M(i, j) >= |m_i - m_j|^2 / lambda_max(P_i), so no pair farther
-    # than sqrt(U max lambda_max) can merge. Exact Mahalanobis distances are then computed on the pairs only.
-    lam_max = np.linalg.eigvalsh(p)[:, -1]
+    # than sqrt(U max lambda_max) can merge (lambda_max bounded above by Gershgorin's row sums, which only widens
+    # the gate). Exact Mahalanobis distances are then computed on the pairs only.
+    lam_max = largest_eigenvalue_bound(p)
     radius = float(np.sqrt(merge_threshold * lam_max.max()))
     pairs = cKDTree(m).query_pairs(radius, output_type="ndarray")
     cand = np.concatenate([pairs[:, 0], pairs[:, 1]]).astype(np.intp)
@@ -177,7 +181,7 @@ def prune(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, truncation: fl
     lw_s, m_s, p_s = lw[srt], m[srt], p[srt]
     g_lw = _group_logsumexp(lw_s, starts)
     counts = np.diff(np.append(starts, j))
-    frac = np.exp(lw_s - np.repeat(g_lw, counts))  # normalised within group
+    frac = exp(lw_s - np.repeat(g_lw, counts))  # normalised within group
     g_m = np.add.reduceat(frac[:, None] * m_s, starts, axis=0)
     dev = np.repeat(g_m, counts, axis=0) - m_s
     spread = p_s + dev[:, :, None] * dev[:, None, :]
@@ -207,7 +211,7 @@ def extract_targets(log_w: np.ndarray, bias: float, max_doublings: int = 64) -> 
     """
     if len(log_w) == 0:
         return np.empty(0, dtype=np.intp)
-    w = np.exp(log_w)
+    w = exp(log_w)
     total = float(w.sum())
     n = int(np.rint(bias * total))
     b = bias

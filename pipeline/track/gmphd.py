@@ -19,6 +19,8 @@ stored points move.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,7 +132,7 @@ def birth_components(params: GMPHDParams) -> tuple[np.ndarray, np.ndarray, np.nd
     gx, gy = np.meshgrid(np.linspace(x0, x1, n), np.linspace(y0, y1, n), indexing="xy")
     means = np.column_stack([gx.ravel(), gy.ravel()])
     b = len(means)
-    log_w = np.full(b, np.log(params.birth / b))
+    log_w = np.full(b, math.log(params.birth / b))
     covs = np.broadcast_to(params.birth_variance * np.eye(2), (b, 2, 2)).copy()
     return log_w, means, covs
 

@@ -5,19 +5,24 @@ configs and every per-particle cache.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from pipeline.portable import exp, log
 
 
 def logsumexp(log_w: np.ndarray) -> float:
     """log(sum(exp(log_w))) with the max shifted out, so no term overflows and the largest never underflows.
 
     The same arithmetic as ``scipy.special.logsumexp`` on a 1-D array, without its array-API dispatch, whose
-    overhead dominates on the small arrays of a particle filter's update.
+    overhead dominates on the small arrays of a particle filter's update, and with the CPU-independent
+    exp and log of :mod:`pipeline.portable`.
     """
     top = np.max(log_w)
     if not np.isfinite(top):
         return float(top)  # all -inf (nothing to normalise) or a +inf entry
-    return float(top + np.log(np.sum(np.exp(log_w - top))))
+    return float(top + log(np.sum(exp(log_w - top))))
 
 
 def normalise(log_w: np.ndarray) -> np.ndarray:
@@ -43,7 +48,7 @@ def normalise(log_w: np.ndarray) -> np.ndarray:
 def effective_sample_size(log_w: np.ndarray) -> float:
     """ESS = 1 / sum(w^2) of normalised weights, as a fraction of the number of particles, in (0, 1]."""
     lw = normalise(log_w)
-    ess = float(np.exp(-logsumexp(2.0 * lw)) / lw.size)
+    ess = float(math.exp(-logsumexp(2.0 * lw)) / lw.size)
     # Round-off puts a perfectly even set of weights a hair above or below 1; "all particles equal" must read
     # as exactly 1 so that a threshold of 1 does not resample identical weights.
     return 1.0 if abs(ess - 1.0) < 1e-12 else min(ess, 1.0)
@@ -65,7 +70,7 @@ def systematic(log_w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """
     lw = normalise(log_w)
     n = lw.size
-    cdf = np.cumsum(np.exp(lw))
+    cdf = np.cumsum(exp(lw))
     cdf[-1] = 1.0  # round-off must not leave the last positions without an ancestor
     positions = (rng.random() + np.arange(n)) / n
     return np.minimum(np.searchsorted(cdf, positions, side="right"), n - 1).astype(np.int64)

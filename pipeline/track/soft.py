@@ -159,7 +159,7 @@ class SoftTracker:
         self._C = np.zeros((n, 0, self.dim))
         self._colpen = np.zeros((n, 0))
         self._npen = np.zeros((n, 0), np.int32)
-        self.log_weights_ = np.full(n, -np.log(n))
+        self.log_weights_ = np.full(n, -math.log(n))
         self._map_points = np.zeros((0, self.dim))
         self.last_step_: StepDiagnostics | None = None
 
@@ -275,7 +275,7 @@ class SoftTracker:
         log_lik = -(eps * eps) / prm.penetration_length
         log_w = normalise(self.log_weights_ + log_lik)
         if prm.weight_floor > 0:
-            log_w = normalise(np.maximum(log_w, np.log(prm.weight_floor)))
+            log_w = normalise(np.maximum(log_w, math.log(prm.weight_floor)))
         self._snapshot_map(int(np.argmax(log_w)))
         ess = effective_sample_size(log_w)
         resampled = ess < prm.ess_threshold
@@ -294,7 +294,7 @@ class SoftTracker:
                                                               self._lo, self._hi, prm.tolerance)[copy_of].sum())
             for full, part in zip((self._P, self._C, self._colpen, self._npen), state):
                 full[:, live] = part[copy_of]
-            log_w = np.full(prm.n_particles, -np.log(prm.n_particles))
+            log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
         elif replace:
             n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._m, self._colpen, self._npen,
                                                           *self._grid, self._lo, self._hi, prm.tolerance).sum())
