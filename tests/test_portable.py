@@ -128,3 +128,19 @@ def test_no_stage_computes_through_blas_or_simd_dispatched_transcendentals():
         bad.extend(_violations(path))
     assert not bad, ("use pipeline.geometry.rotate/dot2, pipeline.spd or pipeline.portable instead:\n"
                      + "\n".join(bad))
+
+
+#: SHA-256 of the 1 mm Panda grid's values (float64, C order) built by Open3D's raycasting from pybullet's meshes
+#: with the locked environment. Open3D computes it in float32 (Embree picks SIMD kernels by CPU): this pins it, so
+#: a machine that built another grid fails here instead of tracking with different numbers.
+PANDA_GRID_SHA256 = "9395bdd8158d1966983f4e61a0cc39b2a38562548ce5d2ad9c74379fdbe99a6f"
+
+
+def test_the_panda_grid_is_the_same_on_this_machine():
+    import hashlib
+
+    from pipeline.robot.panda_mesh import build_panda_grid
+
+    grid = build_panda_grid(0.001)
+    assert grid.values.shape == (140, 206)
+    assert hashlib.sha256(np.ascontiguousarray(grid.values).tobytes()).hexdigest() == PANDA_GRID_SHA256

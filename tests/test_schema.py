@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pipeline
+from pipeline.environment import environment
 from pipeline import schema as S
 from pipeline.schema import SchemaError
 
@@ -350,8 +351,10 @@ def test_write_table_metadata_round_trip(tmp_path):
         "params": {"length": 0.02, "n_particles": 100},
         "seed": 7,
         "inputs": {"contacts": {"file": "in.parquet", "sha256": S.file_digest(src)}},
+        "environment": environment(),
         "schema": "contacts",
     }
+    assert set(environment()) >= {"python", "numpy", "scipy", "numba", "open3d-cpu", "pybullet"}
     assert pq.read_schema(out).metadata[b"stucco.params"] == b'{"length":0.02,"n_particles":100}'
     assert S.read_contacts(out).equals(S.read_contacts(src))
 

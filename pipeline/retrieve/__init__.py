@@ -4,7 +4,7 @@ The paper's §V-C and our plausible-set estimator, one role per module (docs/ret
 
 * :mod:`~pipeline.retrieve.params`: the paper's estimation parameters;
 * :mod:`~pipeline.retrieve.model`: the target's primitive in a scene, model points and normals, pose error;
-* :mod:`~pipeline.retrieve.icp`: planar ICP from many restarts (Open3D), never mirrored;
+* :mod:`~pipeline.retrieve.icp`: planar ICP in SE(2) from many restarts;
 * :mod:`~pipeline.retrieve.paper`: the paper's choice of segment and pose;
 * :mod:`~pipeline.retrieve.plausible`: SE(2) hypotheses fitted to the shape, the contacts and the free space;
 * :mod:`~pipeline.retrieve.estimators`: the estimators behind ``--estimator``, one call per run;

@@ -22,7 +22,7 @@ class RetrievalParams:
     n_restarts : int
         ICP restarts per segment (30).
     estimation : {"point_to_plane", "point_to_point"}
-        Open3D estimator. The authors' ICP was point-to-point; with 50 model points ~9 mm apart it locks
+        ICP estimator. The authors' ICP was point-to-point; with 50 model points ~9 mm apart it locks
         every tracked point to a model point and stops one spacing away from the truth (on FB seed 0's box,
         1 of 30 restarts within 5 mm and 0.05 rad), while point-to-plane onto the same points with their
         analytic normals slides along the faces (19 of 30, 0.2 mm). "point_to_plane" (default) runs
@@ -43,7 +43,7 @@ class RetrievalParams:
     max_iteration : int
         ICP iterations per restart (Open3D's default 30; the authors stopped at 20).
     max_correspondence_distance : float, metres
-        Open3D's correspondence radius; large, so every tracked point gets its nearest model point like the
+        ICP correspondence radius; large, so every tracked point gets its nearest model point like the
         authors' all-pairs matching.
     max_point_distance : float, metres
         An ICP result whose points are farther than this (median) from the model points is not used (0.05):

@@ -68,8 +68,8 @@ CANDIDATES_COLUMNS: tuple[schema.Column, ...] = (
        "ICP error of the segment's points (point-to-plane by default, see icp_error).", finite=True, minimum=0.0),
     _C("penetration_m", pa.float64(), "m", False, "Deepest penetration into a visited gripper pose (0: none).",
        finite=True, minimum=0.0),
-    _C("valid", pa.bool_(), "", False, "Open3D returned a rotation about z (always, by construction) keeping the "
-       "points within max_point_distance (median) of the model; invalid candidates keep their initial pose."),
+    _C("valid", pa.bool_(), "", False, "ICP kept the points within max_point_distance (median) of the model; "
+       "invalid candidates keep their initial pose."),
     _C("position_var_m2", pa.float64(), "m^2", True, "The segment's restart position variance (repeated).",
        minimum=0.0),
     _C("rank", pa.int64(), "", False, "Rank within the segment by (excess penetration, ICP error); 0 = best.",
