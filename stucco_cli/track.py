@@ -5,6 +5,7 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
                              user_errors)
 
@@ -43,13 +44,26 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
     return out
 
 
+def _check_options(method: str, name: str) -> None:
+    """A dedicated option (``--length``) is refused, naming the methods that take it, for a method without it."""
+    from dataclasses import fields
+
+    with user_errors("track"):
+        spec = registry.tracker(method)
+    takes = [s.name for s in registry.trackers() if name in {f.name for f in fields(registry.resolve(s.params))}]
+    if name not in {f.name for f in fields(registry.resolve(spec.params))}:
+        option = _STUCCO_OPTIONS.get(name, name.replace("_", "-"))
+        raise click.UsageError(f"--{option} applies to --method {', '.join(takes)} only; "
+                               "use --set KEY=VALUE for this method's parameters")
+
+
 @click.command()
 @click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Contacts table (Parquet).")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Tracks table to write.")
 @click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
               help="Per-step diagnostics table [default: OUT with suffix .diagnostics.parquet].")
-@click.option("--method", default="stucco", show_default=True,
-              help="stucco, or a baseline: birch, dbscan, kmeans, gmphd.")
+@click.option("--method", default=registry.tracker_names()[0], show_default=True,
+              help=f"Tracking method: {', '.join(registry.tracker_names())} (pipeline/registry.py).")
 @click.option("--robot", default="panda", show_default=True, help="'panda' or 'disc:RADIUS' (metres).")
 @click.option("--particles", "n_particles", type=click.IntRange(1, MAX_PARTICLES), default=None,
               help="N particles [100].")
@@ -80,10 +94,8 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 
         set_threads(threads)
     params = {k: v for k, v in stucco_opts.items() if v is not None}
-    if params and method != "stucco":
-        option = _STUCCO_OPTIONS.get(next(iter(params)), next(iter(params)).replace("_", "-"))
-        raise click.UsageError(f"--{option} applies to --method stucco only; "
-                               "use --set KEY=VALUE for baseline parameters")
+    if params:
+        _check_options(method, next(iter(params)))
     params.update(_parse_sets(sets))
     diag_path = diag_path or default_diagnostics_path(out_path)
     check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})

@@ -1,5 +1,8 @@
 """Pose estimators of the retrieve stage: the paper's ICP procedure and the plausible-set estimator, one call.
 
+Both are registered in :mod:`pipeline.registry` (``paper_estimator``, ``plausible_estimator``: the registry's
+factory signature); :func:`estimate` calls any registered estimator by name.
+
 ``paper`` is the procedure of the paper's §V-C as :mod:`pipeline.retrieve.paper` implements it (ICP from 30
 restarts on every segment, lowest position variance chooses the segment, least penetration then lowest ICP error
 chooses the pose). ``plausible`` keeps the paper's segment choice, which picked the target's segment in 69 of 80
@@ -15,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pipeline import registry
 from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
@@ -22,20 +26,22 @@ from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recen
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
 
-__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",
-           "plausible_notes", "parse_estimators"]
+__all__ = ["DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "paper_estimator",
+           "plausible_estimator", "retrieval_metadata", "plausible_notes", "parse_estimators"]
 
-#: Pose estimators, the default first.
-ESTIMATORS = ("plausible", "paper")
-DEFAULT_ESTIMATOR = ESTIMATORS[0]
+DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
 
 
 def parse_estimators(text: str) -> tuple[str, ...]:
-    """Estimator names from ``"plausible,paper"``; ValueError naming an unknown one (or none given)."""
+    """Estimator names from ``"plausible,paper"`` or ``"all"`` (every registered one); ValueError naming an
+    unknown one (or none given)."""
+    known = registry.estimator_names()
     names = tuple(n.strip() for n in str(text).split(",") if n.strip())
-    bad = [n for n in names if n not in ESTIMATORS]
+    if names == ("all",):
+        return known
+    bad = [n for n in names if n not in known]
     if bad or not names:
-        raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+        raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(known)}")
     return names
 
 
@@ -57,30 +63,45 @@ class Segment:
     steps: np.ndarray
 
 
-def retrieval_metadata(estimator: str, params: RetrievalParams, plausible: PlausibleParams, **extra) -> dict:
+def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extra) -> dict:
     """What the retrieval and candidates tables record of their parameters: every field of the parameters the
-    estimator used (the paper's ICP parameters for both; the plausible ones only for ``plausible``)."""
+    estimator used (the paper's ICP parameters for every estimator; the estimator's own parameters ``own``, e.g.
+    the plausible ones, under its registry ``meta_key``, by default its name)."""
+    spec = registry.estimator(estimator)
     meta = dict(params.to_dict(), estimator=estimator)
-    if estimator == "plausible":
-        meta["plausible"] = plausible.to_dict()
+    own = registry.build_params(spec, own)
+    if own is not None:
+        meta[spec.meta_key or spec.name] = asdict(own)
     for k, v in extra.items():
         meta[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
     return meta
 
 
 def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-             params: RetrievalParams = RetrievalParams(), plausible: PlausibleParams = PlausibleParams()
-             ) -> Estimate:
-    """The target pose of one run by estimator ``name`` (:data:`ESTIMATORS`).
+             params: RetrievalParams = RetrievalParams(), own=None) -> Estimate:
+    """The target pose of one run by the registered estimator ``name`` (:func:`pipeline.registry.estimator`).
 
-    ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`).
+    ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`);
+    ``own``: the estimator's own parameters (an instance, a dict of overrides, or None for its defaults).
     """
-    if name not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; expected one of {', '.join(ESTIMATORS)}")
-    if name == "paper":
-        return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0],
-                            rngs[1])
-    return estimate_plausible(segments, info, sdf, params, plausible, rngs)
+    spec = registry.estimator(name)
+    result = registry.resolve(spec.factory)(segments, info, sdf, rngs, params, registry.build_params(spec, own))
+    if not isinstance(result, Estimate):
+        raise TypeError(f"estimator {name!r} must return an Estimate (pipeline.retrieve.paper), got "
+                        f"{type(result).__name__}")
+    return result
+
+
+def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                    params: RetrievalParams, own: None = None) -> Estimate:
+    """The paper's procedure (§V-C, :func:`pipeline.retrieve.paper.estimate_run`), the registry's factory."""
+    return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
+
+
+def plausible_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                        params: RetrievalParams, own: PlausibleParams) -> Estimate:
+    """:func:`estimate_plausible` in the registry's factory signature."""
+    return estimate_plausible(segments, info, sdf, params, own, rngs)
 
 
 def plausible_notes(points: np.ndarray, fit: SegmentFit, n_free: int, target: Primitive, params: RetrievalParams,

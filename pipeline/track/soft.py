@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.segment import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
+from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.track import kernels
-from pipeline.track.base import params_from_dict
+from pipeline.track.base import StepResult, params_from_dict
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
@@ -107,14 +107,8 @@ class SoftTrackingParams:
         return params_from_dict(cls, values, "stucco")
 
 
-@dataclass(frozen=True)
-class StepDiagnostics:
-    """What one update did: ESS / N after weighting (before resampling), whether it resampled, and how many
-    points ReplaceInconsistentPoints replaced over all particles."""
-
-    ess: float
-    resampled: bool
-    n_replaced: int
+#: What one update did (ESS / N after weighting, whether it resampled, points replaced over all particles).
+StepDiagnostics = StepResult
 
 
 class SoftTracker:
@@ -301,3 +295,8 @@ class SoftTracker:
         self.log_weights_ = log_w
         self.last_step_ = StepDiagnostics(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_
+
+
+def soft_tracker(params: SoftTrackingParams, robot, rng: np.random.Generator) -> SoftTracker:
+    """The registry's factory of ``stucco`` (:mod:`pipeline.registry`): a fresh :class:`SoftTracker`."""
+    return SoftTracker(robot, params, rng=rng)
