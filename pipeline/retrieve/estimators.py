@@ -25,6 +25,7 @@ from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
+from pipeline.retrieve.tables import run_candidates
 
 __all__ = ["DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "paper_estimator",
            "plausible_estimator", "retrieval_metadata", "plausible_notes", "parse_estimators"]
@@ -89,6 +90,7 @@ def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     if not isinstance(result, Estimate):
         raise TypeError(f"estimator {name!r} must return an Estimate (pipeline.retrieve.paper), got "
                         f"{type(result).__name__}")
+    run_candidates(**result.candidates)  # the candidates table's columns, checked here once for every estimator
     return result
 
 
@@ -179,12 +181,12 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     order = np.argsort(fit.terms.total, kind="stable")
     rank = np.empty(B, dtype=np.int64)
     rank[order] = np.arange(B)
-    candidates = {
-        "segment": np.full(B, seg.id), "restart": np.arange(B), "n_points": np.full(B, len(pts)),
-        "x_m": fit.poses[:, 0], "y_m": fit.poses[:, 1], "yaw_rad": fit.poses[:, 2], "icp_rmse_m": fit.rms,
-        "penetration_m": fit.penetration, "valid": fit.plausible, "position_var_m2": np.full(B, fit.spread ** 2),
-        "rank": rank, "segment_chosen": np.ones(B, dtype=bool), "chosen": np.arange(B) == c,
-    }
+    candidates = run_candidates(
+        segment=np.full(B, seg.id), restart=np.arange(B), n_points=np.full(B, len(pts)),
+        x_m=fit.poses[:, 0], y_m=fit.poses[:, 1], yaw_rad=fit.poses[:, 2], icp_rmse_m=fit.rms,
+        penetration_m=fit.penetration, valid=fit.plausible, position_var_m2=np.full(B, fit.spread ** 2),
+        rank=rank, segment_chosen=np.ones(B, dtype=bool), chosen=np.arange(B) == c,
+    )
     notes = plausible_notes(pts, fit, len(free), target, params, plausible)
     return Estimate(pose=target.canonical(fit.poses[c]), segment=seg.id, n_points=len(pts),
                     n_segments=len(segments), position_var=fit.spread ** 2, rmse=float(fit.rms[c]),

@@ -10,7 +10,7 @@ import pyarrow as pa
 from pipeline import schema
 
 __all__ = ["RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "RETRIEVAL", "CANDIDATES", "validate_retrieval",
-           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table"]
+           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table", "run_candidates"]
 
 _C = schema.Column
 _RUN = _C("run", pa.string(), "", False, "Run id '<scene>/<seed>' (as in the contacts, tracks, segments tables).")
@@ -116,6 +116,23 @@ def retrieval_table(rows: list[dict[str, Any]]) -> pa.Table:
     """Rows (dicts keyed by :data:`RETRIEVAL_COLUMNS`) -> validated retrieval table."""
     arrays = {c.name: pa.array([r[c.name] for r in rows], type=c.type) for c in RETRIEVAL_COLUMNS}
     return validate_retrieval(pa.table(arrays))
+
+
+def run_candidates(**columns) -> dict[str, np.ndarray]:
+    """One run's candidates, as an estimator returns them (:attr:`pipeline.retrieve.paper.Estimate.candidates`):
+    every column of :data:`CANDIDATES_COLUMNS` but ``run`` (the stage adds it), each an array of one length.
+    ValueError naming a missing or unknown column, or a length that differs."""
+    names = [c.name for c in CANDIDATES_COLUMNS if c.name != "run"]
+    missing = [n for n in names if n not in columns]
+    extra = sorted(set(columns) - set(names))
+    if missing or extra:
+        raise ValueError(f"candidates: missing column(s) {missing}, unknown column(s) {extra}; expected "
+                         f"{', '.join(names)}")
+    out = {n: np.asarray(columns[n]) for n in names}
+    lengths = {len(v) for v in out.values()}
+    if len(lengths) > 1:
+        raise ValueError(f"candidates: columns of different lengths {sorted(lengths)}")
+    return out
 
 
 def candidates_table(parts: list[dict[str, np.ndarray]]) -> pa.Table:
