@@ -4,11 +4,10 @@ docs/retrieval.md gives the measurements behind the defaults.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
-import numpy as np
+from pipeline.constraints import Constraint, check, integer, number, one_of
 
 __all__ = ["RetrievalParams"]
 
@@ -95,29 +94,17 @@ class RetrievalParams:
     min_points: int = 3
     collinear_tolerance: float = 0.002
     max_rmse: float = 0.005
+    constraints: ClassVar[dict[str, Constraint]] = {
+        **{name: integer(1) for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration",
+                                         "min_points")},
+        "estimation": one_of("point_to_plane", "point_to_point"), "box_sampling": one_of("perimeter", "tester"),
+        **{name: number(0, lo_open=True) for name in ("tester_sigma", "max_correspondence_distance", "max_rmse",
+                                                      "segment_fit_gate", "max_point_distance")},
+        "agreement_tolerance": number(0, nullable=True),
+        **{name: number(0) for name in ("min_separation", "penetration_tolerance", "collinear_tolerance")}}
 
     def __post_init__(self) -> None:
-        for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration", "min_points"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        if self.estimation not in ("point_to_plane", "point_to_point"):
-            raise ValueError(f"estimation must be 'point_to_plane' or 'point_to_point', got {self.estimation!r}")
-        if self.box_sampling not in ("perimeter", "tester"):
-            raise ValueError(f"box_sampling must be 'perimeter' or 'tester', got {self.box_sampling!r}")
-        for name in ("tester_sigma", "max_correspondence_distance", "max_rmse", "segment_fit_gate",
-                     "max_point_distance"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number (metres), got {v!r}")
-        if self.agreement_tolerance is not None and not (math.isfinite(self.agreement_tolerance)
-                                                         and self.agreement_tolerance >= 0):
-            raise ValueError(f"agreement_tolerance must be None or a non-negative number (metres), "
-                             f"got {self.agreement_tolerance!r}")
-        for name in ("min_separation", "penetration_tolerance", "collinear_tolerance"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a non-negative number (metres), got {v!r}")
+        check(self)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, ClassVar, Protocol
 
 import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans
 from sklearn.exceptions import ConvergenceWarning
 
+from pipeline.constraints import Constraint, check, integer, number
 from pipeline.labels import canonical_labels
 from pipeline.track.base import StepResult
 from pipeline.track.gmphd import GMPHDLabeller, GMPHDParams
@@ -49,12 +50,11 @@ class BirchParams:
 
     threshold: float = 0.08
     branching_factor: int = 50
+    constraints: ClassVar[dict[str, Constraint]] = {"threshold": number(0, lo_open=True),
+                                                    "branching_factor": integer(2, whole=True)}
 
     def __post_init__(self) -> None:
-        if not self.threshold > 0:
-            raise ValueError(f"BirchParams.threshold must be > 0, got {self.threshold!r}")
-        if not (int(self.branching_factor) == self.branching_factor and self.branching_factor > 1):
-            raise ValueError(f"BirchParams.branching_factor must be an integer > 1, got {self.branching_factor!r}")
+        check(self)
 
 
 @dataclass(frozen=True)
@@ -63,12 +63,11 @@ class DBSCANParams:
 
     eps: float = 0.05
     min_samples: int = 1
+    constraints: ClassVar[dict[str, Constraint]] = {"eps": number(0, lo_open=True),
+                                                    "min_samples": integer(1, whole=True)}
 
     def __post_init__(self) -> None:
-        if not self.eps > 0:
-            raise ValueError(f"DBSCANParams.eps must be > 0, got {self.eps!r}")
-        if not (int(self.min_samples) == self.min_samples and self.min_samples >= 1):
-            raise ValueError(f"DBSCANParams.min_samples must be an integer >= 1, got {self.min_samples!r}")
+        check(self)
 
 
 @dataclass(frozen=True)
@@ -93,16 +92,12 @@ class KMeansParams:
     min_points_to_grow: int = 5
     n_init: int = 10
     min_inertia: float = 1e-10
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "inertia_ratio": number(0, 1, lo_open=True), "min_points_to_grow": integer(2, whole=True),
+        "n_init": integer(1, whole=True), "min_inertia": number(0)}
 
     def __post_init__(self) -> None:
-        if not 0 < self.inertia_ratio <= 1:
-            raise ValueError(f"KMeansParams.inertia_ratio must be in (0, 1], got {self.inertia_ratio!r}")
-        if not (int(self.min_points_to_grow) == self.min_points_to_grow and self.min_points_to_grow >= 2):
-            raise ValueError(f"KMeansParams.min_points_to_grow must be an integer >= 2, got {self.min_points_to_grow!r}")
-        if not (int(self.n_init) == self.n_init and self.n_init >= 1):
-            raise ValueError(f"KMeansParams.n_init must be an integer >= 1, got {self.n_init!r}")
-        if not self.min_inertia >= 0:
-            raise ValueError(f"KMeansParams.min_inertia must be >= 0, got {self.min_inertia!r}")
+        check(self)
 
 
 # ---------------------------------------------------------------------------------------------------------------
