@@ -46,8 +46,8 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.params", "JSON object of the stage's parameters, keys sorted."),
     ("stucco.seed", "JSON integer root seed, or `null`."),
     ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
-    ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own "
-                      "kind)."),
+    ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `diagnostics`, `segments`, `retrieval`, "
+                      "`candidates`, `scores` (or a stage's own kind)."),
 )
 
 # Fixed writer options: same bytes for the same table (no timestamps are written by parquet-cpp; the
@@ -172,6 +172,12 @@ def _infer_kind(names: list[str]) -> str | None:
         return "contacts"
     if "win_wrench" in s and "obj_pose" in s:
         return "sim_run"
+    if "grasp_outcome" in s and "true_x_m" in s:
+        return "retrieval"
+    if "segment_chosen" in s and "rank" in s:
+        return "candidates"
+    if "contact_error_cm" in s and "wall_s" in s:
+        return "scores"
     return None
 
 
