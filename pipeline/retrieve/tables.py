@@ -12,7 +12,10 @@ from pipeline import schema
 from pipeline.schema.results import CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS
 
 __all__ = ["RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "RETRIEVAL", "CANDIDATES", "validate_retrieval",
-           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table", "run_candidates"]
+           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table", "run_candidates", "CANDIDATE_FIELDS"]
+
+#: The columns an estimator gives for each candidate: every candidates column but ``run`` (the stage adds it).
+CANDIDATE_FIELDS: tuple[str, ...] = tuple(c.name for c in CANDIDATES_COLUMNS if c.name != "run")
 
 
 def validate_retrieval(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
@@ -40,7 +43,7 @@ def run_candidates(**columns) -> dict[str, np.ndarray]:
     """One run's candidates, as an estimator returns them (:attr:`pipeline.retrieve.paper.Estimate.candidates`):
     every column of :data:`CANDIDATES_COLUMNS` but ``run`` (the stage adds it), each an array of one length.
     ValueError naming a missing or unknown column, or a length that differs."""
-    names = [c.name for c in CANDIDATES_COLUMNS if c.name != "run"]
+    names = CANDIDATE_FIELDS
     missing = [n for n in names if n not in columns]
     extra = sorted(set(columns) - set(names))
     if missing or extra:
