@@ -46,11 +46,10 @@ def single_threaded():
     """Run the job's numeric libraries on one thread each (numba, OpenMP, BLAS), restoring them afterwards.
 
     Parallelism is over jobs. The tracker's numba kernels and scikit-learn's k-means parallelise problems of a
-    few hundred points, where OpenMP threads only spin: measured on the 2-core machine beside one busy process,
-    one FB run of k-means tracking took 5-13 s with 2 OpenMP threads and 0.2 s with one (STUCCO 1.9 s and
-    0.03 s). ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's
-    ICP (which ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run
-    to the next, whatever ``jobs`` is (measured; tests/test_regression.py states the tolerance).
+    few hundred points, where OpenMP threads only spin (docs/evaluation.md, "Parallelism", has the times).
+    ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's ICP (which
+    ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run to the
+    next, whatever ``jobs`` is (tests/test_regression.py states the tolerance).
     """
     import numba
 

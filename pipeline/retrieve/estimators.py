@@ -5,8 +5,8 @@ factory signature); :func:`estimate` calls any registered estimator by name.
 
 ``paper`` is the procedure of the paper's §V-C as :mod:`pipeline.retrieve.paper` implements it (ICP from 30
 restarts on every segment, lowest position variance chooses the segment, least penetration then lowest ICP error
-chooses the pose). ``plausible`` keeps the paper's segment choice, which picked the target's segment in 69 of 80
-training runs (docs/retrieval.md), and replaces the pose by the best of a plausible set fitted to the known shape,
+chooses the pose). ``plausible`` keeps the paper's segment choice (how often it picks the target's segment:
+docs/retrieval.md) and replaces the pose by the best of a plausible set fitted to the known shape,
 the contact points weighted by recency and the gripper's free space (:mod:`pipeline.retrieve.plausible`).
 """
 from __future__ import annotations
@@ -137,7 +137,7 @@ _LATTICES: dict[tuple[str, float], np.ndarray] = {}
 
 
 def _lattice(sdf, resolution: float) -> np.ndarray:
-    # The gripper lattice depends only on the grid and the spacing: built once per process (about 5 ms).
+    # The gripper lattice depends only on the grid and the spacing: built once per process.
     key = (sdf.digest, float(resolution))
     if key not in _LATTICES:
         _LATTICES[key] = gripper_lattice(sdf, resolution)

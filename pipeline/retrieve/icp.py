@@ -48,8 +48,7 @@ def initial_transforms(points: np.ndarray, model: np.ndarray, n: int, rng: np.ra
     theta ~ U[0, 2 pi) about the segment's centroid, and the centroid is put at a uniformly random point of the
     model's bounding box. (The authors rotated about the world origin with zero translation, which starts ICP
     tens of centimetres away. Putting the centroid on the model's centre instead traps ICP: contacts lie on
-    the surface, so their centroid is never the centre, and on the stored FB run no restart from the centre
-    reached the true pose, against 5-9 of 30 from random points of the bounding box.)
+    the surface, so their centroid is never the centre; docs/retrieval.md, "Initial poses", has the figures.)
     """
     model = np.asarray(model, dtype=np.float64)
     theta = rng.uniform(0.0, 2.0 * np.pi, n)
@@ -162,8 +161,8 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
     h = layer_height(points, model)
     source = _layered_cloud(points, h)
     # Point-to-plane with horizontal normals only leaves t_z (and with few points the tilts) unconstrained, and
-    # Open3D's solve then returned tilted matrices in 79 of 1470 refinements on FB/TC runs; a third copy of
-    # both clouds at z = -h with vertical normals pins z and the tilts without touching the in-plane residuals.
+    # Open3D's solve then returns tilted matrices (docs/retrieval.md, "Point-to-plane refinement"); a third copy
+    # of both clouds at z = -h with vertical normals pins z and the tilts without touching the in-plane residuals.
     source_floor = _layered_cloud(points, h, floor=True) if plane else None
     p2p = reg.TransformationEstimationPointToPoint(with_scaling=False)
     p2p_target = _layered_cloud(model, h)

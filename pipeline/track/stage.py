@@ -94,8 +94,9 @@ def warm_up(config: TrackConfig, robot) -> float:
 
     A throwaway tracker (4 particles) replays the stored log ``data/contacts/FB-000.parquet`` (40 contacts: free
     space, contacts, resampling and replaced points), which reaches every kernel with the argument types of a real
-    run. numba caches the compiled code on disk, so only a machine's first process pays the compilation (about
-    20-40 s); ``make setup`` pays it there. A compilation says so in one line on stderr; none of it is booked as
+    run. numba caches the compiled code on disk, so only a machine's first process pays the compilation
+    (docs/evaluation.md, "Parallelism"); ``make setup`` pays it there. Trackers whose registry entry does not
+    need ``"numba"`` skip it. A compilation says so in one line on stderr; none of it is booked as
     tracking time. Idempotent per process and (method, robot). Returns the seconds spent.
     """
     key = (config.method, config.robot)
