@@ -8,6 +8,7 @@ import click
 
 from pipeline import registry
 from stucco_cli.common import parsed, pass_settings, user_errors, writable_dir, writable_file
+from stucco_cli.progress import run_bar
 
 
 @click.group()
@@ -161,8 +162,6 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
     writable_dir("--out", out_dir)
-    from tqdm import tqdm
-
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes, partition
     from pipeline.retrieve.estimators import parse_estimators
@@ -181,9 +180,9 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     if missing:
         raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
                                  f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
-    bar = lambda it, total: tqdm(it, total=total, desc="ladder", unit="run", disable=settings.progress)  # noqa: E731
     with user_errors("bench retrieval"):
-        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs, progress=bar)
+        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs,
+                           progress=run_bar(settings, "ladder"))
         paths = write_outputs(rows, out_dir)
     summary = summarise(rows)
     click.echo(ladder_tables(summary))

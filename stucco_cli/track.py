@@ -8,16 +8,12 @@ import click
 from pipeline import registry
 from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
                              user_errors)
+from stucco_cli.progress import run_bar
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
 #: 1e5 particles over 1,000 tracked points is already 1.6 GB.
 MAX_PARTICLES = 100_000
 
-
-def _progress(settings: Settings, desc: str):
-    from tqdm import tqdm
-
-    return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
 
 
 # tracker parameter -> its option name, where they differ
@@ -103,7 +99,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
     with user_errors("track"):
         tracks, diagnostics = track_file(in_path, out_path, config, seed=settings.seed, jobs=settings.jobs,
-                                         diagnostics_path=diag_path, progress=_progress(settings, "track"))
+                                         diagnostics_path=diag_path, progress=run_bar(settings, "track"))
     if settings.verbosity >= 0:
         n_runs = len(set(tracks.column("run").to_pylist()))
         ms = diagnostics.column("update_ms").to_numpy()

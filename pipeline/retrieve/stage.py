@@ -1,8 +1,9 @@
 """The ``retrieve`` stage: a segments table and the collected runs in, the retrieval and candidates tables out."""
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -29,8 +30,9 @@ class RetrieveConfig:
 
     Attributes
     ----------
-    method : str
-        Tracking method that made the segments, recorded in the output.
+    method : str or None
+        Tracking method that made the segments, recorded in the output; None: the one the segments file records
+        (:func:`retrieve_file`; the first registered method for :func:`retrieve` on a table).
     estimator : str
         A registered pose estimator (:func:`pipeline.registry.estimator_names`).
     params : RetrievalParams
@@ -43,7 +45,7 @@ class RetrieveConfig:
     grasp_params : GraspParams
     """
 
-    method: str = field(default_factory=lambda: registry.tracker_names()[0])
+    method: str | None = None
     estimator: str = DEFAULT_ESTIMATOR
     params: RetrievalParams = RetrievalParams()
     estimator_params: Any = None
@@ -51,7 +53,8 @@ class RetrieveConfig:
     grasp_params: GraspParams = GraspParams()
 
     def __post_init__(self) -> None:
-        registry.tracker(self.method)  # ValueError naming the registered methods
+        if self.method is not None:
+            registry.tracker(self.method)  # ValueError naming the registered methods
         spec = registry.estimator(self.estimator)
         object.__setattr__(self, "estimator_params", registry.build_params(spec, self.estimator_params))
 
@@ -138,6 +141,8 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
     retrieval, candidates : pyarrow.Table
     """
     config = config or RetrieveConfig()
+    if config.method is None:
+        config = dataclasses.replace(config, method=registry.tracker_names()[0])
     files = run_files_by_name(run_dir)
     by_run = final_segments_by_run(segments)
     missing = [r for r in by_run if r not in files]
@@ -161,9 +166,16 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input), both or neither
     (:func:`pipeline.atomic.all_or_none`; the retrieval is renamed last). Returns (retrieval, candidates).
 
-    ``config.grasp_params`` is used and recorded when ``config.grasp``; ``seed`` is the root seed.
+    ``config.grasp_params`` is used and recorded when ``config.grasp``; ``config.method`` None takes the tracking
+    method the segments file records (ValueError if it is not registered); ``seed`` is the root seed.
     """
     segments = schema.read_segments(segments_path)
+    if config.method is None:
+        recorded = (schema.read_metadata(segments_path).get("params") or {}).get("method")
+        try:
+            config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
+        except ValueError as e:
+            raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
     table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
                                  segments_path=str(segments_path))
     meta = config.metadata()
