@@ -7,12 +7,13 @@ is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an expo
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 from pipeline import registry, schema
-from pipeline.atomic import save_figure
+from pipeline.atomic import all_or_none, save_figure
 # Alg. 3's graph lives in pipeline/components.py (STUCCO's tracker uses it too); re-exported here.
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, connection_radius, segment_points  # noqa: F401
 from pipeline.labels import canonical_labels
@@ -150,12 +151,18 @@ def plot_segments(segments, path, max_runs: int = 6, image_format: str | None = 
 
 
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,
-                 by: str = "auto"):
-    """The `segment` stage on files: segment a tracks table and write the segments table.
+                 by: str = "auto", plot_path=None):
+    """The `segment` stage on files: segment a tracks table and write the segments table (and, with
+    ``plot_path``, :func:`plot_segments` of it: both or neither, :func:`pipeline.atomic.all_or_none`).
 
     ``length`` and ``alpha`` default to the values the tracks were made with (their metadata), then to Table I;
     the tracking method recorded there decides what ``by="auto"`` means. Returns the segments table.
     """
+    if plot_path is not None:
+        with all_or_none([out_path, plot_path]) as (table_tmp, plot_tmp):
+            segments = segment_file(in_path, table_tmp, seed=seed, length=length, alpha=alpha, by=by)
+            plot_segments(segments, plot_tmp, image_format=Path(plot_path).suffix.lstrip(".") or "png")
+        return segments
     tracks = schema.read_tracks(in_path)
     tparams = schema.read_metadata(in_path).get("params") or {}
     length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))

@@ -121,16 +121,12 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: float | None, alpha: float | None,
             plot_path: Path | None, print_table: bool) -> None:
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
-    from pipeline.atomic import all_or_none
-    from pipeline.segment import plot_segments, segment_file, summarise
+    from pipeline.segment import segment_file, summarise
 
     check_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
-    # The table and its plot appear together or not at all (pipeline/atomic.py).
-    outputs = [out_path] + ([plot_path] if plot_path is not None else [])
-    with user_errors("segment"), all_or_none(outputs) as tmps:
-        segments = segment_file(in_path, tmps[0], seed=settings.seed, length=length, alpha=alpha, by=by)
-        if plot_path is not None:
-            plot_segments(segments, tmps[1], image_format=plot_path.suffix.lstrip(".") or "png")
+    with user_errors("segment"):  # the table and its plot appear together or not at all
+        segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by,
+                                plot_path=plot_path)
     if print_table:
         rows = summarise(segments)
         click.echo(f"{'run':<16} {'segment':>7} {'points':>6} {'centroid_x_m':>12} {'centroid_y_m':>12} {'run_FMI':>8}")
