@@ -1,15 +1,8 @@
 """Run a scene in pybullet and record one Parquet file per (scene, seed): the ``sim_run`` table.
 
-Policies (docs/simulation.md, "`stucco collect`"):
-
-``scripted``
-    The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
-    whole sequence before the run.
-``greedy-walk``
-    Start and goal uniform in the scene's square (rejected if closer than 0.7 m or if the gripper would touch
-    anything at either); at most 299 actions, stop within 4 cm of the goal; after an action that ends in
-    contact take 6 uniform random actions, otherwise the best of 100 uniform random actions towards the goal.
-    Runs failing the discard rule (paper §V-B; docs/simulation.md) are not written unless asked.
+The gripper moves by a policy of :mod:`pipeline.registry` (``scripted``, ``greedy-walk``: :mod:`pipeline.policies`,
+docs/simulation.md, "`stucco collect`"); runs of a policy that discards (the greedy walk) failing the discard rule
+(paper §V-B; docs/simulation.md) are not written unless asked.
 
 Every random draw of a job comes from ``numpy.random.SeedSequence([root_seed, scene_hash(scene), seed])``
 (children: 0 = replay noise, 1 = policy), so every method sees the same scene and actions for a given seed.
@@ -30,19 +23,19 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from pipeline import registry
 from pipeline.geometry import gripper_yaw
 from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
 from pipeline.parallel import map_jobs
 from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_hash
-from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
+from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World
 from pipeline.sim.world import ActionTrace
 
-__all__ = ["POLICIES", "RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
+__all__ = ["RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
            "output_path", "collect_run", "collect_file", "collect", "summarize_action", "action_label",
            "representative_force", "discard_reason", "CollectResult"]
 
-POLICIES = ("scripted", "greedy-walk")
 RUN_KIND = SIM_RUN.name
 #: Sim steps of each action kept for detection/isolation: the detector looks at the last 5, isolation takes the
 #: latest in-contact one among them plus up to 3 preceding in-contact steps, so it can reach 8 steps back.
@@ -276,21 +269,7 @@ def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
     return pa.table(data)
 
 
-def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    walk = scene.walk
-    lo, hi = walk.bounds
-    for _ in range(10000):
-        start = rng.uniform(lo, hi, 2)
-        goal = rng.uniform(lo, hi, 2)
-        if math.hypot(*(start - goal)) < walk.min_start_goal_distance:
-            continue
-        if world.touches(*goal) or world.touches(*start):
-            continue
-        return start, goal
-    raise RuntimeError(f"{scene.path}: no collision-free start/goal pair found in 10000 draws")
-
-
-def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "scripted",
+def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | None = None,
                 max_actions: int | None = None, det: DetectionParams = DetectionParams()
                 ) -> tuple[pa.Table, dict, CollectResult]:
     """Simulate one run of a scene.
@@ -302,7 +281,9 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
         Run seed.
     root_seed : int
         The stage's root seed.
-    policy : {"scripted", "greedy-walk"}
+    policy : str
+        A registered collection policy (:func:`pipeline.registry.policy_names`); None: the one for the scene's kind
+        (:func:`pipeline.registry.default_policy`).
     max_actions : int, optional
         Stop after this many actions (short test runs).
 
@@ -315,55 +296,31 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
     result : CollectResult
         Summary (``path`` None).
     """
-    if policy not in POLICIES:
-        raise ValueError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
-    if policy == "scripted" and scene.actions is None:
-        raise SceneError(f"{scene.path}: key 'actions': the scripted policy needs an action sequence")
-    if policy == "greedy-walk" and scene.walk is None:
-        raise SceneError(f"{scene.path}: key 'walk': the greedy-walk policy needs a [walk] table")
+    policy = policy or registry.default_policy(scene.kind)
+    spec = registry.policy(policy)
+    for key, what in spec.needs:
+        if getattr(scene, key, None) is None:
+            raise SceneError(f"{scene.path}: key {key!r}: the {policy} policy needs the scene's {what}")
     t0 = time.perf_counter()
     noise_ss, policy_ss = job_seed_sequence(root_seed, scene.name, seed).spawn(2)
     noise_rng = np.random.default_rng(noise_ss)
     policy_rng = np.random.default_rng(policy_ss)
+    mover = registry.resolve(spec.factory)(scene, policy_rng, noise_rng, max_actions,
+                                           registry.build_params(spec))
     eff = scene.effects
     scale = scene.action_scale
     rows: list[dict] = []
     sim_s = 0.0
-    goal = None
-    with World(scene, gripper_start=scene.gripper_start if policy == "scripted" else None) as world:
-        if policy == "greedy-walk":
-            start, goal = _sample_start_goal(world, policy_rng, scene)
-            world.place(*start)
+    with World(scene, gripper_start=mover.gripper_start) as world:
+        mover.start(world)
         pos0, _ = world.gripper_pose()
         initial = {"ee_xy_m": pos0[:2].tolist(), "obj_pose": world.object_poses().tolist()}
-        if policy == "scripted":
-            seq = np.asarray(scene.actions, dtype=np.float64)
-            if max_actions is not None:
-                seq = seq[:max_actions]
-            # Drawn once for the whole sequence before the run, as the authors do.
-            actions = np.clip(seq + action_noise(noise_rng, len(seq), eff.noise_mm, scale), -1.0, 1.0)
-            n_limit = len(actions)
-        else:
-            walk = scene.walk
-            n_limit = walk.max_actions if max_actions is None else min(max_actions, walk.max_actions)
-            remaining = 0
+        n_limit = mover.plan()
         last_contact = False
         for k in range(n_limit):
-            if policy == "scripted":
-                u = actions[k]
-            else:
-                x = world.gripper_pose()[0][:2]
-                if math.hypot(*(x - goal)) < walk.goal_tolerance:
-                    break
-                if last_contact:
-                    remaining = walk.walk_length
-                if remaining > 0:
-                    u = policy_rng.uniform(-1.0, 1.0, 2)
-                    remaining -= 1
-                else:
-                    cand = policy_rng.uniform(-1.0, 1.0, (walk.n_candidates, 2))
-                    u = cand[np.argmin(np.linalg.norm(x + scale * cand - goal, axis=1))]
-                u = np.clip(u + action_noise(noise_rng, 1, eff.noise_mm, scale)[0], -1.0, 1.0)
+            u = mover.action(world, k, last_contact)
+            if u is None:
+                break
             ts = time.perf_counter()
             trace = world.act(float(u[0] * scale), float(u[1] * scale))
             sim_s += time.perf_counter() - ts
@@ -376,14 +333,14 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
     table = _build_table(scene, seed, rows)
     labels = table.column("object_id").to_numpy()
     fr = np.column_stack([table.column("force_rep_x_n").to_numpy(), table.column("force_rep_y_n").to_numpy()])
-    discarded = discard_reason(labels, fr) if policy == "greedy-walk" else None
+    discarded = discard_reason(labels, fr) if mover.discards else None
     touched = {scene.body_names[i]: int(np.sum(labels == i)) for i in sorted(set(labels.tolist())) if i >= 0}
     params = {
         "scene": scene.name, "scene_file": scene.path.name, "kind": scene.kind, "policy": policy,
         "run_seed": int(seed), "seed_sequence": [int(root_seed), scene_hash(scene.name), int(seed)],
         "effects": eff.as_dict(), "action_scale_m": scale, "max_actions": max_actions,
         "bodies": list(scene.body_names), "target": scene.target.name if scene.target else None,
-        "initial": initial, "goal_xy_m": None if goal is None else goal.tolist(),
+        "initial": initial, "goal_xy_m": None if mover.goal is None else mover.goal.tolist(),
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
     }
@@ -393,7 +350,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
     return table, params, result
 
 
-def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str = "scripted",
+def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str | None = None,
                  max_actions: int | None = None, keep_discarded: bool = True) -> CollectResult:
     """The `collect` stage on a file: simulate one run (:func:`collect_run`) and write its ``sim_run`` table to
     ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``."""
@@ -404,7 +361,7 @@ def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 
     return result
 
 
-def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str = "scripted", root_seed: int = 0,
+def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str | None = None, root_seed: int = 0,
             jobs: int = 1, progress: bool | None = None, max_actions: int | None = None,
             keep_discarded: bool = False) -> list[CollectResult]:
     """Collect runs of ``scene`` for ``seeds`` into ``out_dir``, ``jobs`` processes in parallel.

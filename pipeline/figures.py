@@ -20,7 +20,7 @@ import numpy as np
 from pipeline import schema
 from pipeline.atomic import save_figure
 from pipeline.layout import partition
-from pipeline.methods import METHOD_ORDER, METHOD_TITLE
+from pipeline.registry import method_title, tracker_names
 from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, primitive_of, read_retrieval
 from pipeline.score import read_scores
 from pipeline.segment import final_estimates
@@ -99,7 +99,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
                     lw=1.6 if is_target else 0.8, zorder=1)
         ax.plot(info.ee[:, 0], info.ee[:, 1], "-", color="tab:blue", lw=0.7, alpha=0.6, zorder=2)
         ax.plot(info.ee[0, 0], info.ee[0, 1], "o", color="tab:blue", ms=3, zorder=2)
-        title = METHOD_TITLE.get(m, m)
+        title = method_title(m)
         seg_path = partition(out, "segments", scene, seed, m)
         ret_path = partition(out, "retrieval", scene, seed, m, estimator)
         chosen = None
@@ -141,7 +141,7 @@ def summary_figure(rows, path: str | Path) -> Path:
     plt = _plt()
     path = Path(path)
     scenes = list(dict.fromkeys(r.scene for r in rows))
-    methods = [m for m in METHOD_ORDER if any(r.method == m for r in rows)]
+    methods = [m for m in tracker_names() if any(r.method == m for r in rows)]
     methods += sorted({r.method for r in rows} - set(methods))
     by: dict = {}
     for r in rows:
@@ -160,7 +160,7 @@ def summary_figure(rows, path: str | Path) -> Path:
             err = None
             if std:
                 err = np.nan_to_num([getattr(by[(s, m)], std) if (s, m) in by else 0.0 for s in scenes])
-            ax.bar(xs, np.nan_to_num(vals), width, yerr=err, color=cmap(k % 10), label=METHOD_TITLE.get(m, m),
+            ax.bar(xs, np.nan_to_num(vals), width, yerr=err, color=cmap(k % 10), label=method_title(m),
                    error_kw={"lw": 0.6, "ecolor": "0.3"}, capsize=1.5)
             pv = [getattr(by[(s, m)], pmean) if (s, m) in by else None for s in scenes]
             pv = np.array([np.nan if v is None else v for v in pv], dtype=float)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR
+from pipeline.registry import DEFAULT_ESTIMATOR
 
 __all__ = ["KINDS", "SHARED", "PER_ESTIMATOR", "FLAT", "LAYOUT_VERSION", "PART", "WALL", "CONFIG", "LOCK", "STAGE_KIND",
            "STAGES", "partition", "wall_path", "job_paths"]

@@ -1,4 +1,5 @@
-"""Independent calls over processes: the one joblib loop of the pipeline (runs, seeds, jobs, figures).
+"""Independent calls over processes: the one joblib loop of the pipeline (runs, seeds, jobs, figures), and one
+thread per numeric library inside a call (:func:`single_threaded`).
 
 With ``jobs`` > 1 and more than one call, the calls run in joblib worker processes (loky, or the active joblib
 backend, e.g. a Dask cluster, with ``jobs == -1``); otherwise in this process, one after the other. Either way a
@@ -7,10 +8,11 @@ call's result does not depend on ``jobs``: every random draw comes from the run'
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 
 from joblib import Parallel, delayed
 
-__all__ = ["run_calls", "in_process", "map_jobs"]
+__all__ = ["run_calls", "in_process", "map_jobs", "single_threaded"]
 
 
 def in_process(jobs: int, n_calls: int) -> bool:
@@ -37,3 +39,30 @@ def map_jobs(fn: Callable, args: Sequence[tuple], jobs: int, bar) -> list:
         out.append(r)
         bar.update()
     return out
+
+
+@contextmanager
+def single_threaded():
+    """Run the job's numeric libraries on one thread each (numba, OpenMP, BLAS), restoring them afterwards.
+
+    Parallelism is over jobs. The tracker's numba kernels and scikit-learn's k-means parallelise problems of a
+    few hundred points, where OpenMP threads only spin (docs/evaluation.md, "Parallelism", has the times).
+    ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's ICP (which
+    ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run to the
+    next, whatever ``jobs`` is (tests/test_regression.py states the tolerance).
+    """
+    import numba
+
+    # numba's threading layer first: started after Open3D has loaded its older TBB, numba warns that it cannot
+    # use TBB (and falls back to OpenMP anyway).
+    prev = numba.get_num_threads()
+    import open3d  # noqa: F401  (any OpenMP runtime it brings)
+    import sklearn.cluster  # noqa: F401  (scikit-learn's OpenMP runtime)
+    from threadpoolctl import threadpool_limits
+
+    numba.set_num_threads(1)
+    try:
+        with threadpool_limits(1):
+            yield
+    finally:
+        numba.set_num_threads(prev)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.methods import METHOD_ORDER, METHOD_TITLE
+from pipeline.registry import method_title, tracker_names
 
 
 #: The paper's Table II (20 runs per task in simulation): GS %, FMI mean (std), CE cm mean (std).
@@ -84,7 +84,7 @@ def table_ii(scores) -> list[ReportRow]:
     est_order = tuple(dict.fromkeys(estimator))
     rows = []
     for sc, m, e in ((sc, m, e) for sc in _ordered(scene, tuple(PAPER_TABLE_II))
-                     for m in _ordered(method[scene == sc], METHOD_ORDER)
+                     for m in _ordered(method[scene == sc], tracker_names())
                      for e in _ordered(estimator[(scene == sc) & (method == m)], est_order)):
         sel = (scene == sc) & (method == m) & (estimator == e)
 
@@ -138,7 +138,7 @@ def to_markdown(rows: list[ReportRow]) -> str:
         gs = " | ".join(_num(by[(r.scene, r.method, e)].grasp_success_pct, '.0f') if (r.scene, r.method, e) in by
                         else "" for e in estimators)
         lines.append(
-            f"| {r.scene} | {METHOD_TITLE.get(r.method, r.method)} | {r.runs} | {gs} "
+            f"| {r.scene} | {method_title(r.method)} | {r.runs} | {gs} "
             f"| {paper_gs} | {_ms(r.fmi_mean, r.fmi_std, '.2f')} | {_ms(r.paper_fmi_mean, r.paper_fmi_std, '.2f')} "
             f"| {_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')} | {_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')} "
             f"| {_num(r.position_error_m_median * 100, '.1f')} | {_num(r.track_s_mean, '.2f')} "
@@ -177,7 +177,7 @@ def claims(rows: list[ReportRow], method: str = "stucco") -> list[str]:
         ours = here.get(method)
         if ours is None:
             continue
-        name = METHOD_TITLE.get(method, method)
+        name = method_title(method)
         gs = "; ".join(_gs_claim(r, several) for r in rows if r.scene == sc and r.method == method)
         others = {m: r.ce_cm_mean for m, r in here.items() if m != method and not math.isnan(r.ce_cm_mean)}
         if math.isnan(ours.ce_cm_mean) or not others:
@@ -185,10 +185,10 @@ def claims(rows: list[ReportRow], method: str = "stucco") -> list[str]:
         else:
             best = min(others, key=others.get)
             if ours.ce_cm_mean < others[best]:
-                ce = (f"lowest CE ({ours.ce_cm_mean:.2f} cm, next {METHOD_TITLE.get(best, best)} "
+                ce = (f"lowest CE ({ours.ce_cm_mean:.2f} cm, next {method_title(best)} "
                       f"{others[best]:.2f}): holds")
             else:
-                ce = (f"lowest CE: no, {ours.ce_cm_mean:.2f} cm vs {METHOD_TITLE.get(best, best)} "
+                ce = (f"lowest CE: no, {ours.ce_cm_mean:.2f} cm vs {method_title(best)} "
                       f"{others[best]:.2f} cm (+{ours.ce_cm_mean - others[best]:.2f} cm)")
         out.append(f"{sc}: {name} {gs}; {ce}")
     return out

@@ -27,6 +27,7 @@ from pipeline import schema
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.metrics import fmi
 from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
+from pipeline.schema.results import SCORES, SCORES_COLUMNS
 from pipeline.segment import final_estimates
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
@@ -158,54 +159,13 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
     return validate_scores(pa.table(arrays))
 
 
-_C = schema.Column
-
-SCORES_COLUMNS: tuple[schema.Column, ...] = (
-    _C("scene", pa.string(), "", False, "Scene of the run."),
-    _C("seed", pa.int64(), "", False, "Run seed."),
-    _C("method", pa.string(), "", False, "Tracking method."),
-    _C("estimator", pa.string(), "", False, "Pose estimator of the retrieval (plausible, paper)."),
-    _C("run", pa.string(), "", False, "Run id '<scene>/<seed>'."),
-    _C("grasp_success", pa.bool_(), "", True, "Simulated grasp succeeded (null: grasp not simulated)."),
-    _C("fmi", pa.float64(), "", True, "Fowlkes-Mallows index of segments vs ground-truth objects over points with "
-                                      "a known object; null if none.", minimum=0.0, maximum=1.0),
-    _C("contact_error_cm", pa.float64(), "cm", True, "Mean |distance| of final tracked points to the nearest true "
-                                                     "surface (objects and walls); null without points.",
-       minimum=0.0),
-    _C("position_error_m", pa.float64(), "m", False, "Distance between estimated and true target centres.",
-       finite=True, minimum=0.0),
-    _C("yaw_error_rad", pa.float64(), "rad", False, "Target yaw error modulo its symmetry.", finite=True,
-       minimum=0.0),
-    _C("low_confidence", pa.bool_(), "", False, "The pose estimate was flagged (see the retrieval table)."),
-    _C("n_points", pa.int64(), "", False, "Final tracked points of the run.", minimum=0),
-    _C("n_segments", pa.int64(), "", False, "Segments of the final segmentation.", minimum=0),
-    _C("track_s", pa.float64(), "s", True, "Tracking time (sum of update times); null if no diagnostics.",
-       minimum=0.0),
-    _C("retrieve_s", pa.float64(), "s", False, "Pose estimation time.", finite=True, minimum=0.0),
-    _C("grasp_s", pa.float64(), "s", True, "Grasp simulation time; null if not simulated.", minimum=0.0),
-    _C("wall_s", pa.float64(), "s", False, "Sum of the known stage times of the run.", finite=True, minimum=0.0),
-)
-
-
-SCORES = schema.TableSpec("scores", SCORES_COLUMNS, rules=("One row per (scene, seed, method, estimator).",))
-
-
 def validate_scores(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
-    """Validate a scores table (one-line SchemaError)."""
-    out = schema.validate_spec(table, SCORES, path)
-    keys = list(zip(*(out.column(c).to_pylist() for c in ("scene", "seed", "method", "estimator"))))
-    seen: dict[tuple, int] = {}
-    for i, k in enumerate(keys):
-        if k in seen:
-            raise schema.SchemaError(path, "seed", i, f"(scene, seed, method, estimator) = {k} repeats row "
-                                                      f"{seen[k]}; expected one row per (scene, seed, method, "
-                                                      f"estimator)")
-        seen[k] = i
-    return out
+    """Validate a scores table (one-line SchemaError; the spec :data:`SCORES` is in :mod:`pipeline.schema.results`)."""
+    return schema.validate_spec(table, SCORES, path)
 
 
 def read_scores(path: str | Path) -> pa.Table:
-    return validate_scores(schema.read_parquet(path), path)
+    return schema.read_table(path, "scores")
 
 
 def summary_lines(scores: pa.Table) -> list[str]:

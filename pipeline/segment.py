@@ -6,71 +6,18 @@ is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an expo
 """
 from __future__ import annotations
 
-import math
+import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
-
-from pipeline import schema
-from pipeline.atomic import save_figure
+from pipeline import registry, schema
+from pipeline.atomic import all_or_none, save_figure
+# Alg. 3's graph lives in pipeline/components.py (STUCCO's tracker uses it too); re-exported here.
+from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, connection_radius, segment_points  # noqa: F401
 from pipeline.labels import canonical_labels
 from pipeline.metrics import fmi
-
-#: Characteristic length l (m^2) of the connection probability exp(-d^2 / l), the paper's Table I (simulation).
-#: One fact for both users: STUCCO's tracker connects points with it (Alg. 1) and segmentation thresholds the same
-#: probability (Alg. 3), so :class:`pipeline.track.soft.SoftTrackingParams` takes its default from here.
-DEFAULT_LENGTH = 0.02
-#: Connection threshold alpha of segmentation (Alg. 3), the paper's Table I.
-DEFAULT_ALPHA = 0.4
-
-
-def connection_radius(length: float, alpha: float) -> float:
-    """Distance below which two points are connected: sqrt(l ln(1/alpha)) (metres); 0 if alpha >= 1, inf if <= 0."""
-    if alpha >= 1.0:
-        return 0.0
-    if alpha <= 0.0:
-        return np.inf
-    return math.sqrt(length * math.log(1.0 / alpha))
-
-
-def segment_points(points: np.ndarray, length: float, alpha: float) -> np.ndarray:
-    """Connected components of the graph exp(-d^2/l) > alpha over the points (Alg. 3).
-
-    Parameters
-    ----------
-    points : ndarray, shape (M, D)
-        Tracked contact points (metres).
-    length : float
-        Characteristic length l (m^2, as in exp(-d^2/l)).
-    alpha : float
-        Connection probability threshold.
-
-    Returns
-    -------
-    labels : ndarray, shape (M,), int64
-        Object index of each point, numbered 0..k-1 in order of first appearance.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    m = len(points)
-    if m == 0:
-        return np.zeros(0, dtype=np.int64)
-    radius = connection_radius(length, alpha)
-    if radius == np.inf:
-        return np.zeros(m, dtype=np.int64)
-    if radius == 0.0:
-        return np.arange(m, dtype=np.int64)
-    pairs = cKDTree(points).query_pairs(r=radius, output_type="ndarray")
-    if len(pairs):
-        d2 = np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1)
-        pairs = pairs[d2 < radius * radius]  # the paper's test is strict
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
-    _, labels = connected_components(graph, directed=False)
-    return canonical_labels(labels)
-
 
 SEGMENT_BY = ("auto", "components", "tracker")
 
@@ -88,8 +35,9 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
         Alg. 3 parameters (used when segmenting by connected components).
     by : str
         "components" (Alg. 3 on the tracked points), "tracker" (the tracker's own ``tracker_label``) or "auto":
-        components for STUCCO, whose tracker labels *are* Alg. 3, and the tracker's labels for the baselines,
-        whose clusters are their segmentation.
+        what the method's registry entry says (:attr:`pipeline.registry.TrackerSpec.segment_by`): components for
+        STUCCO, whose tracker labels *are* Alg. 3, and the tracker's labels for the baselines, whose clusters are
+        their segmentation (and for a method not registered).
     method : str
         The tracking method that produced the table (from its metadata), used by ``by="auto"``.
 
@@ -100,7 +48,9 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
     """
     if by not in SEGMENT_BY:
         raise ValueError(f"by must be one of {', '.join(SEGMENT_BY)}, got {by!r}")
-    use_components = by == "components" or (by == "auto" and method == "stucco")
+    known = method in registry.tracker_names()
+    use_components = by == "components" or (by == "auto" and known and registry.tracker(method).segment_by
+                                            == "components")
     run = np.asarray(tracks.column("run").to_pylist(), dtype=object)
     est = tracks.column("estimate_step").to_numpy()
     xy = np.column_stack([tracks.column("x_m").to_numpy(), tracks.column("y_m").to_numpy()])
@@ -117,6 +67,14 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
             else:
                 segment[rows] = canonical_labels(tracker_label[rows])
     return tracks.append_column("segment", pa.array(segment, pa.int64()))
+
+
+def segmentation_params(method: str, overrides: dict | None = None) -> tuple[float, float]:
+    """Alg. 3's (l, alpha) for tracks of ``method`` made with parameter ``overrides``: the method's own when its
+    parameters have them (STUCCO's, defaults filled in), Table I's otherwise."""
+    prm = registry.build_params(registry.tracker(method), dict(overrides or {}))
+    values = dataclasses.asdict(prm) if prm is not None else {}
+    return float(values.get("length", DEFAULT_LENGTH)), float(values.get("alpha", DEFAULT_ALPHA))
 
 
 def final_estimates(table):
@@ -193,12 +151,18 @@ def plot_segments(segments, path, max_runs: int = 6, image_format: str | None = 
 
 
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,
-                 by: str = "auto"):
-    """The `segment` stage on files: segment a tracks table and write the segments table.
+                 by: str = "auto", plot_path=None):
+    """The `segment` stage on files: segment a tracks table and write the segments table (and, with
+    ``plot_path``, :func:`plot_segments` of it: both or neither, :func:`pipeline.atomic.all_or_none`).
 
     ``length`` and ``alpha`` default to the values the tracks were made with (their metadata), then to Table I;
     the tracking method recorded there decides what ``by="auto"`` means. Returns the segments table.
     """
+    if plot_path is not None:
+        with all_or_none([out_path, plot_path]) as (table_tmp, plot_tmp):
+            segments = segment_file(in_path, table_tmp, seed=seed, length=length, alpha=alpha, by=by)
+            plot_segments(segments, plot_tmp, image_format=Path(plot_path).suffix.lstrip(".") or "png")
+        return segments
     tracks = schema.read_tracks(in_path)
     tparams = schema.read_metadata(in_path).get("params") or {}
     length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))

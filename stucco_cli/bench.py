@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.common import parsed, pass_settings, user_errors, writable_dir, writable_file
+from stucco_cli.progress import run_bar
 
 
 @click.group()
@@ -80,14 +82,13 @@ def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[f
     return tuple(out)
 
 
-def _methods(text: str) -> tuple[str, ...]:
-    from pipeline.methods import METHOD_ORDER
-
+def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False) -> tuple[str, ...]:
+    known = registry.tracker_names()
     methods = tuple(m.strip() for m in text.split(",") if m.strip())
-    unknown = [m for m in methods if m not in METHOD_ORDER]
-    if unknown or not methods:
-        raise click.BadParameter(f"unknown method {unknown[0]!r}; expected some of {', '.join(METHOD_ORDER)}"
-                                 if unknown else "expected at least one method", param_hint="--methods")
+    unknown = [m for m in methods if m not in known]
+    if unknown or not (methods or allow_none):
+        raise click.BadParameter(f"unknown method {unknown[0]!r}; expected some of {', '.join(known)}"
+                                 if unknown else "expected at least one method", param_hint=param_hint)
     return methods
 
 
@@ -102,9 +103,10 @@ def _methods(text: str) -> tuple[str, ...]:
 @click.option("--free-mm", "free_list", default="2.5,5,10", show_default=True,
               help="Free-space lattice spacings of the plausible estimator, mm ('' for none).")
 @click.option("--paper-estimator/--no-paper-estimator", default=True, show_default=True,
-              help="Also run the paper's pose estimator at the defaults.")
-@click.option("--baselines", default="birch,dbscan,kmeans,gmphd", show_default=True,
-              help="Baselines at their defaults ('' for none).")
+              help="Also run the other registered pose estimators (the paper's) at the defaults.")
+@click.option("--baselines", default=None,
+              help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
+                   "the first: " + ",".join(registry.baseline_names()) + "].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes over (scene, seed).")
@@ -128,7 +130,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                               hypotheses=_ints("--hypotheses", hyp_list, 1, 4096),
                               free_mm=_floats("--free-mm", free_list, 0.5, 100.0),
                               paper_estimator=paper_estimator,
-                              baselines=tuple(b for b in baselines.split(",") if b.strip()))
+                              baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
                                jobs=jobs or settings.jobs, progress=settings.progress)
@@ -147,9 +149,11 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
               help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
 @click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
 @click.option("--seeds", default="0-19", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--estimators", default="plausible,paper", show_default=True,
-              help="Pose estimators of the estimator rungs (plausible, paper).")
-@click.option("--method", default="stucco", show_default=True, help="Tracking method of the tracker rung.")
+@click.option("--estimators", default="all", show_default=True,
+              help="Pose estimators of the estimator rungs (comma-separated: "
+                   + ", ".join(registry.estimator_names()) + "; or 'all').")
+@click.option("--method", default=registry.tracker_names()[0], show_default=True,
+              help="Tracking method of the tracker rung.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench/retrieval"), show_default=True,
               help="ladder.csv, ladder_summary.csv, ladder.png.")
@@ -158,10 +162,8 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
     writable_dir("--out", out_dir)
-    from tqdm import tqdm
-
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import METHODS, parse_scenes, partition
+    from pipeline.evaluate import parse_scenes, partition
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.retrieve.ladder import ladder_rows
     from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
@@ -172,16 +174,15 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
     est = parsed("--estimators", parse_estimators, estimators)
-    if method not in METHODS:
-        raise click.BadParameter(f"expected one of {', '.join(METHODS)}, got {method!r}", param_hint="--method")
+    _methods(method, "--method")
     pairs = [(sc, s) for sc in scene_list for s in seed_list]
     missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
     if missing:
         raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
                                  f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
-    bar = lambda it, total: tqdm(it, total=total, desc="ladder", unit="run", disable=settings.progress)  # noqa: E731
     with user_errors("bench retrieval"):
-        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs, progress=bar)
+        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs,
+                           progress=run_bar(settings, "ladder"))
         paths = write_outputs(rows, out_dir)
     summary = summarise(rows)
     click.echo(ladder_tables(summary))

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
 
 
@@ -12,7 +13,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
 @click.option("--scenes", default=None, help="Comma-separated retrieval tasks, or 'all' [FB,BC,IB,TC].")
 @click.option("--seeds", default=None, help="Run seeds: N, N-M, or a comma-separated list [0-19].")
 @click.option("--methods", default="all", show_default=True,
-              help="Comma-separated: stucco, birch, dbscan, kmeans, gmphd; or 'all'.")
+              help=f"Comma-separated: {', '.join(registry.tracker_names())}; or 'all' (every registered method).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Evaluation directory (one folder per stage table, report, figures) [out/evaluate; "
                    "out/quick with --quick].")
@@ -26,9 +27,9 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
               help="Cut every simulated run after N actions (small test grids).")
 @click.option("--restarts", type=click.IntRange(min=2), default=30, show_default=True,
               help="ICP restarts per segment.")
-@click.option("--estimators", default="plausible,paper", show_default=True,
-              help="Pose estimators to run on every job (comma-separated: plausible, paper); the report shows "
-                   "their grasp success side by side, the first one's figures.")
+@click.option("--estimators", default="all", show_default=True,
+              help=f"Pose estimators to run on every job (comma-separated: {', '.join(registry.estimator_names())}; "
+                   "or 'all'); the report shows their grasp success side by side, the first one's figures.")
 @click.option("--figures/--no-figures", default=True, show_default=True,
               help="Draw a figure per run and the summary figure.")
 @click.option("--snapshot", "snapshot_dir", type=click.Path(file_okay=False, path_type=Path), default=None,

@@ -5,13 +5,10 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.common import Settings, check_paths, pass_settings, user_errors
+from stucco_cli.progress import run_bar
 
-
-def _progress(settings: Settings, desc: str):
-    from tqdm import tqdm
-
-    return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
 
 
 def _side_path(out_path: Path, suffix: str) -> Path:
@@ -28,9 +25,10 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--candidates", "cand_path", type=click.Path(path_type=Path), default=None,
               help="Candidates table (one row per run, segment, restart) [default: OUT with suffix "
                    ".candidates.parquet].")
-@click.option("--estimator", type=click.Choice(["plausible", "paper"]), default="plausible", show_default=True,
-              help="plausible: the paper's segment choice, then the best pose of a plausible set fitted to the "
-                   "target's shape, the contacts and the gripper's free space; paper: the paper's ICP procedure.")
+@click.option("--estimator", type=registry.choices("estimator"), default=registry.DEFAULT_ESTIMATOR,
+              show_default=True, help="Pose estimator: " + "; ".join(f"{s.name}: {s.title}" for s in
+                                                                     registry.estimators())
+              + " (pipeline/registry.py, docs/retrieval.md).")
 @click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
 @click.option("--hypotheses", type=click.IntRange(min=1), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
@@ -43,32 +41,29 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
              estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
              print_table: bool) -> None:
     """Estimate the target pose of every run from its segments and grasp it in simulation."""
-    from pipeline import schema
     from pipeline.grasp import GraspParams
-    from pipeline.methods import METHOD_ORDER
-    from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieve_file
+    from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
 
     def known(m: str) -> str:
-        if m not in METHOD_ORDER:
-            raise click.BadParameter(f"unknown method {m!r}; expected one of {', '.join(METHOD_ORDER)}",
-                                     param_hint="--method")
+        try:
+            registry.tracker(m)
+        except ValueError as e:
+            raise click.BadParameter(str(e), param_hint="--method") from None
         return m
 
     if method is not None:
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
     check_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
-    with user_errors():  # a bad segments file is refused before --method is taken from its metadata
-        schema.read_segments(segments_path)
-        meta = schema.read_metadata(segments_path)
-    method = known(method or str((meta.get("params") or {}).get("method", "stucco")))
-    with user_errors("retrieve"):
+    with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
-        plausible = PlausibleParams(**({} if hypotheses is None else {"n_hypotheses": hypotheses}))
-        table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, seed=settings.seed, method=method,
-                                 grasp_params=GraspParams(), estimator=estimator, params=params,
-                                 plausible_params=plausible, grasp=grasp, jobs=settings.jobs,
-                                 progress=_progress(settings, "retrieve"))
+        # --hypotheses sets the estimator's own n_hypotheses (the plausible one's); other estimators ignore it.
+        fields = getattr(registry.resolve(registry.estimator(estimator).params), "__dataclass_fields__", {})
+        own = {"n_hypotheses": hypotheses} if hypotheses is not None and "n_hypotheses" in fields else None
+        config = RetrieveConfig(method=method, estimator=estimator, params=params, estimator_params=own,
+                                grasp=grasp, grasp_params=GraspParams())
+        table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, config, seed=settings.seed,
+                                 jobs=settings.jobs, progress=run_bar(settings, "retrieve"))
     if print_table:
         click.echo(f"{'run':<10} {'x_m':>7} {'y_m':>7} {'yaw':>6} {'seg':>4} {'pts':>4} {'pos_err_cm':>10} "
                    f"{'yaw_err':>7} {'grasp':>6}  notes / outcome")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.bench import bench
 from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, parsed, pass_settings, user_errors, writable_dir
 
@@ -30,8 +31,10 @@ def _load(scene: str):
 @click.command()
 @click.option("--scene", required=True, help="Scene name (see `stucco scenes`) or path to a scene .toml file.")
 @click.option("--seeds", default="0", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--policy", type=click.Choice(["scripted", "greedy-walk"]), default=None,
-              help="How the gripper moves [scripted for retrieval scenes, greedy-walk for training scenes].")
+@click.option("--policy", type=registry.choices("policy"), default=None,
+              help="How the gripper moves: " + "; ".join(f"{s.name}: {s.title}" for s in registry.policies())
+              + " [" + ", ".join(f"{s.name} for {' and '.join(s.default_for)} scenes" for s in registry.policies()
+                                 if s.default_for) + "].")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for one <scene>-<seed>.parquet per run.")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Stop each run after N actions.")
@@ -48,14 +51,13 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
 
     sc = _load(scene)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    if policy is None:
-        policy = "scripted" if sc.kind == "retrieval" else "greedy-walk"
-    if policy == "scripted" and sc.actions is None:
-        raise click.ClickException(f"{sc.path}: key 'actions': scene {sc.name} has no action sequence; "
-                                   f"use --policy greedy-walk")
-    if policy == "greedy-walk" and sc.walk is None:
-        raise click.ClickException(f"{sc.path}: key 'walk': scene {sc.name} has no [walk] table; use --policy "
-                                   f"scripted")
+    policy = policy or next((s.name for s in registry.policies() if sc.kind in s.default_for),
+                            registry.policy_names()[0])
+    for key, what in registry.policy(policy).needs:
+        if getattr(sc, key, None) is None:
+            usable = [s.name for s in registry.policies() if all(getattr(sc, k, None) is not None for k, _ in s.needs)]
+            raise click.ClickException(f"{sc.path}: key '{key}': scene {sc.name} has no {what}"
+                                       + (f"; use --policy {' or '.join(usable)}" if usable else ""))
     if noise_mm is not None:
         sc = sc.with_effects(noise_mm=noise_mm)
     if not force_overwrite:

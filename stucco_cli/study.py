@@ -84,11 +84,13 @@ def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     chosen values (highest median FMI; within 0.01 of it, lowest median CE). Defaults are not changed."""
     writable_dir("--out", out_dir)
     from pipeline.evaluate import parse_methods
-    from pipeline.study import TUNE_GRID, tune
+    from pipeline.registry import tune_grid
+    from pipeline.study import tune
 
     names, seed_list = _grid(scenes, seeds)
     method_list = parsed("--methods", parse_methods, methods)
-    grid = {m: TUNE_GRID[m] for m in method_list}
+    known = tune_grid()
+    grid = {m: known[m] for m in method_list if m in known}
     if values_json:
         try:
             extra = {k: (v[0], tuple(float(x) for x in v[1])) for k, v in json.loads(values_json).items()}

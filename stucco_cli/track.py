@@ -5,18 +5,15 @@ from pathlib import Path
 
 import click
 
+from pipeline import registry
 from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
                              user_errors)
+from stucco_cli.progress import run_bar
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
 #: 1e5 particles over 1,000 tracked points is already 1.6 GB.
 MAX_PARTICLES = 100_000
 
-
-def _progress(settings: Settings, desc: str):
-    from tqdm import tqdm
-
-    return lambda it, total: tqdm(it, total=total, desc=desc, unit="run", disable=settings.progress)
 
 
 # tracker parameter -> its option name, where they differ
@@ -43,13 +40,26 @@ def _parse_sets(values: tuple[str, ...]) -> dict:
     return out
 
 
+def _check_options(method: str, name: str) -> None:
+    """A dedicated option (``--length``) is refused, naming the methods that take it, for a method without it."""
+    from dataclasses import fields
+
+    with user_errors("track"):
+        spec = registry.tracker(method)
+    takes = [s.name for s in registry.trackers() if name in {f.name for f in fields(registry.resolve(s.params))}]
+    if name not in {f.name for f in fields(registry.resolve(spec.params))}:
+        option = _STUCCO_OPTIONS.get(name, name.replace("_", "-"))
+        raise click.UsageError(f"--{option} applies to --method {', '.join(takes)} only; "
+                               "use --set KEY=VALUE for this method's parameters")
+
+
 @click.command()
 @click.option("--in", "in_path", required=True, type=click.Path(path_type=Path), help="Contacts table (Parquet).")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="Tracks table to write.")
 @click.option("--diagnostics", "diag_path", type=click.Path(path_type=Path), default=None,
               help="Per-step diagnostics table [default: OUT with suffix .diagnostics.parquet].")
-@click.option("--method", default="stucco", show_default=True,
-              help="stucco, or a baseline: birch, dbscan, kmeans, gmphd.")
+@click.option("--method", default=registry.tracker_names()[0], show_default=True,
+              help=f"Tracking method: {', '.join(registry.tracker_names())} (pipeline/registry.py).")
 @click.option("--robot", default="panda", show_default=True, help="'panda' or 'disc:RADIUS' (metres).")
 @click.option("--particles", "n_particles", type=click.IntRange(1, MAX_PARTICLES), default=None,
               help="N particles [100].")
@@ -80,10 +90,8 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 
         set_threads(threads)
     params = {k: v for k, v in stucco_opts.items() if v is not None}
-    if params and method != "stucco":
-        option = _STUCCO_OPTIONS.get(next(iter(params)), next(iter(params)).replace("_", "-"))
-        raise click.UsageError(f"--{option} applies to --method stucco only; "
-                               "use --set KEY=VALUE for baseline parameters")
+    if params:
+        _check_options(method, next(iter(params)))
     params.update(_parse_sets(sets))
     diag_path = diag_path or default_diagnostics_path(out_path)
     check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
@@ -91,7 +99,7 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
     with user_errors("track"):
         tracks, diagnostics = track_file(in_path, out_path, config, seed=settings.seed, jobs=settings.jobs,
-                                         diagnostics_path=diag_path, progress=_progress(settings, "track"))
+                                         diagnostics_path=diag_path, progress=run_bar(settings, "track"))
     if settings.verbosity >= 0:
         n_runs = len(set(tracks.column("run").to_pylist()))
         ms = diagnostics.column("update_ms").to_numpy()
@@ -113,16 +121,12 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: float | None, alpha: float | None,
             plot_path: Path | None, print_table: bool) -> None:
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
-    from pipeline.atomic import all_or_none
-    from pipeline.segment import plot_segments, segment_file, summarise
+    from pipeline.segment import segment_file, summarise
 
     check_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
-    # The table and its plot appear together or not at all (pipeline/atomic.py).
-    outputs = [out_path] + ([plot_path] if plot_path is not None else [])
-    with user_errors("segment"), all_or_none(outputs) as tmps:
-        segments = segment_file(in_path, tmps[0], seed=settings.seed, length=length, alpha=alpha, by=by)
-        if plot_path is not None:
-            plot_segments(segments, tmps[1], image_format=plot_path.suffix.lstrip(".") or "png")
+    with user_errors("segment"):  # the table and its plot appear together or not at all
+        segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by,
+                                plot_path=plot_path)
     if print_table:
         rows = summarise(segments)
         click.echo(f"{'run':<16} {'segment':>7} {'points':>6} {'centroid_x_m':>12} {'centroid_y_m':>12} {'run_FMI':>8}")

@@ -1,5 +1,6 @@
-"""The structure's rules that a test can hold (docs/architecture.md): no import cycles, no new oversized module,
-each stage's table written by its ``<stage>_file`` function only.
+"""The structure's rules that a test can hold (docs/architecture.md): no import cycles, imports pointing down the
+layers (CLI -> studies -> evaluate -> stages -> algorithms -> schema/geometry/io), no new oversized module, each
+stage's table written by its ``<stage>_file`` function only.
 
 The import graph counts every ``import pipeline…`` / ``from pipeline… import`` and the same for ``stucco_cli``, at
 module top and inside functions alike, and importing ``a.b.c`` also runs the ``__init__`` of ``a.b`` and ``a``, so
@@ -142,3 +143,72 @@ def test_each_stage_table_is_written_by_its_stage_file_function_only():
     for kind, fn in expected.items():
         others = writers.get(kind, set()) - {fn} - {w for k, w in KNOWN_OTHER_WRITERS if k == kind}
         assert fn in writers.get(kind, set()) and not others, f"{kind} written by {sorted(writers.get(kind, ()))}"
+
+
+#: The layers, top to bottom (docs/architecture.md): a module may import its own layer and the ones below, never
+#: one above. Each entry is a module or a package prefix; the longest match decides. The package
+#: ``pipeline.retrieve`` re-exports its stage, so it sits with the stages; its algorithm modules sit below.
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("cli", ("stucco_cli",)),
+    ("studies", ("pipeline.study", "pipeline.bench", "pipeline.anchors", "pipeline.sim.bench")),
+    ("evaluate", ("pipeline.evaluate", "pipeline.report", "pipeline.figures")),
+    # The retrieval ladder (`stucco bench retrieval`) lives in the retrieve package, so it keeps to the stages'
+    # layer: it reads an evaluation's files through pipeline.layout, not through the evaluate driver.
+    ("stages", ("pipeline.collect", "pipeline.isolate", "pipeline.track.stage", "pipeline.segment",
+                "pipeline.retrieve", "pipeline.retrieve.stage", "pipeline.retrieve.ladder",
+                "pipeline.retrieve.ladder_report", "pipeline.score")),
+    ("algorithms", ("pipeline.track", "pipeline.retrieve.params", "pipeline.retrieve.model", "pipeline.retrieve.icp",
+                    "pipeline.retrieve.paper", "pipeline.retrieve.plausible", "pipeline.retrieve.evidence",
+                    "pipeline.retrieve.estimators", "pipeline.retrieve.runs", "pipeline.retrieve.tables",
+                    "pipeline.grasp", "pipeline.sim", "pipeline.robot", "pipeline.policies", "pipeline.components",
+                    "pipeline.metrics", "pipeline.labels")),
+    ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
+                            "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
+                            "pipeline.seeds", "pipeline.parallel")),
+)
+
+
+def layer_of(module: str) -> int:
+    """Index of the module's layer in :data:`LAYERS` (0 = the top): the longest prefix listed decides."""
+    best, rank = -1, None
+    for i, (_, prefixes) in enumerate(LAYERS):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and len(p) > best:
+                best, rank = len(p), i
+    assert rank is not None, f"{module} is in no layer; add it to LAYERS"
+    return rank
+
+
+def test_layer_of_takes_the_longest_prefix():
+    assert LAYERS[layer_of("pipeline.retrieve.stage")][0] == "stages"
+    assert LAYERS[layer_of("pipeline.retrieve.icp")][0] == "algorithms"
+    assert LAYERS[layer_of("pipeline.track.stage")][0] == "stages"
+    assert LAYERS[layer_of("pipeline.track.kernels")][0] == "algorithms"
+    assert LAYERS[layer_of("stucco_cli.main")][0] == "cli"
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """Every edge of the import graph that points to a higher layer, as 'a (layer) -> b (layer)'."""
+    return sorted(f"{a} ({LAYERS[layer_of(a)][0]}) -> {b} ({LAYERS[layer_of(b)][0]})"
+                  for a, targets in graph.items() for b in targets if layer_of(b) < layer_of(a))
+
+
+def test_the_layer_check_finds_the_leaks_it_was_written_for():
+    leaks = {"pipeline.layout": {"pipeline.retrieve.estimators"},  # paths imported an estimator module
+             "pipeline.retrieve.ladder": {"pipeline.evaluate"},  # the ladder imported the evaluate driver
+             "pipeline.track.soft": {"pipeline.segment"},  # the tracker imported the segment stage
+             "pipeline.segment": {"pipeline.components"}}  # (down: allowed)
+    assert upward_imports(leaks) == [
+        "pipeline.layout (schema/geometry/io) -> pipeline.retrieve.estimators (algorithms)",
+        "pipeline.retrieve.ladder (stages) -> pipeline.evaluate (evaluate)",
+        "pipeline.track.soft (algorithms) -> pipeline.segment (stages)"]
+
+
+def test_imports_point_down_the_layers():
+    up = upward_imports(import_graph())
+    assert not up, "imports pointing up the layers:\n" + "\n".join(up)
+
+
+def test_the_registry_imports_only_the_bottom_layer():
+    bottom = len(LAYERS) - 1
+    assert all(layer_of(m) == bottom for m in import_graph()["pipeline.registry"])

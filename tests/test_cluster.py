@@ -7,17 +7,24 @@ import numpy as np
 import pytest
 from sklearn.metrics import fowlkes_mallows_score
 
-from pipeline.track.base import ContactTracker
+from pipeline import registry
+from pipeline.track.base import ContactTracker, StepResult
 from pipeline.track.cluster import (
-    BASELINES,
     BirchParams,
     DBSCANParams,
     GMPHDParams,
     HardTrackingWrapper,
     KMeansParams,
     compact_labels,
-    make_baseline,
 )
+from pipeline.track.stage import build_tracker
+
+#: The hard-tracking baselines of this module (the registered methods built by pipeline/track/cluster.py).
+BASELINES = tuple(s.name for s in registry.trackers() if str(s.factory).startswith("pipeline.track.cluster:"))
+
+
+def make_baseline(name, params, rng):
+    return build_tracker(name, params, None, rng)
 
 CLUSTERERS = ("birch", "dbscan", "kmeans")
 HALF = 0.05  # half side of the square objects, m
@@ -217,8 +224,13 @@ def test_kmeans_does_not_grow_without_a_5x_inertia_drop():
 
 
 # ------------------------------------------------------------------------------------------------ factory, errors
+def test_baselines_are_the_four_of_the_paper():
+    assert BASELINES == ("birch", "dbscan", "kmeans", "gmphd")
+
+
 def test_make_baseline_unknown_name_lists_accepted_values():
-    with pytest.raises(ValueError, match=r"unknown baseline 'hdbscan'; accepted: birch, dbscan, kmeans, gmphd"):
+    with pytest.raises(ValueError, match=r"unknown method 'hdbscan'; expected one of stucco, birch, dbscan, kmeans, "
+                                         r"gmphd"):
         make_baseline("hdbscan", None, np.random.default_rng(0))
 
 
@@ -270,3 +282,10 @@ def test_update_rejects_mismatched_inputs():
 def test_compact_labels_turns_noise_into_singletons_in_order_of_appearance():
     np.testing.assert_array_equal(compact_labels(np.array([3, -1, 3, 0, -1])), [0, 1, 0, 2, 3])
     assert compact_labels(np.array([], dtype=int)).shape == (0,)
+
+
+@pytest.mark.parametrize("name", BASELINES)
+def test_update_returns_the_step_result_of_a_tracker_without_particles(name):
+    t = _make(name)
+    assert t.update(FREE, None, None) == StepResult(ess=1.0, resampled=False, n_replaced=0)
+    assert t.update(FREE, np.array([[0.01, 0.0]]), np.array([[-0.4, 0.0]])) == StepResult()

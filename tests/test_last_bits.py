@@ -19,13 +19,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.isolate import isolate_runs
-from pipeline.methods import METHOD_ORDER
+from pipeline import registry
 from pipeline.retrieve import RetrievalParams
-from pipeline.retrieve.estimators import ESTIMATORS
-from pipeline.retrieve.stage import retrieve
+from pipeline.retrieve.stage import RetrieveConfig, retrieve
 from pipeline.segment import segment_table
 from pipeline.track.stage import TrackConfig, track_table
 
+METHODS = registry.tracker_names()
+ESTIMATORS = registry.estimator_names()
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 RUNS = ("FB-000", "IB-001")
 #: The run whose pose estimate sat on a near-tie between two minima (tracked, segmented and estimated here).
@@ -95,13 +96,13 @@ def tracked(stored) -> dict:
     exact = exact.filter(pc.equal(exact.column("run"), NEAR_TIE_RUN))
     noisy = perturb(exact, ("ee_x_m", "ee_y_m", "contact_x_m", "contact_y_m", "dx_m", "dy_m"), seed=2)
     out = {}
-    for method in METHOD_ORDER:
+    for method in METHODS:
         cfg = TrackConfig(method=method)
         out[method] = tuple(track_table(t, cfg, seed=0)[0] for t in (exact, noisy))
     return out
 
 
-@pytest.mark.parametrize("method", METHOD_ORDER)
+@pytest.mark.parametrize("method", METHODS)
 def test_tracking_makes_the_same_choices(tracked, method):
     a, b = tracked[method]
     assert a.num_rows == b.num_rows
@@ -127,10 +128,9 @@ def test_estimators_make_the_same_choices(stored, tracked, estimator):
     tracks = tracked["stucco"][0]
     segments = segment_table(tracks, length=0.02, alpha=0.4, method="stucco")
     noisy = perturb(segments, ("x_m", "y_m"), seed=4)
-    params = RetrievalParams()
     runs = stored["exact_dir"]
-    results = [retrieve(segs, runs, root_seed=0, params=params, grasp=True, estimator=estimator)
-               for segs in (segments, noisy)]
+    config = RetrieveConfig(method="stucco", estimator=estimator, params=RetrievalParams(), grasp=True)
+    results = [retrieve(segs, runs, config, root_seed=0) for segs in (segments, noisy)]
     for (ra, ca), (rb, cb) in [results]:
         for c in ("run", "segment", "n_points", "n_segments", "low_confidence", "notes", "grasp_success"):
             assert ra.column(c).to_pylist() == rb.column(c).to_pylist(), c

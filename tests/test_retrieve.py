@@ -538,8 +538,38 @@ def test_retrieval_table_rejects_duplicate_runs():
 
 
 def test_docs_describe_every_column():
-    text = (Path(__file__).resolve().parents[1] / "docs" / "retrieval.md").read_text()
+    text = (Path(__file__).resolve().parents[1] / "docs" / "tables.md").read_text()
     from pipeline.score import SCORES_COLUMNS
 
     for c in RETRIEVAL_COLUMNS + CANDIDATES_COLUMNS + SCORES_COLUMNS:
         assert f"| `{c.name}` |" in text, c.name
+
+
+def _emitted_notes() -> set[str]:
+    """Every note string the estimators emit: literals appended to a notes list, returned as one, or filtered in."""
+    import ast
+
+    found: set[str] = set()
+    for mod in ("paper", "estimators"):
+        tree = ast.parse((Path(__file__).resolve().parents[1] / "pipeline" / "retrieve" / f"{mod}.py").read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "append" and \
+                    getattr(node.func.value, "id", "") == "notes":
+                found |= {a.value for a in node.args if isinstance(a, ast.Constant)}
+            elif isinstance(node, (ast.List, ast.Tuple)) and node.elts and all(
+                    isinstance(e, ast.Constant) and isinstance(e.value, str) and e.value.islower()
+                    and "_" in e.value and " " not in e.value for e in node.elts):
+                found |= {e.value for e in node.elts}
+            elif isinstance(node, ast.keyword) and node.arg == "notes" and isinstance(node.value, ast.List):
+                found |= {e.value for e in node.value.elts if isinstance(e, ast.Constant)}
+    return found
+
+
+def test_the_notes_column_lists_every_note_the_estimators_emit():
+    from pipeline.schema.results import NOTES
+
+    emitted = _emitted_notes()
+    assert {"no_points", "no_free_space", "ambiguous_yaw", "wide_set", "no_valid_icp"} <= emitted
+    assert emitted <= set(NOTES), sorted(emitted - set(NOTES))
+    meaning = next(c.meaning for c in RETRIEVAL_COLUMNS if c.name == "notes")
+    assert all(n in meaning for n in NOTES)

@@ -364,10 +364,21 @@ def test_read_metadata_of_foreign_file_is_empty(tmp_path):
 
 
 def test_write_table_seed_none_and_explicit_kind(tmp_path):
-    table = pa.table({"run": ["a"], "ce_cm": [1.5]})
-    path = _write(table, tmp_path / "scores.parquet", seed=None, kind="scores", stage="score")
+    table = pa.table({"run": ["a"], "ce_cm": [1.5]})  # a kind of its own (not in TABLES) is written as given
+    path = _write(table, tmp_path / "summary.parquet", seed=None, kind="summary", stage="bench")
     meta = S.read_metadata(path)
-    assert meta["seed"] is None and meta["schema"] == "scores" and meta["inputs"] == {}
+    assert meta["seed"] is None and meta["schema"] == "summary" and meta["inputs"] == {}
+
+
+def test_every_stage_table_kind_is_in_tables():
+    assert set(S.TABLES) == {"sim_run", "contacts", "tracks", "diagnostics", "segments", "retrieval", "candidates",
+                             "scores"}
+
+
+def test_result_tables_are_validated_on_write(tmp_path):
+    with pytest.raises(S.SchemaError, match=r"column 'scene': missing"):
+        _write(pa.table({"run": ["a"], "ce_cm": [1.5]}), tmp_path / "scores.parquet", kind="scores", stage="score")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_write_table_unknown_kind_needs_kind(tmp_path):

@@ -202,7 +202,7 @@ def test_cli_score_writes_scores_and_finds_the_diagnostics(cli_inputs):
 
 @pytest.mark.parametrize("case, pattern", [
     ("missing_retrieval", r"nope\.parquet: file not found"),
-    ("not_retrieval", r"column 'scene': missing"),
+    ("not_retrieval", r"is a segments table \(written by stucco segment\); expected a retrieval table"),
     ("run_not_retrieved", r"run 'FB/9' has no row in"),
     ("no_run_file", r"run 'FB/4' has no collected run file"),
 ])

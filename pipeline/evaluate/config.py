@@ -12,8 +12,7 @@ from typing import Any
 
 from pipeline.atomic import write_text
 from pipeline.layout import CONFIG, LAYOUT_VERSION
-from pipeline.methods import METHOD_ORDER
-from pipeline.retrieve.estimators import ESTIMATORS
+from pipeline import registry
 from pipeline.scenes import SceneError, load_scene, scene_names
 
 __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
@@ -21,8 +20,9 @@ __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Jo
 
 #: The paper's Table II tasks, in its order.
 SCENES = ("FB", "BC", "IB", "TC")
-#: STUCCO and the baselines, in the order of Table II.
-METHODS = METHOD_ORDER
+#: STUCCO and the baselines, in the order of Table II (the methods registered when this module was imported;
+#: :func:`parse_methods` reads :func:`pipeline.registry.tracker_names` when called, so later ones count too).
+METHODS = registry.tracker_names()
 #: `stucco evaluate --quick`: a couple of seeds of one scene.
 QUICK_SCENES = ("FB",)
 QUICK_SEEDS = (0, 1)
@@ -47,7 +47,7 @@ class EvalConfig:
     source : str or None
         Directory of stored run files replayed instead of simulating (``--from-runs``); None = simulate.
     estimators : tuple of str
-        Pose estimators run on every job's segments (:data:`pipeline.retrieve.ESTIMATORS`), each into its own
+        Pose estimators run on every job's segments (:func:`pipeline.registry.estimator_names`), each into its own
         ``estimator=`` partition; the report shows them side by side.
     """
 
@@ -57,13 +57,14 @@ class EvalConfig:
     grasp: bool = True
     robot: str = "panda"
     source: str | None = None
-    estimators: tuple[str, ...] = ESTIMATORS
+    estimators: tuple[str, ...] = registry.estimator_names()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimators", tuple(self.estimators))
-        bad = [e for e in self.estimators if e not in ESTIMATORS]
+        known = registry.estimator_names()
+        bad = [e for e in self.estimators if e not in known]
         if not self.estimators or bad:
-            raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+            raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(known)}")
         if self.max_actions is not None and self.max_actions < 1:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
         if self.restarts < 2:
@@ -118,14 +119,15 @@ def parse_scenes(text: str) -> tuple[str, ...]:
 def parse_methods(text: str) -> tuple[str, ...]:
     """``"stucco,kmeans"`` or ``"all"`` -> method names in Table II order; ValueError for an unknown one."""
     names = _split(text)
+    methods = registry.tracker_names()
     if not names:
-        raise ValueError(f"no method given; expected some of {', '.join(METHODS)} or 'all'")
+        raise ValueError(f"no method given; expected some of {', '.join(methods)} or 'all'")
     if names == ["all"]:
-        return METHODS
-    bad = [n for n in names if n not in METHODS]
+        return methods
+    bad = [n for n in names if n not in methods]
     if bad:
-        raise ValueError(f"unknown method {bad[0]!r}; expected some of {', '.join(METHODS)} or 'all'")
-    return tuple(m for m in METHODS if m in names)
+        raise ValueError(f"unknown method {bad[0]!r}; expected some of {', '.join(methods)} or 'all'")
+    return tuple(m for m in methods if m in names)
 
 
 def check_config(out: Path, cfg: EvalConfig) -> None:

@@ -14,7 +14,7 @@ from typing import Iterable, Sequence
 from pipeline import schema
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGES, job_paths, partition
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR
+from pipeline.registry import DEFAULT_ESTIMATOR
 
 __all__ = ["Digests", "up_to_date", "stale_stages", "run_stale", "figure_stale"]
 

@@ -1,13 +1,16 @@
 """Where jobs run: local processes (joblib/loky) or a Dask cluster across jobs, one thread per library inside one.
 
 Parallelism is over jobs (docs/evaluation.md, "Parallelism"; docs/studies.md, "Beyond one machine"); the studies
-(:mod:`pipeline.study`) use the same :func:`pipeline.parallel.map_jobs` and :func:`single_threaded`.
+(:mod:`pipeline.study`) use the same :func:`pipeline.parallel.map_jobs` and
+:func:`pipeline.parallel.single_threaded` (re-exported here).
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
 
 from joblib import parallel_config
+
+from pipeline.parallel import single_threaded
 
 __all__ = ["BACKENDS", "parallel_backend", "single_threaded"]
 
@@ -40,31 +43,3 @@ def parallel_backend(backend: str = "loky", scheduler: str | None = None):
     with Client(scheduler) as client, parallel_config(backend="dask", wait_for_workers_timeout=60):
         client.wait_for_workers(1, timeout=60)
         yield -1
-
-
-@contextmanager
-def single_threaded():
-    """Run the job's numeric libraries on one thread each (numba, OpenMP, BLAS), restoring them afterwards.
-
-    Parallelism is over jobs. The tracker's numba kernels and scikit-learn's k-means parallelise problems of a
-    few hundred points, where OpenMP threads only spin: measured on the 2-core machine beside one busy process,
-    one FB run of k-means tracking took 5-13 s with 2 OpenMP threads and 0.2 s with one (STUCCO 1.9 s and
-    0.03 s). ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's
-    ICP (which ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run
-    to the next, whatever ``jobs`` is (measured; tests/test_regression.py states the tolerance).
-    """
-    import numba
-
-    # numba's threading layer first: started after Open3D has loaded its older TBB, numba warns that it cannot
-    # use TBB (and falls back to OpenMP anyway).
-    prev = numba.get_num_threads()
-    import open3d  # noqa: F401  (any OpenMP runtime it brings)
-    import sklearn.cluster  # noqa: F401  (scikit-learn's OpenMP runtime)
-    from threadpoolctl import threadpool_limits
-
-    numba.set_num_threads(1)
-    try:
-        with threadpool_limits(1):
-            yield
-    finally:
-        numba.set_num_threads(prev)

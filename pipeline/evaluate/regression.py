@@ -9,11 +9,10 @@ from typing import Sequence
 
 import pyarrow as pa
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.evaluate.config import EvalConfig, Job
 from pipeline.evaluate.results import gather_scores
 from pipeline.layout import partition
-from pipeline.retrieve.estimators import ESTIMATORS
 
 __all__ = ["SNAPSHOT_SCORE_COLUMNS", "snapshot", "write_snapshot"]
 
@@ -22,7 +21,7 @@ SNAPSHOT_SCORE_COLUMNS = ("scene", "seed", "method", "estimator", "run", "grasp_
                           "position_error_m", "yaw_error_rad", "low_confidence", "n_points", "n_segments")
 
 
-def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str] = ESTIMATORS
+def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str] | None = None
              ) -> dict[str, pa.Table]:
     """What the regression test compares, as one table per kind, rows in grid order.
 
@@ -38,7 +37,8 @@ def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str]
         t = schema.read_segments(partition(out, "segments", j.scene, j.seed, j.method))
         segs.append(t.add_column(0, "method", pa.array([j.method] * t.num_rows, pa.string())))
     segments = pa.concat_tables(segs)
-    scores = gather_scores(out, jobs_, estimators).select(list(SNAPSHOT_SCORE_COLUMNS))
+    scores = gather_scores(out, jobs_, registry.estimator_names() if estimators is None else estimators).select(
+        list(SNAPSHOT_SCORE_COLUMNS))
     return {"contacts": contacts, "segments": segments, "scores": scores}
 
 

@@ -18,7 +18,7 @@ from pipeline.evaluate.stages import STAGE_COLUMNS
 from pipeline.layout import FLAT, KINDS, PER_ESTIMATOR, SHARED, partition
 from pipeline.environment import environment_line
 from pipeline.report import claims, table_ii, to_csv, to_markdown
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR
+from pipeline.registry import DEFAULT_ESTIMATOR
 from pipeline.score import SCORES_COLUMNS, read_scores
 
 __all__ = ["read_kind", "gather_scores", "write_report"]

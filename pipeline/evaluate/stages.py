@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
+from pipeline import registry
 from pipeline.atomic import atomic_path, write_text
 
 from pipeline.collect import collect_file, output_path
@@ -26,7 +27,7 @@ from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
-from pipeline.retrieve import RetrievalParams, retrieve_file
+from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
 from pipeline.scenes import load_scene
 from pipeline.score import score_file
 from pipeline.segment import segment_file
@@ -66,7 +67,7 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
             shutil.copyfile(src, tmp)
         wall = None
     else:
-        collect_file(load_scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy="scripted",
+        collect_file(load_scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy=registry.default_policy("retrieval"),
                      max_actions=cfg.max_actions, keep_discarded=True)
         wall = time.perf_counter() - t0
     if wall is None:
@@ -105,9 +106,10 @@ def run_retrieve(p: dict[str, Path], method: str, cfg: EvalConfig, estimator: st
     """Estimate the target's pose with ``estimator`` (and simulate the grasp if ``cfg.grasp``) into the
     retrieval and candidates partitions of that estimator (``p`` from :func:`pipeline.layout.job_paths`)."""
     t0 = time.perf_counter()
-    retrieve_file(p["segments"], p["runs"], p["retrieval"], p["candidates"], seed=cfg.root_seed,
-                  method=method, grasp_params=GraspParams(), estimator=estimator,
-                  params=RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot), grasp=cfg.grasp, jobs=1)
+    config = RetrieveConfig(method=method, estimator=estimator,
+                            params=RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot), grasp=cfg.grasp,
+                            grasp_params=GraspParams())
+    retrieve_file(p["segments"], p["runs"], p["retrieval"], p["candidates"], config, seed=cfg.root_seed, jobs=1)
     write_wall(p["retrieval"], time.perf_counter() - t0)
 
 

@@ -15,8 +15,8 @@ The paper's §V-C and our plausible-set estimator, one role per module (docs/ret
 The primitive and the planar rotations live in :mod:`pipeline.geometry`; this package's public names include them.
 """
 from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, wrap_angle
-from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, estimate_plausible,
-                                          plausible_notes, retrieval_metadata)
+from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, Segment, estimate, estimate_plausible, plausible_notes,
+                                          retrieval_metadata)
 from pipeline.retrieve.icp import IcpResult, icp_error, icp_restarts, initial_transforms
 from pipeline.retrieve.model import (model_normals, model_points, outline_point, pose_error, project_to_outline,
                                      target_primitive)
@@ -24,17 +24,17 @@ from pipeline.retrieve.paper import Choice, Estimate, choose_segment, confidence
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
-from pipeline.retrieve.stage import final_segments_by_run, retrieve, retrieve_file
+from pipeline.retrieve.stage import RetrieveConfig, final_segments_by_run, retrieve, retrieve_file
 from pipeline.retrieve.tables import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS, candidates_table,
                                       read_retrieval, retrieval_table, validate_candidates, validate_retrieval)
 
 __all__ = [
-    "DEFAULT_ESTIMATOR", "ESTIMATORS", "Segment", "estimate", "estimate_plausible", "plausible_notes",
+    "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "plausible_notes",
     "retrieval_metadata", "IcpResult", "icp_error", "icp_restarts", "initial_transforms",
     "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
     "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose_segment",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
-    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "final_segments_by_run", "retrieve",
+    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "RetrieveConfig", "final_segments_by_run", "retrieve",
     "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",
     "read_retrieval", "retrieval_table", "validate_candidates", "validate_retrieval",
 ]

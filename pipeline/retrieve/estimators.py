@@ -1,9 +1,12 @@
 """Pose estimators of the retrieve stage: the paper's ICP procedure and the plausible-set estimator, one call.
 
+Both are registered in :mod:`pipeline.registry` (``paper_estimator``, ``plausible_estimator``: the registry's
+factory signature); :func:`estimate` calls any registered estimator by name.
+
 ``paper`` is the procedure of the paper's §V-C as :mod:`pipeline.retrieve.paper` implements it (ICP from 30
 restarts on every segment, lowest position variance chooses the segment, least penetration then lowest ICP error
-chooses the pose). ``plausible`` keeps the paper's segment choice, which picked the target's segment in 69 of 80
-training runs (docs/retrieval.md), and replaces the pose by the best of a plausible set fitted to the known shape,
+chooses the pose). ``plausible`` keeps the paper's segment choice (how often it picks the target's segment:
+docs/retrieval.md) and replaces the pose by the best of a plausible set fitted to the known shape,
 the contact points weighted by recency and the gripper's free space (:mod:`pipeline.retrieve.plausible`).
 """
 from __future__ import annotations
@@ -15,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pipeline import registry
 from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
@@ -22,21 +26,24 @@ from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recen
 from pipeline.portable import tie_key
 from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
+from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "retrieval_metadata",
-           "plausible_notes", "parse_estimators"]
+__all__ = ["DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "paper_estimator",
+           "plausible_estimator", "retrieval_metadata", "plausible_notes", "parse_estimators"]
 
-#: Pose estimators, the default first.
-ESTIMATORS = ("plausible", "paper")
-DEFAULT_ESTIMATOR = ESTIMATORS[0]
+DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
 
 
 def parse_estimators(text: str) -> tuple[str, ...]:
-    """Estimator names from ``"plausible,paper"``; ValueError naming an unknown one (or none given)."""
+    """Estimator names from ``"plausible,paper"`` or ``"all"`` (every registered one); ValueError naming an
+    unknown one (or none given)."""
+    known = registry.estimator_names()
     names = tuple(n.strip() for n in str(text).split(",") if n.strip())
-    bad = [n for n in names if n not in ESTIMATORS]
+    if names == ("all",):
+        return known
+    bad = [n for n in names if n not in known]
     if bad or not names:
-        raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+        raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(known)}")
     return names
 
 
@@ -58,30 +65,46 @@ class Segment:
     steps: np.ndarray
 
 
-def retrieval_metadata(estimator: str, params: RetrievalParams, plausible: PlausibleParams, **extra) -> dict:
+def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extra) -> dict:
     """What the retrieval and candidates tables record of their parameters: every field of the parameters the
-    estimator used (the paper's ICP parameters for both; the plausible ones only for ``plausible``)."""
+    estimator used (the paper's ICP parameters for every estimator; the estimator's own parameters ``own``, e.g.
+    the plausible ones, under its registry ``meta_key``, by default its name)."""
+    spec = registry.estimator(estimator)
     meta = dict(params.to_dict(), estimator=estimator)
-    if estimator == "plausible":
-        meta["plausible"] = plausible.to_dict()
+    own = registry.build_params(spec, own)
+    if own is not None:
+        meta[spec.meta_key or spec.name] = asdict(own)
     for k, v in extra.items():
         meta[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
     return meta
 
 
 def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-             params: RetrievalParams = RetrievalParams(), plausible: PlausibleParams = PlausibleParams()
-             ) -> Estimate:
-    """The target pose of one run by estimator ``name`` (:data:`ESTIMATORS`).
+             params: RetrievalParams = RetrievalParams(), own=None) -> Estimate:
+    """The target pose of one run by the registered estimator ``name`` (:func:`pipeline.registry.estimator`).
 
-    ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`).
+    ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`);
+    ``own``: the estimator's own parameters (an instance, a dict of overrides, or None for its defaults).
     """
-    if name not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; expected one of {', '.join(ESTIMATORS)}")
-    if name == "paper":
-        return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0],
-                            rngs[1])
-    return estimate_plausible(segments, info, sdf, params, plausible, rngs)
+    spec = registry.estimator(name)
+    result = registry.resolve(spec.factory)(segments, info, sdf, rngs, params, registry.build_params(spec, own))
+    if not isinstance(result, Estimate):
+        raise TypeError(f"estimator {name!r} must return an Estimate (pipeline.retrieve.paper), got "
+                        f"{type(result).__name__}")
+    run_candidates(**result.candidates)  # the candidates table's columns, checked here once for every estimator
+    return result
+
+
+def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                    params: RetrievalParams, own: None = None) -> Estimate:
+    """The paper's procedure (§V-C, :func:`pipeline.retrieve.paper.estimate_run`), the registry's factory."""
+    return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
+
+
+def plausible_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                        params: RetrievalParams, own: PlausibleParams) -> Estimate:
+    """:func:`estimate_plausible` in the registry's factory signature."""
+    return estimate_plausible(segments, info, sdf, params, own, rngs)
 
 
 def plausible_notes(points: np.ndarray, fit: SegmentFit, n_free: int, target: Primitive, params: RetrievalParams,
@@ -115,7 +138,7 @@ _LATTICES: dict[tuple[str, float], np.ndarray] = {}
 
 
 def _lattice(sdf, resolution: float) -> np.ndarray:
-    # The gripper lattice depends only on the grid and the spacing: built once per process (about 5 ms).
+    # The gripper lattice depends only on the grid and the spacing: built once per process.
     key = (sdf.digest, float(resolution))
     if key not in _LATTICES:
         _LATTICES[key] = gripper_lattice(sdf, resolution)
@@ -157,12 +180,12 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     order = np.lexsort((np.arange(B), tie_key(fit.terms.total, COST_TIE)))  # last-bit ties: by index
     rank = np.empty(B, dtype=np.int64)
     rank[order] = np.arange(B)
-    candidates = {
-        "segment": np.full(B, seg.id), "restart": np.arange(B), "n_points": np.full(B, len(pts)),
-        "x_m": fit.poses[:, 0], "y_m": fit.poses[:, 1], "yaw_rad": fit.poses[:, 2], "icp_rmse_m": fit.rms,
-        "penetration_m": fit.penetration, "valid": fit.plausible, "position_var_m2": np.full(B, fit.spread ** 2),
-        "rank": rank, "segment_chosen": np.ones(B, dtype=bool), "chosen": np.arange(B) == c,
-    }
+    candidates = run_candidates(
+        segment=np.full(B, seg.id), restart=np.arange(B), n_points=np.full(B, len(pts)),
+        x_m=fit.poses[:, 0], y_m=fit.poses[:, 1], yaw_rad=fit.poses[:, 2], icp_rmse_m=fit.rms,
+        penetration_m=fit.penetration, valid=fit.plausible, position_var_m2=np.full(B, fit.spread ** 2),
+        rank=rank, segment_chosen=np.ones(B, dtype=bool), chosen=np.arange(B) == c,
+    )
     notes = plausible_notes(pts, fit, len(free), target, params, plausible)
     return Estimate(pose=target.canonical(fit.poses[c]), segment=seg.id, n_points=len(pts),
                     n_segments=len(segments), position_var=fit.spread ** 2, rmse=float(fit.rms[c]),

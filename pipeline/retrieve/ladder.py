@@ -32,10 +32,10 @@ from typing import Callable, Sequence
 import numpy as np
 import pyarrow.parquet as pq
 from pipeline import schema
-from pipeline.evaluate import partition, single_threaded
 from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
-from pipeline.parallel import run_calls
+from pipeline.layout import partition
+from pipeline.parallel import run_calls, single_threaded
 from pipeline.retrieve.estimators import Segment, estimate
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng
@@ -232,7 +232,7 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
     segments_path : Path or None
         The tracker's segments of the run; None skips ``tracker_our_choice``.
     estimators : sequence of str
-        Pose estimators (:data:`pipeline.retrieve.ESTIMATORS`).
+        Pose estimators (:func:`pipeline.registry.estimator_names`).
     root_seed : int
         Root seed of the estimators' random streams (:func:`pipeline.retrieve.retrieval_rng`).
 

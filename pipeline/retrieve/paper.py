@@ -14,6 +14,7 @@ from pipeline.portable import tie_key
 from pipeline.retrieve.icp import icp_restarts, initial_transforms
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.tables import CANDIDATE_FIELDS, run_candidates
 
 __all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "smallest_principal_std", "Estimate",
            "estimate_run"]
@@ -184,7 +185,8 @@ class Estimate:
     notes : list of str
         Low-confidence reasons (:func:`confidence_notes`).
     candidates : dict of ndarray
-        Columns of the candidates table for this run.
+        Columns of the candidates table for this run, built from its spec by
+        :func:`pipeline.retrieve.tables.run_candidates`.
     icp_s : float
         Wall time of model sampling, ICP, scoring and choice.
     """
@@ -245,9 +247,7 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
         valids.append(res.valid)
     choice = choose_segment(centres, pens, rmses, valids, params.penetration_tolerance, params.segment_fit_gate,
                     params.agreement_tolerance)
-    cand: dict[str, list] = {k: [] for k in ("segment", "restart", "n_points", "x_m", "y_m", "yaw_rad",
-                                             "icp_rmse_m", "penetration_m", "valid", "position_var_m2", "rank",
-                                             "segment_chosen", "chosen")}
+    cand: dict[str, list] = {k: [] for k in CANDIDATE_FIELDS}
     for i, ((sid, pts), res) in enumerate(zip(segs, results)):
         cand["segment"].append(np.full(B, sid))
         cand["restart"].append(np.arange(B))
@@ -263,7 +263,7 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
         cand["rank"].append(choice.rank[i])
         cand["segment_chosen"].append(np.full(B, i == choice.segment_index))
         cand["chosen"].append((np.arange(B) == choice.restart) & (i == choice.segment_index))
-    candidates = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in cand.items()}
+    candidates = run_candidates(**{k: (np.concatenate(v) if v else np.zeros(0)) for k, v in cand.items()})
     if choice.segment_index < 0:
         pose = np.array([ee[-1, 0], ee[-1, 1], 0.0]) if len(ee) else np.zeros(3)
         return Estimate(pose=pose, segment=-1, n_points=0, n_segments=0, position_var=math.inf, rmse=math.nan,

@@ -4,11 +4,10 @@ docs/retrieval.md gives the measurements behind the defaults.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
-import numpy as np
+from pipeline.constraints import Constraint, check, integer, number, one_of
 
 __all__ = ["RetrievalParams"]
 
@@ -23,9 +22,9 @@ class RetrievalParams:
         ICP restarts per segment (30).
     estimation : {"point_to_plane", "point_to_point"}
         ICP estimator. The authors' ICP was point-to-point; with 50 model points ~9 mm apart it locks
-        every tracked point to a model point and stops one spacing away from the truth (on FB seed 0's box,
-        1 of 30 restarts within 5 mm and 0.05 rad), while point-to-plane onto the same points with their
-        analytic normals slides along the faces (19 of 30, 0.2 mm). "point_to_plane" (default) runs
+        every tracked point to a model point and stops one spacing away from the truth, while point-to-plane
+        onto the same points with their analytic normals slides along the faces (measured in docs/retrieval.md,
+        "Deviations from the paper and the authors' code"). "point_to_plane" (default) runs
         point-to-point, then point-to-plane from its result, keeping the point-to-point result when the
         refinement slides off the model.
     n_box_points, n_can_points : int
@@ -34,8 +33,8 @@ class RetrievalParams:
     box_sampling : {"perimeter", "tester"}
         "perimeter": evenly spaced along the outline from a random start (every face gets its share).
         "tester": the authors' rule (testers ~ N(0, tester_sigma^2) projected onto the outline, rejected within
-        min_separation of an accepted point), which puts about 40 of 50 points on the long faces and most of
-        the rest at the corners, leaving the short faces nearly empty.
+        min_separation of an accepted point), which crowds the long faces and the corners and leaves the short
+        faces nearly empty (docs/retrieval.md).
     tester_sigma : float, metres
         "tester" sampling spread (0.1).
     min_separation : float, metres
@@ -51,18 +50,14 @@ class RetrievalParams:
     penetration_tolerance : float, metres
         Penetration of the gripper's visited poses up to this depth counts as none when choosing (ties then
         go to the lowest ICP error), and a chosen pose penetrating deeper is flagged "penetrating" (0.01).
-        Not the tracker's 2 mm: objects move and tilt after the gripper has been somewhere, and the planar
-        pose cannot show it. The 10 kg cracker box tilts when pushed at the gripper's height (tipping moment
-        3.0 N m against 3.1 N m restoring), the run files keep only (x, y, yaw), and the true final pose of
-        FB seed 0 reads 8-9 mm inside gripper poses visited while it was tilted; with 2 mm, poses that fit
-        the contacts badly but touch no visited pose (12 mm RMSE, 5 cm off) beat the true pose.
+        Not the tracker's 2 mm: objects move and tilt after the gripper has been somewhere, the run files keep
+        only (x, y, yaw), so a true pose can read inside gripper poses visited while the object was tilted
+        (docs/retrieval.md, "Penetration ties").
     agreement_tolerance : float or None, metres
         The position variance that picks the segment is over the restarts whose ICP error is within this of
         the segment's best (0.002); None: over all 30, as the paper. Restarts that stopped in another local
-        minimum say nothing about where the object is, yet dominate the variance of all 30: on FB seeds
-        0-9 with ideal contact points (docs/retrieval.md) the pose came within 2 cm and 0.2 rad in 6 of 10
-        runs with 0.002 and in 3 of 10 with None (the can's segment chosen instead); on STUCCO's segments
-        5 of 10 either way.
+        minimum say nothing about where the object is, yet dominate the variance of all 30
+        (docs/retrieval.md, "Position variance over agreeing restarts").
     segment_fit_gate : float, metres
         A segment whose best restart has an ICP error above this cannot be the target while another segment
         fits (0.02). Not in the paper: a straight run of points (a wall, a segment far from the target) fits
@@ -95,29 +90,17 @@ class RetrievalParams:
     min_points: int = 3
     collinear_tolerance: float = 0.002
     max_rmse: float = 0.005
+    constraints: ClassVar[dict[str, Constraint]] = {
+        **{name: integer(1) for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration",
+                                         "min_points")},
+        "estimation": one_of("point_to_plane", "point_to_point"), "box_sampling": one_of("perimeter", "tester"),
+        **{name: number(0, lo_open=True) for name in ("tester_sigma", "max_correspondence_distance", "max_rmse",
+                                                      "segment_fit_gate", "max_point_distance")},
+        "agreement_tolerance": number(0, nullable=True),
+        **{name: number(0) for name in ("min_separation", "penetration_tolerance", "collinear_tolerance")}}
 
     def __post_init__(self) -> None:
-        for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration", "min_points"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        if self.estimation not in ("point_to_plane", "point_to_point"):
-            raise ValueError(f"estimation must be 'point_to_plane' or 'point_to_point', got {self.estimation!r}")
-        if self.box_sampling not in ("perimeter", "tester"):
-            raise ValueError(f"box_sampling must be 'perimeter' or 'tester', got {self.box_sampling!r}")
-        for name in ("tester_sigma", "max_correspondence_distance", "max_rmse", "segment_fit_gate",
-                     "max_point_distance"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number (metres), got {v!r}")
-        if self.agreement_tolerance is not None and not (math.isfinite(self.agreement_tolerance)
-                                                         and self.agreement_tolerance >= 0):
-            raise ValueError(f"agreement_tolerance must be None or a non-negative number (metres), "
-                             f"got {self.agreement_tolerance!r}")
-        for name in ("min_separation", "penetration_tolerance", "collinear_tolerance"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a non-negative number (metres), got {v!r}")
+        check(self)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -25,12 +25,12 @@ hypothesis at once: arrays (hypotheses, points, 2), no loop over points or hypot
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.spd import solve_spd
@@ -111,27 +111,16 @@ class PlausibleParams:
     pose_rule: str = "best"
     uniform_sigma: float = 0.005
     icp_seeds: bool = True
+    constraints: ClassVar[dict[str, Constraint]] = {
+        **{name: integer(1) for name in ("n_hypotheses", "iterations")},
+        **{name: number(0, lo_open=True) for name in ("contact_sigma", "max_sigma", "outlier_sigmas",
+                                                      "free_resolution", "sweep_spacing", "yaw_agreement",
+                                                      "max_spread", "uniform_sigma")},
+        **{name: number(0) for name in ("free_tolerance", "free_weight", "other_tolerance", "margin")},
+        "recency_growth": number(1), "min_share": number(0, 1), "pose_rule": one_of("best", "vote", "uniform")}
 
     def __post_init__(self) -> None:
-        for name in ("n_hypotheses", "iterations"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        for name in ("contact_sigma", "max_sigma", "outlier_sigmas", "free_resolution", "sweep_spacing",
-                     "yaw_agreement", "max_spread", "uniform_sigma"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("free_tolerance", "free_weight", "other_tolerance", "margin"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
-        if not (math.isfinite(self.recency_growth) and self.recency_growth >= 1.0):
-            raise ValueError(f"recency_growth must be a number >= 1, got {self.recency_growth!r}")
-        if not (0.0 <= self.min_share <= 1.0):
-            raise ValueError(f"min_share must be in [0, 1], got {self.min_share!r}")
-        if self.pose_rule not in ("best", "vote", "uniform"):
-            raise ValueError(f"pose_rule must be 'best', 'vote' or 'uniform', got {self.pose_rule!r}")
+        check(self)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

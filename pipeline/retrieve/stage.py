@@ -1,6 +1,7 @@
 """The ``retrieve`` stage: a segments table and the collected runs in, the retrieval and candidates tables out."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -8,20 +9,59 @@ from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.atomic import all_or_none
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment, estimate, retrieval_metadata
+from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, Segment, estimate, retrieval_metadata
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
 from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
-__all__ = ["final_segments_by_run", "retrieve", "retrieve_file"]
+__all__ = ["RetrieveConfig", "final_segments_by_run", "retrieve", "retrieve_file"]
+
+
+@dataclass(frozen=True)
+class RetrieveConfig:
+    """What `stucco retrieve` was asked to do; recorded in the output metadata (:meth:`metadata`).
+
+    Attributes
+    ----------
+    method : str or None
+        Tracking method that made the segments, recorded in the output; None: the one the segments file records
+        (:func:`retrieve_file`; the first registered method for :func:`retrieve` on a table).
+    estimator : str
+        A registered pose estimator (:func:`pipeline.registry.estimator_names`).
+    params : RetrievalParams
+        The paper's estimation parameters, shared by every estimator.
+    estimator_params : dataclass instance, dict or None
+        The estimator's own parameters (e.g. :class:`~pipeline.retrieve.plausible.PlausibleParams`), a dict of
+        overrides, or None for its defaults; held as the built instance (None for an estimator without any).
+    grasp : bool
+        Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
+    grasp_params : GraspParams
+    """
+
+    method: str | None = None
+    estimator: str = DEFAULT_ESTIMATOR
+    params: RetrievalParams = RetrievalParams()
+    estimator_params: Any = None
+    grasp: bool = True
+    grasp_params: GraspParams = GraspParams()
+
+    def __post_init__(self) -> None:
+        if self.method is not None:
+            registry.tracker(self.method)  # ValueError naming the registered methods
+        spec = registry.estimator(self.estimator)
+        object.__setattr__(self, "estimator_params", registry.build_params(spec, self.estimator_params))
+
+    def metadata(self) -> dict:
+        """The provenance ``params`` of the retrieval and candidates tables."""
+        return retrieval_metadata(self.estimator, self.params, self.estimator_params, method=self.method,
+                                  grasp=self.grasp, grasp_params=self.grasp_params if self.grasp else None)
 
 
 def final_segments_by_run(segments: pa.Table) -> dict[str, list[Segment]]:
@@ -47,10 +87,10 @@ class RunOutput:
     candidates: dict[str, np.ndarray]
 
 
-def _retrieve_one(info: RunInfo, segs: list[Segment], method: str, root_seed: int, params: RetrievalParams,
-                  grasp: bool, grasp_params, estimator: str, plausible: PlausibleParams) -> RunOutput:
-    est = estimate(estimator, segs, info, load_robot(params.robot), retrieval_rng(root_seed, info.run), params,
-                   plausible)
+def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int) -> RunOutput:
+    method, estimator = config.method, config.estimator
+    est = estimate(estimator, segs, info, load_robot(config.params.robot), retrieval_rng(root_seed, info.run),
+                   config.params, config.estimator_params)
     truth = info.true_pose
     pos_err, yaw_err = pose_error(info.target, est.pose, truth)
     row = dict(run=info.run, scene=info.scene.name, seed=info.seed, method=method, estimator=estimator,
@@ -63,19 +103,17 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], method: str, root_seed: in
                true_x_m=float(truth[0]), true_y_m=float(truth[1]), true_yaw_rad=float(truth[2]),
                position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
                icp_s=est.icp_s, grasp_s=None)
-    if grasp:
-        g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, grasp_params or GraspParams())
+    if config.grasp:
+        g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params)
         row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
     cand = dict(est.candidates)
     cand["run"] = np.full(len(cand["segment"]), info.run, dtype=object)
     return RunOutput(row, cand)
 
 
-def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco", root_seed: int = 0,
-             params: RetrievalParams = RetrievalParams(), grasp: bool = True, grasp_params=None, jobs: int = 1,
-             progress: Callable | None = None, segments_path: str = "<segments>",
-             estimator: str = DEFAULT_ESTIMATOR, plausible_params: PlausibleParams = PlausibleParams()
-             ) -> tuple[pa.Table, pa.Table]:
+def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | None = None, *,
+             root_seed: int = 0, jobs: int = 1, progress: Callable | None = None,
+             segments_path: str = "<segments>") -> tuple[pa.Table, pa.Table]:
     """The ``retrieve`` stage: a segments table and the collected runs in, retrieval and candidates tables out.
 
     Every run file in ``run_dir`` (or the one run file it names) gets one row: a run absent from the segments table had no tracked contact
@@ -88,28 +126,23 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
         A validated segments table (its final estimate per run is used).
     run_dir : path
         Directory of ``stucco collect`` files, or one of them.
-    method : str
-        Tracking method, recorded in the output.
+    config : RetrieveConfig
+        Method, estimator and parameters.
     root_seed : int
-    params : RetrievalParams
-    grasp : bool
-        Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
-    grasp_params : pipeline.grasp.GraspParams, optional
     jobs : int
         Runs processed in parallel processes.
     progress : callable, optional
         Wraps the iterable of finished runs (``progress(iterable, total=)``).
-    estimator : {"plausible", "paper"}
-        Pose estimator (:mod:`pipeline.retrieve.estimators`).
-    plausible_params : PlausibleParams
-        Parameters of the plausible estimator.
+    segments_path : str
+        Named in errors.
 
     Returns
     -------
     retrieval, candidates : pyarrow.Table
     """
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}")
+    config = config or RetrieveConfig()
+    if config.method is None:
+        config = dataclasses.replace(config, method=registry.tracker_names()[0])
     files = run_files_by_name(run_dir)
     by_run = final_segments_by_run(segments)
     missing = [r for r in by_run if r not in files]
@@ -117,8 +150,7 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
         raise ValueError(f"{segments_path}: run {missing[0]!r} has no collected run file in {run_dir} "
                          f"({len(files)} run file(s) there)")
     infos = [load_run(files[r]) for r in files]
-    args = [(info, by_run.get(info.run, []), method, root_seed, params, grasp, grasp_params, estimator,
-             plausible_params) for info in infos]
+    args = [(info, by_run.get(info.run, []), config, root_seed) for info in infos]
     results = run_calls(_retrieve_one, args, jobs)
     if progress is not None:
         results = progress(results, total=len(args))
@@ -127,25 +159,26 @@ def retrieve(segments: pa.Table, run_dir: str | Path, *, method: str = "stucco",
 
 
 def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str | Path,
-                  candidates_path: str | Path, *, seed: int, method: str, grasp_params,
-                  estimator: str = DEFAULT_ESTIMATOR, params: RetrievalParams = RetrievalParams(),
-                  plausible_params: PlausibleParams = PlausibleParams(), grasp: bool = True, jobs: int = 1,
+                  candidates_path: str | Path, config: RetrieveConfig, *, seed: int, jobs: int = 1,
                   progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
     """The `retrieve` stage on files: read and validate a segments table, :func:`retrieve` its runs (files in
     ``run_dir``), and write the candidates and retrieval tables (with provenance metadata:
     :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input), both or neither
     (:func:`pipeline.atomic.all_or_none`; the retrieval is renamed last). Returns (retrieval, candidates).
 
-    ``grasp_params`` (:class:`pipeline.grasp.GraspParams`) is used and recorded when ``grasp``; ``seed`` is the
-    root seed.
+    ``config.grasp_params`` is used and recorded when ``config.grasp``; ``config.method`` None takes the tracking
+    method the segments file records (ValueError if it is not registered); ``seed`` is the root seed.
     """
     segments = schema.read_segments(segments_path)
-    table, candidates = retrieve(segments, run_dir, method=method, root_seed=seed, params=params, grasp=grasp,
-                                 grasp_params=grasp_params, jobs=jobs, progress=progress,
-                                 segments_path=str(segments_path), estimator=estimator,
-                                 plausible_params=plausible_params)
-    meta = retrieval_metadata(estimator, params, plausible_params, method=method, grasp=grasp,
-                              grasp_params=grasp_params if grasp else None)
+    if config.method is None:
+        recorded = (schema.read_metadata(segments_path).get("params") or {}).get("method")
+        try:
+            config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
+        except ValueError as e:
+            raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
+    table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
+                                 segments_path=str(segments_path))
+    meta = config.metadata()
     inputs = {"segments": str(segments_path)}
     with all_or_none([candidates_path, out_path]) as (cand_tmp, retrieval_tmp):
         schema.write_table(candidates, cand_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,

@@ -126,6 +126,7 @@ class _Columns:
     null: dict[str, np.ndarray]  # bool (n,)
     run_codes: np.ndarray  # int64 (n,), runs numbered by first appearance
     run_names: list[str]
+    arrays: dict = dataclasses.field(default_factory=dict)  # canonical pyarrow columns (for string keys)
 
     def fail(self, column: str | None, row: int | None, what: str) -> None:
         raise SchemaError(self.path, column, row, what)

@@ -48,9 +48,10 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.seed", "JSON integer root seed, or `null`."),
     ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
     ("stucco.environment", "JSON object: Python's version and those of the libraries that compute (numpy, scipy, "
-                           "scikit-learn, numba, llvmlite, open3d-cpu, pybullet, pyarrow), pinned by `requirements.lock`."),
-    ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own "
-                      "kind)."),
+                           "scikit-learn, numba, llvmlite, open3d-cpu, pybullet, pyarrow), pinned by "
+                           "`requirements.lock`."),
+    ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `diagnostics`, `segments`, `retrieval`, "
+                      "`candidates`, `scores` (or a stage's own kind)."),
 )
 
 # Fixed writer options: same bytes for the same table (no timestamps are written by parquet-cpp; the
@@ -175,6 +176,12 @@ def _infer_kind(names: list[str]) -> str | None:
         return "contacts"
     if "win_wrench" in s and "obj_pose" in s:
         return "sim_run"
+    if "grasp_outcome" in s and "true_x_m" in s:
+        return "retrieval"
+    if "segment_chosen" in s and "rank" in s:
+        return "candidates"
+    if "contact_error_cm" in s and "wall_s" in s:
+        return "scores"
     return None
 
 

@@ -1,4 +1,5 @@
-"""Table specs: the stage tables (contacts, tracks, segments, diagnostics; sim_run from runs.py) as data, and their validators.
+"""Table specs: the stage tables (contacts, tracks, segments, diagnostics; sim_run from runs.py; retrieval,
+candidates and scores from results.py) as data, and their validators.
 
 Each table is described once here (:data:`CONTACTS_COLUMNS`, ... and the :class:`TableSpec` objects
 :data:`CONTACTS`, ...; gathered in :data:`TABLES`); validation and ``docs/tables.md`` are derived from these
@@ -11,6 +12,7 @@ import os
 import pyarrow as pa
 
 from pipeline.schema.columns import Column, TableSpec
+from pipeline.schema.results import CANDIDATES, RETRIEVAL, SCORES
 from pipeline.schema.rules import _check_contacts, _check_diagnostics, _check_tracks
 from pipeline.schema.runs import SIM_RUN
 from pipeline.schema.validate import _validate
@@ -129,7 +131,9 @@ DIAGNOSTICS = TableSpec(
     check=_check_diagnostics,
 )
 
-TABLES: dict[str, TableSpec] = {t.name: t for t in (CONTACTS, TRACKS, SEGMENTS, DIAGNOSTICS, SIM_RUN)}
+#: Every table kind a stage writes, in pipeline order (``sim_run`` is the runs table).
+TABLES: dict[str, TableSpec] = {t.name: t for t in (SIM_RUN, CONTACTS, TRACKS, DIAGNOSTICS, SEGMENTS, RETRIEVAL,
+                                                    CANDIDATES, SCORES)}
 
 
 def validate_table(table: pa.Table, kind: str, path: str | os.PathLike = "<table>") -> pa.Table:

@@ -184,7 +184,7 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
                                       f"{_what(v[r], above[r], shape)}; expected at most {_num(c.maximum)}")
 
     codes, run_names = _run_codes(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
-    cols = _Columns(path, n, values, null, codes, run_names)
+    cols = _Columns(path, n, values, null, codes, run_names, arrays)
     if spec.check is not None:
         spec.check(cols)
 

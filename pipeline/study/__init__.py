@@ -23,9 +23,9 @@ from pipeline.study.settings import Setting, accuracy_settings
 from pipeline.study.tables import write_csv
 from pipeline.study.training import (AMBIGUITY_DISTANCE_M, MIN_REP_FORCE_N, TRAINING_SCENES, TRAINING_SEEDS,
                                      collect_training, run_ambiguity, training_scores)
-from pipeline.study.tuning import TUNE_GRID, choose_setting, dataclass_dict, tune
+from pipeline.study.tuning import choose_setting, dataclass_dict, tune
 
 __all__ = ["Setting", "accuracy_settings", "pareto_front", "knee", "accuracy_bench", "summarise_settings",
            "summary_markdown", "pareto_figure", "run_ambiguity", "TRAINING_SCENES", "TRAINING_SEEDS",
            "AMBIGUITY_DISTANCE_M", "MIN_REP_FORCE_N", "collect_training", "training_scores", "training_study",
-           "fig5", "TUNE_GRID", "choose_setting", "tune", "dataclass_dict", "write_csv"]
+           "fig5", "choose_setting", "tune", "dataclass_dict", "write_csv"]

@@ -17,14 +17,14 @@ from typing import Any, Sequence
 import pyarrow as pa
 from tqdm import tqdm
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.evaluate import EvalConfig, map_jobs, prepare_run, single_threaded
 from pipeline.grasp import GraspParams
 from pipeline.layout import partition
-from pipeline.retrieve import PlausibleParams, RetrievalParams, retrieve
+from pipeline.retrieve import PlausibleParams, RetrievalParams, RetrieveConfig, retrieve
 from pipeline.robot import load_robot
 from pipeline.score import score
-from pipeline.segment import segment_table
+from pipeline.segment import segment_table, segmentation_params
 from pipeline.study.settings import Setting
 from pipeline.study.tables import write_csv
 
@@ -35,21 +35,21 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> 
     """Track, segment, retrieve (with the grasp) and score one (scene, seed) with one setting; one row of
     ``accuracy.csv`` (times in seconds)."""
     # Imported here: the trackers load numba's kernels, which only the processes that track need.
-    from pipeline.track.soft import SoftTrackingParams
     from pipeline.track.stage import TrackConfig, track_table
 
     config = TrackConfig(method=s.method, robot=s.robot, params=dict(s.params), every_step=False)
     t0 = time.perf_counter()
     tracks, diagnostics = track_table(contacts, config, seed=root_seed, jobs=1)
     t1 = time.perf_counter()
-    sp = SoftTrackingParams.from_dict(dict(s.params) if s.method == "stucco" else {})
-    segments = segment_table(tracks, length=sp.length, alpha=sp.alpha, by="auto", method=s.method)
+    length, alpha = segmentation_params(s.method, dict(s.params))
+    segments = segment_table(tracks, length=length, alpha=alpha, by="auto", method=s.method)
     t2 = time.perf_counter()
-    retrieval, _ = retrieve(segments, runs.parent, method=s.method, root_seed=root_seed,
-                            params=RetrievalParams(n_restarts=s.restarts, robot=s.robot), grasp=True,
-                            grasp_params=GraspParams(), jobs=1, estimator=s.estimator,
-                            plausible_params=PlausibleParams(n_hypotheses=s.hypotheses,
-                                                             free_resolution=s.free_resolution))
+    # The sweep's hypotheses and free-space spacing are the plausible estimator's knobs.
+    own = (PlausibleParams(n_hypotheses=s.hypotheses, free_resolution=s.free_resolution)
+           if registry.resolve(registry.estimator(s.estimator).params) is PlausibleParams else None)
+    config = RetrieveConfig(method=s.method, estimator=s.estimator, estimator_params=own, grasp=True,
+                            params=RetrievalParams(n_restarts=s.restarts, robot=s.robot), grasp_params=GraspParams())
+    retrieval, _ = retrieve(segments, runs.parent, config, root_seed=root_seed, jobs=1)
     table = score(segments, retrieval, runs.parent, diagnostics=diagnostics).to_pylist()[0]
     track_s, segment_s = t1 - t0, t2 - t1
     return dict(setting=s.name, method=s.method, knob=s.knob, value=s.value, scene=table["scene"],

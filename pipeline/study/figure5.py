@@ -12,7 +12,7 @@ from typing import Any, Sequence
 import pyarrow as pa
 
 from pipeline.atomic import save_figure
-from pipeline.methods import METHOD_ORDER
+from pipeline.registry import tracker_names
 from pipeline.study.tables import percentile_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 
@@ -20,7 +20,7 @@ __all__ = ["training_study", "fig5"]
 
 
 def training_study(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES, seeds: Sequence[int] = TRAINING_SEEDS,
-                   methods: Sequence[str] = METHOD_ORDER, *,
+                   methods: Sequence[str] | None = None, *,
                    root_seed: int = 0, jobs: int = 1, progress: bool | None = None,
                    max_actions: int | None = None, min_ambiguity: float = 0.3) -> dict[str, Any]:
     """Collect (greedy walk, discard rule), isolate, track with every method at its defaults, score.
@@ -30,6 +30,7 @@ def training_study(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES, see
     """
     t0 = time.perf_counter()
     out = Path(out)
+    methods = tuple(methods) if methods is not None else tracker_names()
     info, contacts, truths = load_training(out, scenes, seeds, root_seed, jobs, progress, max_actions)
     rows = score_methods(contacts, truths, [(m, {}) for m in methods], root_seed, jobs, progress)
     table = pa.Table.from_pylist(rows)

@@ -5,6 +5,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+from pipeline import registry
+
 __all__ = ["Setting", "accuracy_settings"]
 
 
@@ -23,7 +25,7 @@ class Setting:
     params: tuple[tuple[str, Any], ...] = ()
     restarts: int = 30
     robot: str = "panda"
-    estimator: str = "plausible"
+    estimator: str = registry.DEFAULT_ESTIMATOR
     hypotheses: int = 32
     free_resolution: float = 0.005
 
@@ -31,10 +33,11 @@ class Setting:
 def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts: Sequence[int] = (5, 10, 30),
                       sdf_mm: Sequence[float] = (1, 2, 4), hypotheses: Sequence[int] = (16, 32, 64, 128),
                       free_mm: Sequence[float] = (2.5, 5, 10), paper_estimator: bool = True,
-                      baselines: Sequence[str] = ("birch", "dbscan", "kmeans", "gmphd")) -> list[Setting]:
+                      baselines: Sequence[str] | None = None) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
-    I), the plausible estimator's hypotheses and free-space lattice spacing, the paper's estimator, then the
-    baselines at their defaults. The default STUCCO setting appears once."""
+    I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's), then the
+    baselines at their defaults (None: :func:`pipeline.registry.baseline_names`). The default STUCCO setting
+    appears once."""
     out: list[Setting] = []
     seen: set[tuple] = set()
 
@@ -56,7 +59,8 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
     for mm in free_mm:
         add(Setting(f"stucco free={mm:g}mm", "stucco", "free_mm", float(mm), (), free_resolution=float(mm) / 1000))
     if paper_estimator:
-        add(Setting("stucco paper estimator", "stucco", "estimator", math.nan, (), estimator="paper"))
-    for b in baselines:
+        for e in registry.estimator_names()[1:]:  # the paper's, and any other registered
+            add(Setting(f"stucco {e} estimator", "stucco", "estimator", math.nan, (), estimator=e))
+    for b in (registry.baseline_names() if baselines is None else baselines):
         add(Setting(b, b, "method", math.nan))
     return out

@@ -18,14 +18,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.collect import MIN_REP_FORCE_N, collect, output_path
 from pipeline.evaluate import map_jobs, single_threaded
 from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict
 from pipeline.retrieve import Primitive, primitive_of
 from pipeline.scenes import load_scene
 from pipeline.score import contact_error_cm, fmi
-from pipeline.segment import final_estimates, segment_table
+from pipeline.segment import final_estimates, segment_table, segmentation_params
 
 __all__ = ["TRAINING_SCENES", "TRAINING_SEEDS", "AMBIGUITY_DISTANCE_M", "MIN_REP_FORCE_N", "run_ambiguity",
            "collect_training", "training_scores", "load_training", "score_methods"]
@@ -76,7 +76,7 @@ def collect_training(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES,
         scene = load_scene(sc)
         missing = [s for s in seeds if not output_path(runs_dir, scene.name, s).is_file()]
         if missing:
-            collect(scene, list(missing), runs_dir, policy="greedy-walk", root_seed=root_seed, jobs=jobs,
+            collect(scene, list(missing), runs_dir, policy=registry.default_policy("training"), root_seed=root_seed, jobs=jobs,
                     progress=progress, max_actions=max_actions, keep_discarded=True)
         for s in seeds:
             path = output_path(runs_dir, scene.name, s)
@@ -139,15 +139,14 @@ def training_scores(contacts: pa.Table, truths: dict[str, dict], method: str, pa
     cylinder approximated (:func:`_training_primitive`).
     """
     # Imported here: the trackers load numba's kernels, which only the processes that track need.
-    from pipeline.track.soft import SoftTrackingParams
     from pipeline.track.stage import TrackConfig, track_table
 
     params = dict(params or {})
     config = TrackConfig(method=method, robot=robot, params=params)
     t0 = time.perf_counter()
     tracks, diagnostics = track_table(contacts, config, seed=root_seed, jobs=1)
-    sp = SoftTrackingParams.from_dict(params if method == "stucco" else {})
-    final = final_estimates(segment_table(tracks, length=sp.length, alpha=sp.alpha, by="auto", method=method))
+    length, alpha = segmentation_params(method, params)
+    final = final_estimates(segment_table(tracks, length=length, alpha=alpha, by="auto", method=method))
     wall = time.perf_counter() - t0
     run = np.asarray(final.column("run").to_pylist(), dtype=object)
     xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])

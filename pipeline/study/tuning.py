@@ -14,20 +14,11 @@ from typing import Any, Sequence
 import numpy as np
 import pyarrow as pa
 
+from pipeline import registry
 from pipeline.study.tables import median_of, write_csv
 from pipeline.study.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 
-__all__ = ["TUNE_GRID", "choose_setting", "tune", "dataclass_dict"]
-
-#: Method -> (parameter, values). Table I / §V-B values are included (STUCCO l = 0.02, BIRCH 0.08, DBSCAN 0.05,
-#: k-means inertia ratio and GM-PHD detection at their defaults).
-TUNE_GRID: dict[str, tuple[str, tuple[float, ...]]] = {
-    "stucco": ("length", (0.005, 0.01, 0.02, 0.04, 0.08)),
-    "birch": ("threshold", (0.02, 0.04, 0.08, 0.12, 0.2)),
-    "dbscan": ("eps", (0.02, 0.035, 0.05, 0.075, 0.1)),
-    "kmeans": ("inertia_ratio", (0.1, 0.2, 0.3, 0.5, 0.8)),
-    "gmphd": ("detection", (0.3, 0.5, 0.7, 0.9, 0.99)),
-}
+__all__ = ["choose_setting", "tune", "dataclass_dict"]
 
 
 def choose_setting(stats: Sequence[dict[str, float]], fmi_tolerance: float = 0.01) -> int:
@@ -48,14 +39,12 @@ def tune(out: str | Path, grid: dict[str, tuple[str, Sequence[float]]] | None = 
          jobs: int = 1, progress: bool | None = None, max_actions: int | None = None) -> dict[str, Any]:
     """Sweep one parameter per method on the training set (collected if needed, as
     :func:`pipeline.study.training_study`); ``out/tune.csv`` holds the medians of every value; returns the chosen
-    value per method (:func:`choose_setting`)."""
-    # Imported here: the trackers load numba's kernels and scikit-learn (seconds), which only tracking needs.
-    from pipeline.track.cluster import make_baseline
-    from pipeline.track.soft import SoftTrackingParams
-
+    value per method (:func:`choose_setting`). The default grid is every tracker's ``tune`` entry in
+    :mod:`pipeline.registry` (Table I / §V-B values included: STUCCO l = 0.02, BIRCH 0.08, DBSCAN 0.05, k-means
+    inertia ratio and GM-PHD detection at their defaults)."""
     t0 = time.perf_counter()
     out = Path(out)
-    grid = dict(grid or TUNE_GRID)
+    grid = dict(grid or registry.tune_grid())
     _, contacts, truths = load_training(out, scenes, seeds, root_seed, jobs, progress, max_actions)
     settings = [(m, {p: v}) for m, (p, vals) in grid.items() for v in vals]
     rows = score_methods(contacts, truths, settings, root_seed, jobs, progress)
@@ -67,8 +56,7 @@ def tune(out: str | Path, grid: dict[str, tuple[str, Sequence[float]]] | None = 
             stats.append(dict(method=m, parameter=p, value=v, runs=len(sub), fmi=median_of([r["fmi"] for r in sub]),
                               ce_cm=median_of([r["contact_error_cm"] for r in sub])))
         i = choose_setting(stats)
-        default = (SoftTrackingParams().to_dict() if m == "stucco"
-                   else dataclass_dict(make_baseline(m, None, np.random.default_rng(0)).params))[p]
+        default = dataclass_dict(registry.build_params(registry.tracker(m)))[p]
         for j, s in enumerate(stats):
             s["chosen"] = j == i
             s["default"] = math.isclose(s["value"], float(default))

@@ -10,11 +10,33 @@ and exposes its current estimate of every contact point seen so far, in the orde
 """
 from __future__ import annotations
 
-import dataclasses
-import math
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+
+from pipeline.constraints import from_dict as params_from_dict
+
+__all__ = ["ContactTracker", "StepResult", "params_from_dict"]
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one :meth:`ContactTracker.update` did, one row of the diagnostics table.
+
+    Attributes
+    ----------
+    ess : float
+        Effective sample size / N after weighting, before resampling (1.0 for a tracker without particles).
+    resampled : bool
+        Whether the step resampled.
+    n_replaced : int
+        Points replaced over all particles (ReplaceInconsistentPoints, Alg. 2).
+    """
+
+    ess: float = 1.0
+    resampled: bool = False
+    n_replaced: int = 0
 
 
 @runtime_checkable
@@ -25,8 +47,11 @@ class ContactTracker(Protocol):
     number of contact points observed so far. Units are metres.
     """
 
-    def update(self, x: np.ndarray, dx: np.ndarray | None, p: np.ndarray | None) -> None:
-        """Advance by one control step.
+    params: Any
+    """The tracker's full parameter dataclass (recorded in the output metadata)."""
+
+    def update(self, x: np.ndarray, dx: np.ndarray | None, p: np.ndarray | None) -> StepResult:
+        """Advance by one control step; returns what the step did (:class:`StepResult`).
 
         Parameters
         ----------
@@ -44,31 +69,3 @@ class ContactTracker(Protocol):
 
     def labels(self) -> np.ndarray:
         """ndarray, shape (M,), int64: hard object assignment of :attr:`points_` (0..n_objects-1)."""
-
-
-def params_from_dict(cls: type, values: dict[str, Any], method: str) -> Any:
-    """Build the parameter dataclass ``cls`` of ``method`` from a mapping of overrides, refusing (ValueError, one
-    line naming the parameter) unknown names and values of the wrong kind: a number where the default is a number
-    (finite; an integer where the default is one), a flag where it is a flag. Ranges are the dataclass's own
-    ``__post_init__`` checks."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - set(fields))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for method {method!r}; "
-                         f"accepted: {', '.join(fields)}")
-    for name, value in values.items():
-        default = fields[name].default
-        if isinstance(default, bool):
-            ok = isinstance(value, bool)
-            kind = "true or false"
-        elif isinstance(default, int):
-            ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-            kind = "an integer"
-        elif isinstance(default, float):
-            ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool) and math.isfinite(value)
-            kind = "a finite number"
-        else:
-            continue
-        if not ok:
-            raise ValueError(f"parameter {name!r} of method {method!r} must be {kind}, got {value!r}")
-    return cls(**values)

@@ -7,20 +7,21 @@ of the new points in that cluster. Noise labels (-1, DBSCAN) are never moved, an
 
 The clustering is a small *labeller* object (:class:`PointLabeller`), so the same wrapper serves BIRCH, DBSCAN,
 the growing k-means and the GM-PHD filter of :mod:`pipeline.track.gmphd`. Build a tracker by name with
-:func:`make_baseline`.
+:func:`pipeline.track.stage.build_tracker` (the names and factories are in :mod:`pipeline.registry`).
 """
 from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, ClassVar, Protocol
 
 import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans
 from sklearn.exceptions import ConvergenceWarning
 
+from pipeline.constraints import Constraint, check, integer, number
 from pipeline.labels import canonical_labels
-from pipeline.track.base import ContactTracker, params_from_dict
+from pipeline.track.base import StepResult
 from pipeline.track.gmphd import GMPHDLabeller, GMPHDParams
 
 __all__ = [
@@ -33,8 +34,10 @@ __all__ = [
     "GrowingKMeansLabeller",
     "HardTrackingWrapper",
     "compact_labels",
-    "make_baseline",
-    "BASELINES",
+    "birch_tracker",
+    "dbscan_tracker",
+    "kmeans_tracker",
+    "gmphd_tracker",
 ]
 
 
@@ -47,12 +50,11 @@ class BirchParams:
 
     threshold: float = 0.08
     branching_factor: int = 50
+    constraints: ClassVar[dict[str, Constraint]] = {"threshold": number(0, lo_open=True),
+                                                    "branching_factor": integer(2, whole=True)}
 
     def __post_init__(self) -> None:
-        if not self.threshold > 0:
-            raise ValueError(f"BirchParams.threshold must be > 0, got {self.threshold!r}")
-        if not (int(self.branching_factor) == self.branching_factor and self.branching_factor > 1):
-            raise ValueError(f"BirchParams.branching_factor must be an integer > 1, got {self.branching_factor!r}")
+        check(self)
 
 
 @dataclass(frozen=True)
@@ -61,12 +63,11 @@ class DBSCANParams:
 
     eps: float = 0.05
     min_samples: int = 1
+    constraints: ClassVar[dict[str, Constraint]] = {"eps": number(0, lo_open=True),
+                                                    "min_samples": integer(1, whole=True)}
 
     def __post_init__(self) -> None:
-        if not self.eps > 0:
-            raise ValueError(f"DBSCANParams.eps must be > 0, got {self.eps!r}")
-        if not (int(self.min_samples) == self.min_samples and self.min_samples >= 1):
-            raise ValueError(f"DBSCANParams.min_samples must be an integer >= 1, got {self.min_samples!r}")
+        check(self)
 
 
 @dataclass(frozen=True)
@@ -91,16 +92,12 @@ class KMeansParams:
     min_points_to_grow: int = 5
     n_init: int = 10
     min_inertia: float = 1e-10
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "inertia_ratio": number(0, 1, lo_open=True), "min_points_to_grow": integer(2, whole=True),
+        "n_init": integer(1, whole=True), "min_inertia": number(0)}
 
     def __post_init__(self) -> None:
-        if not 0 < self.inertia_ratio <= 1:
-            raise ValueError(f"KMeansParams.inertia_ratio must be in (0, 1], got {self.inertia_ratio!r}")
-        if not (int(self.min_points_to_grow) == self.min_points_to_grow and self.min_points_to_grow >= 2):
-            raise ValueError(f"KMeansParams.min_points_to_grow must be an integer >= 2, got {self.min_points_to_grow!r}")
-        if not (int(self.n_init) == self.n_init and self.n_init >= 1):
-            raise ValueError(f"KMeansParams.n_init must be an integer >= 1, got {self.n_init!r}")
-        if not self.min_inertia >= 0:
-            raise ValueError(f"KMeansParams.min_inertia must be >= 0, got {self.min_inertia!r}")
+        check(self)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -184,6 +181,10 @@ def compact_labels(labels: np.ndarray) -> np.ndarray:
     return canonical_labels(labels)
 
 
+#: The step result of a tracker without particles.
+_NO_PARTICLES = StepResult()
+
+
 class HardTrackingWrapper:
     """Contact tracker that keeps one estimate per contact point and moves whole clusters (paper §V-A).
 
@@ -209,10 +210,11 @@ class HardTrackingWrapper:
         self._points: np.ndarray | None = None
         self._dim: int | None = None
 
-    def update(self, x: np.ndarray, dx: np.ndarray | None, p: np.ndarray | None) -> None:
+    def update(self, x: np.ndarray, dx: np.ndarray | None, p: np.ndarray | None) -> StepResult:
         """Advance by one control step (see :meth:`pipeline.track.base.ContactTracker.update`).
 
-        x (D,), dx (K, D) | None, p (K, D) | None, metres. K = 0 is treated as free space.
+        x (D,), dx (K, D) | None, p (K, D) | None, metres. K = 0 is treated as free space. Returns the
+        defaults of :class:`~pipeline.track.base.StepResult` (no particles: ESS 1, nothing resampled).
         """
         x = np.asarray(x, dtype=float)
         if x.ndim != 1:
@@ -222,7 +224,7 @@ class HardTrackingWrapper:
         elif x.shape[0] != self._dim:
             raise ValueError(f"x has dimension {x.shape[0]}, earlier steps had {self._dim}")
         if dx is None and p is None:
-            return
+            return _NO_PARTICLES
         if dx is None or p is None:
             raise ValueError("dx and p must both be None (free space) or both be arrays of shape (K, D)")
         dx = np.asarray(dx, dtype=float)
@@ -230,7 +232,7 @@ class HardTrackingWrapper:
         if dx.ndim != 2 or dx.shape != p.shape or dx.shape[1] != self._dim:
             raise ValueError(f"dx and p must both have shape (K, {self._dim}), got {dx.shape} and {p.shape}")
         if len(p) == 0:
-            return
+            return _NO_PARTICLES
         if not (np.isfinite(dx).all() and np.isfinite(p).all()):
             raise ValueError("dx and p must be finite")
 
@@ -244,6 +246,7 @@ class HardTrackingWrapper:
                 continue
             points[labels == lab] += dx[new_labels == lab].mean(axis=0)
         self._points = points
+        return _NO_PARTICLES
 
     @property
     def points_(self) -> np.ndarray:
@@ -262,55 +265,26 @@ class HardTrackingWrapper:
 # ---------------------------------------------------------------------------------------------------------------
 # factory
 # ---------------------------------------------------------------------------------------------------------------
-BASELINES = ("birch", "dbscan", "kmeans", "gmphd")
-
-_PARAMS = {"birch": BirchParams, "dbscan": DBSCANParams, "kmeans": KMeansParams, "gmphd": GMPHDParams}
-
-
-def _params(name: str, cls: type, params: dict | Any | None) -> Any:
-    if params is None:
-        return cls()
-    if isinstance(params, cls):
-        return params
-    if not isinstance(params, dict):
-        raise ValueError(f"params for baseline {name!r} must be a dict or {cls.__name__}, got {type(params).__name__}")
-    return params_from_dict(cls, params, name)
+# The registry's factories (:mod:`pipeline.registry`): ``factory(params, robot, rng)``; the robot is not used.
+def birch_tracker(params: BirchParams, robot, rng: np.random.Generator) -> HardTrackingWrapper:
+    """BIRCH refitted at every contact step (deterministic: draws nothing)."""
+    return HardTrackingWrapper(RefitLabeller(
+        lambda: Birch(threshold=params.threshold, branching_factor=params.branching_factor, n_clusters=None)),
+        params=params)
 
 
-def make_baseline(name: str, params: dict | None, rng: np.random.Generator) -> ContactTracker:
-    """Build a hard-tracking baseline by name.
+def dbscan_tracker(params: DBSCANParams, robot, rng: np.random.Generator) -> HardTrackingWrapper:
+    """DBSCAN refitted at every contact step (deterministic: draws nothing)."""
+    return HardTrackingWrapper(RefitLabeller(lambda: DBSCAN(eps=params.eps, min_samples=params.min_samples)),
+                               params=params)
 
-    Parameters
-    ----------
-    name : {"birch", "dbscan", "kmeans", "gmphd"}
-    params : dict or None
-        Overrides of the fields of :class:`BirchParams`, :class:`DBSCANParams`, :class:`KMeansParams` or
-        :class:`GMPHDParams` (an instance of that dataclass is accepted too); None = tuned defaults.
-    rng : numpy.random.Generator
-        Source of the k-means ``random_state`` (one integer drawn at construction); BIRCH, DBSCAN and GM-PHD are
-        deterministic and draw nothing.
 
-    Returns
-    -------
-    HardTrackingWrapper
+def kmeans_tracker(params: KMeansParams, robot, rng: np.random.Generator) -> HardTrackingWrapper:
+    """The growing k-means; its ``random_state`` is one integer drawn from ``rng`` here."""
+    return HardTrackingWrapper(GrowingKMeansLabeller(params, random_state=int(rng.integers(0, 2**31 - 1))),
+                               params=params)
 
-    Raises
-    ------
-    ValueError
-        Unknown name or parameter, or a parameter out of range.
-    """
-    if name not in _PARAMS:
-        raise ValueError(f"unknown baseline {name!r}; accepted: {', '.join(BASELINES)}")
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    prm = _params(name, _PARAMS[name], params)
-    if name == "birch":
-        labeller: PointLabeller = RefitLabeller(
-            lambda: Birch(threshold=prm.threshold, branching_factor=prm.branching_factor, n_clusters=None))
-    elif name == "dbscan":
-        labeller = RefitLabeller(lambda: DBSCAN(eps=prm.eps, min_samples=prm.min_samples))
-    elif name == "kmeans":
-        labeller = GrowingKMeansLabeller(prm, random_state=int(rng.integers(0, 2**31 - 1)))
-    else:
-        labeller = GMPHDLabeller(prm)
-    return HardTrackingWrapper(labeller, params=prm)
+
+def gmphd_tracker(params: GMPHDParams, robot, rng: np.random.Generator) -> HardTrackingWrapper:
+    """The GM-PHD filter as a labeller (:mod:`pipeline.track.gmphd`; deterministic: draws nothing)."""
+    return HardTrackingWrapper(GMPHDLabeller(params), params=params)

@@ -22,10 +22,12 @@ from __future__ import annotations
 import math
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipeline.constraints import Constraint, check, integer, number, rule
 from pipeline.track.gaussian_mixture import extract_targets, predict, prune, update
 
 __all__ = [
@@ -84,27 +86,17 @@ class GMPHDParams:
     truncation: float = 1e-6
     merge_threshold: float = 0.005
     max_components: int = 10
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "birth": number(0, lo_open=True), "detection": number(0, 1, lo_open=True), "q": number(0),
+        "r": number(0, lo_open=True), "bias": number(0, lo_open=True), "survival": number(0, 1, lo_open=True),
+        "bounds": rule("(x_min, y_min, x_max, y_max) with x_min < x_max and y_min < y_max",
+                       lambda b: len(b) == 4 and b[0] < b[2] and b[1] < b[3]),
+        "birth_grid": integer(1, whole=True), "birth_variance": number(0, lo_open=True), "clutter": number(0),
+        "truncation": number(0), "merge_threshold": number(0), "max_components": integer(1, whole=True)}
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "bounds", tuple(float(b) for b in self.bounds))
-        checks = [
-            ("birth", self.birth > 0),
-            ("detection", 0 < self.detection <= 1),
-            ("q", self.q >= 0),
-            ("r", self.r > 0),
-            ("bias", self.bias > 0),
-            ("survival", 0 < self.survival <= 1),
-            ("bounds", len(self.bounds) == 4 and self.bounds[0] < self.bounds[2] and self.bounds[1] < self.bounds[3]),
-            ("birth_grid", int(self.birth_grid) == self.birth_grid and self.birth_grid >= 1),
-            ("birth_variance", self.birth_variance > 0),
-            ("clutter", self.clutter >= 0),
-            ("truncation", self.truncation >= 0),
-            ("merge_threshold", self.merge_threshold >= 0),
-            ("max_components", int(self.max_components) == self.max_components and self.max_components >= 1),
-        ]
-        for name, ok in checks:
-            if not ok:
-                raise ValueError(f"GMPHDParams.{name} out of range: {getattr(self, name)!r}")
+        check(self)
 
     @classmethod
     def training_set(cls) -> "GMPHDParams":

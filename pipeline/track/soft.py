@@ -21,14 +21,15 @@ the current configuration against the points.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from pipeline.segment import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
+from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
+from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.track import kernels
-from pipeline.track.base import params_from_dict
+from pipeline.track.base import StepResult, params_from_dict
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
@@ -72,30 +73,14 @@ class SoftTrackingParams:
     weighting: str = "reference"
     replace: str = "after-resample"
     weight_floor: float = 1e-15
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "length": number(0, lo_open=True), "penetration_length": number(0, lo_open=True), "alpha": number(),
+        "n_particles": integer(1), "tolerance": number(0), "ess_threshold": number(0, 1),
+        "weight_floor": number(0, hi_of=lambda p: 1.0 / p.n_particles, hi_open=True, text="in [0, 1/N)"),
+        "weighting": one_of(*WEIGHTINGS), "replace": one_of(*REPLACE_MODES)}
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.type == "float" and not (isinstance(value, (int, float, np.number)) and not isinstance(value, bool)):
-                raise ValueError(f"{f.name} must be a number, got {value!r}")
-        for name in ("length", "penetration_length"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if not math.isfinite(self.alpha):
-            raise ValueError(f"alpha must be a finite number, got {self.alpha!r}")
-        if not (isinstance(self.n_particles, (int, np.integer)) and self.n_particles >= 1):
-            raise ValueError(f"n_particles must be a positive integer, got {self.n_particles!r}")
-        if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
-            raise ValueError(f"tolerance must be a non-negative finite number (metres), got {self.tolerance!r}")
-        if not 0.0 <= self.ess_threshold <= 1.0:
-            raise ValueError(f"ess_threshold must be in [0, 1], got {self.ess_threshold!r}")
-        if not 0.0 <= self.weight_floor < 1.0 / self.n_particles:
-            raise ValueError(f"weight_floor must be in [0, 1/N), got {self.weight_floor!r}")
-        if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"weighting must be one of {', '.join(WEIGHTINGS)}, got {self.weighting!r}")
-        if self.replace not in REPLACE_MODES:
-            raise ValueError(f"replace must be one of {', '.join(REPLACE_MODES)}, got {self.replace!r}")
+        check(self)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -107,14 +92,8 @@ class SoftTrackingParams:
         return params_from_dict(cls, values, "stucco")
 
 
-@dataclass(frozen=True)
-class StepDiagnostics:
-    """What one update did: ESS / N after weighting (before resampling), whether it resampled, and how many
-    points ReplaceInconsistentPoints replaced over all particles."""
-
-    ess: float
-    resampled: bool
-    n_replaced: int
+#: What one update did (ESS / N after weighting, whether it resampled, points replaced over all particles).
+StepDiagnostics = StepResult
 
 
 class SoftTracker:
@@ -301,3 +280,8 @@ class SoftTracker:
         self.log_weights_ = log_w
         self.last_step_ = StepDiagnostics(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_
+
+
+def soft_tracker(params: SoftTrackingParams, robot, rng: np.random.Generator) -> SoftTracker:
+    """The registry's factory of ``stucco`` (:mod:`pipeline.registry`): a fresh :class:`SoftTracker`."""
+    return SoftTracker(robot, params, rng=rng)

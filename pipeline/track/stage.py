@@ -15,13 +15,12 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.atomic import all_or_none
-from pipeline.methods import METHOD_ORDER
 from pipeline.parallel import in_process, run_calls
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
-from pipeline.track.soft import SoftTracker, SoftTrackingParams
+from pipeline.track.base import ContactTracker, StepResult
 
 
 # Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
@@ -40,17 +39,37 @@ class TrackConfig:
     every_step: bool = False
 
     def __post_init__(self) -> None:
-        if self.method not in METHOD_ORDER:
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHOD_ORDER)}")
+        registry.tracker(self.method)  # ValueError naming the registered methods
 
 
-def make_tracker(config: TrackConfig, robot, rng: np.random.Generator):
+def build_tracker(method: str, params: dict | Any | None, robot, rng: np.random.Generator) -> ContactTracker:
+    """A fresh tracker by name, from its registry entry (:mod:`pipeline.registry`).
+
+    Parameters
+    ----------
+    method : str
+        A registered tracking method.
+    params : dict, parameter dataclass instance or None
+        Overrides of the method's parameter fields (None = its defaults).
+    robot : GridSDF or None
+        The gripper grid (trackers that do not use it accept None).
+    rng : numpy.random.Generator
+        The run's stream; e.g. k-means draws its ``random_state`` from it, BIRCH, DBSCAN and GM-PHD draw nothing.
+
+    Raises
+    ------
+    ValueError
+        Unknown method or parameter, or a parameter out of range. TypeError if ``rng`` is not a Generator.
+    """
+    spec = registry.tracker(method)
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    return registry.resolve(spec.factory)(registry.build_params(spec, params), robot, rng)
+
+
+def make_tracker(config: TrackConfig, robot, rng: np.random.Generator) -> ContactTracker:
     """Build a fresh tracker for one run."""
-    if config.method == "stucco":
-        return SoftTracker(robot, SoftTrackingParams.from_dict(config.params), rng=rng)
-    from pipeline.track.cluster import make_baseline
-
-    return make_baseline(config.method, config.params, rng)
+    return build_tracker(config.method, config.params, robot, rng)
 
 
 def method_params(config: TrackConfig) -> dict[str, Any]:
@@ -58,12 +77,8 @@ def method_params(config: TrackConfig) -> dict[str, Any]:
 
     Raises ValueError for an unknown or out-of-range parameter, before any run is tracked.
     """
-    if config.method == "stucco":
-        return SoftTrackingParams.from_dict(config.params).to_dict()
-    from pipeline.track.cluster import make_baseline
-
-    tracker = make_baseline(config.method, config.params, np.random.default_rng(0))
-    return dataclasses.asdict(tracker.params)
+    prm = registry.build_params(registry.tracker(config.method), config.params)
+    return {} if prm is None else dataclasses.asdict(prm)
 
 
 #: (method, robot) pairs whose kernels this process has loaded or compiled.
@@ -79,12 +94,13 @@ def warm_up(config: TrackConfig, robot) -> float:
 
     A throwaway tracker (4 particles) replays the stored log ``data/contacts/FB-000.parquet`` (40 contacts: free
     space, contacts, resampling and replaced points), which reaches every kernel with the argument types of a real
-    run. numba caches the compiled code on disk, so only a machine's first process pays the compilation (about
-    20-40 s); ``make setup`` pays it there. A compilation says so in one line on stderr; none of it is booked as
+    run. numba caches the compiled code on disk, so only a machine's first process pays the compilation
+    (docs/evaluation.md, "Parallelism"); ``make setup`` pays it there. Trackers whose registry entry does not
+    need ``"numba"`` skip it. A compilation says so in one line on stderr; none of it is booked as
     tracking time. Idempotent per process and (method, robot). Returns the seconds spent.
     """
     key = (config.method, config.robot)
-    if config.method != "stucco" or key in _WARM:
+    if "numba" not in registry.tracker(config.method).needs or key in _WARM:
         return 0.0
     t0 = time.perf_counter()
     (_, contacts), = schema.contacts_by_run(schema.read_contacts(WARM_UP_LOG))
@@ -101,8 +117,9 @@ def warm_up(config: TrackConfig, robot) -> float:
 
 
 def warm_up_kernels() -> float:
-    """:func:`warm_up` for STUCCO on the default robot (``make setup`` calls it once per machine)."""
-    config = TrackConfig(method="stucco")
+    """:func:`warm_up` for STUCCO (the default method) on the default robot (``make setup`` calls it once per
+    machine)."""
+    config = TrackConfig()
     return warm_up(config, load_robot(config.robot))
 
 
@@ -140,12 +157,15 @@ def track_run(run: str, contacts: schema.RunContacts, config: TrackConfig, robot
         t0 = time.perf_counter()
         info = tracker.update(x, dx, p)
         diag["update_ms"][s] = (time.perf_counter() - t0) * 1e3
+        if not isinstance(info, StepResult):
+            raise TypeError(f"{config.method}: update must return a StepResult (pipeline.track.base), got "
+                            f"{type(info).__name__}")
         diag["step"][s] = contacts.step[s]
         diag["in_contact"][s] = contacts.in_contact[s]
         diag["n_contacts"][s] = 0 if dx is None else len(dx)
-        diag["ess"][s] = getattr(info, "ess", 1.0)
-        diag["resampled"][s] = getattr(info, "resampled", False)
-        diag["n_replaced"][s] = getattr(info, "n_replaced", 0)
+        diag["ess"][s] = info.ess
+        diag["resampled"][s] = info.resampled
+        diag["n_replaced"][s] = info.n_replaced
         if dx is not None:
             rows = contacts.rows(s)
             k = rows.stop - rows.start

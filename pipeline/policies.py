@@ -1,0 +1,132 @@
+"""Data-collection policies: how the gripper moves while a run is collected (docs/simulation.md, "`stucco collect`").
+
+``scripted``
+    The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
+    whole sequence before the run.
+``greedy-walk``
+    Start and goal uniform in the scene's square (rejected if closer than the scene's minimum distance or if the
+    gripper would touch anything at either); stop within the goal tolerance; after an action that ends in contact
+    take ``walk_length`` uniform random actions, otherwise the best of ``n_candidates`` uniform random actions
+    towards the goal. Runs failing the discard rule (paper §V-B) are not written unless asked.
+
+A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
+:func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
+the gripper, :meth:`Policy.plan` fixes the number of actions, :meth:`Policy.action` gives each (None stops).
+"""
+from __future__ import annotations
+
+import math
+
+from typing import Any, Protocol
+
+import numpy as np
+
+from pipeline.scenes import Scene
+from pipeline.sim import World, action_noise
+
+__all__ = ["Policy", "ScriptedPolicy", "GreedyWalkPolicy"]
+
+
+class Policy(Protocol):
+    """What :func:`pipeline.collect.collect_run` asks of a policy.
+
+    Attributes
+    ----------
+    gripper_start : tuple of 2 floats or None
+        Where the world places the gripper when it opens (None: the world's default, then :meth:`start`).
+    goal : ndarray, shape (2,), or None
+        Recorded in the run's metadata (``goal_xy_m``).
+    discards : bool
+        Whether runs are checked against the discard rule (:func:`pipeline.collect.discard_reason`).
+    """
+
+    gripper_start: Any
+    goal: np.ndarray | None
+    discards: bool
+
+    def start(self, world) -> None:
+        """Place the gripper before the initial state is recorded."""
+
+    def plan(self) -> int:
+        """Most actions of the run (after :meth:`start`)."""
+
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
+        """Normalised action (2,) in [-1, 1] of step ``k``, or None to stop."""
+
+
+class ScriptedPolicy:
+    """The scene's action sequence with replay noise drawn once before the run (``noise_rng``)."""
+
+    discards = False
+    goal = None
+
+    def __init__(self, scene: Scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
+                 max_actions: int | None = None, params: Any = None) -> None:
+        self.scene, self.noise_rng, self.max_actions = scene, noise_rng, max_actions
+        self.gripper_start = scene.gripper_start
+
+    def start(self, world) -> None:
+        pass
+
+    def plan(self) -> int:
+        seq = np.asarray(self.scene.actions, dtype=np.float64)
+        if self.max_actions is not None:
+            seq = seq[:self.max_actions]
+        # Drawn once for the whole sequence before the run, as the authors do.
+        eff = self.scene.effects
+        self.actions = np.clip(seq + action_noise(self.noise_rng, len(seq), eff.noise_mm, self.scene.action_scale),
+                               -1.0, 1.0)
+        return len(self.actions)
+
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray:
+        return self.actions[k]
+
+
+class GreedyWalkPolicy:
+    """The training set's greedy random walk towards a random goal (paper §V-B; the scene's ``[walk]`` table)."""
+
+    discards = True
+    gripper_start = None
+
+    def __init__(self, scene: Scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
+                 max_actions: int | None = None, params: Any = None) -> None:
+        self.scene, self.rng, self.noise_rng, self.max_actions = scene, policy_rng, noise_rng, max_actions
+        self.goal: np.ndarray | None = None
+        self.remaining = 0
+
+    def start(self, world) -> None:
+        start, self.goal = _sample_start_goal(world, self.rng, self.scene)
+        world.place(*start)
+
+    def plan(self) -> int:
+        walk = self.scene.walk
+        return walk.max_actions if self.max_actions is None else min(self.max_actions, walk.max_actions)
+
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
+        walk, scale = self.scene.walk, self.scene.action_scale
+        x = world.gripper_pose()[0][:2]
+        if math.hypot(*(x - self.goal)) < walk.goal_tolerance:
+            return None
+        if last_contact:
+            self.remaining = walk.walk_length
+        if self.remaining > 0:
+            u = self.rng.uniform(-1.0, 1.0, 2)
+            self.remaining -= 1
+        else:
+            cand = self.rng.uniform(-1.0, 1.0, (walk.n_candidates, 2))
+            u = cand[np.argmin(np.linalg.norm(x + scale * cand - self.goal, axis=1))]
+        return np.clip(u + action_noise(self.noise_rng, 1, self.scene.effects.noise_mm, scale)[0], -1.0, 1.0)
+
+
+def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    walk = scene.walk
+    lo, hi = walk.bounds
+    for _ in range(10000):
+        start = rng.uniform(lo, hi, 2)
+        goal = rng.uniform(lo, hi, 2)
+        if math.hypot(*(start - goal)) < walk.min_start_goal_distance:
+            continue
+        if world.touches(*goal) or world.touches(*start):
+            continue
+        return start, goal
+    raise RuntimeError(f"{scene.path}: no collision-free start/goal pair found in 10000 draws")
