@@ -13,7 +13,6 @@ and effects give byte-identical files.
 """
 from __future__ import annotations
 
-import math
 import re
 import time
 from dataclasses import dataclass

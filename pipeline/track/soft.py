@@ -21,6 +21,7 @@ the current configuration against the points.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
