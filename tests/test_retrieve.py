@@ -130,6 +130,7 @@ def _origin_rotations(n, rng):
 
 
 def test_icp_never_returns_a_mirror_image_where_plain_open3d_does(box):
+    # Open3D's 3-D ICP of flat clouds (which the project no longer uses) mirrors; the SE(2) ICP cannot.
     import open3d as o3d
 
     reg = o3d.pipelines.registration
@@ -155,7 +156,7 @@ def test_icp_never_returns_a_mirror_image_where_plain_open3d_does(box):
     assert mirrored, "plain Open3D should return a mirror image on these planar inputs"
 
     res = icp_restarts(pts, model, inits, PARAMS, model_normals(box, model))
-    assert res.valid.all()  # every raw Open3D matrix had z-row (0, 0, 1, 0) and a det +1 in-plane block
+    assert res.valid.all()  # SE(2) by construction: every result is a rotation about z
     assert np.all(np.isfinite(res.poses))
     # From restarts near the data, every restart that fits is the true pose, never its mirror image.
     res = icp_restarts(pts, model, initial_transforms(pts, model, 30, rng), PARAMS, model_normals(box, model))
@@ -174,7 +175,7 @@ def test_icp_result_is_a_proper_rotation_about_z_for_random_inputs(box):
     model = model_points(box, PARAMS, rng)
     for _ in range(5):
         pts = rng.uniform(-0.3, 0.3, (int(rng.integers(1, 12)), 2))
-        # (max_point_distance out of the way: only the planar check of the raw Open3D matrix decides validity.)
+        # (max_point_distance out of the way: every result of the SE(2) iteration is valid.)
         for params in (RetrievalParams(max_point_distance=1e3),
                        RetrievalParams(estimation="point_to_point", max_point_distance=1e3)):
             res = icp_restarts(pts, model, _origin_rotations(10, rng), params, model_normals(box, model))
