@@ -164,7 +164,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                     "pipeline.metrics", "pipeline.labels")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
-                            "pipeline.seeds", "pipeline.parallel")),
+                            "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.spd",
+                            "pipeline.environment")),
 )
 
 
