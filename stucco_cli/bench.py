@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import parsed, pass_settings, user_errors, writable_dir, writable_file
+from stucco_cli.common import check_paths, parsed, pass_settings, user_errors, writable_dir
 
 
 @click.group()
@@ -50,9 +50,9 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
     for name, values in (("--T", ts), ("--N", ns)):
         if not values:
             raise click.BadParameter("expected at least one value", param_hint=name)
-    if json_path is not None:
-        writable_file("--json", json_path)
-    from pipeline.anchors import check_streams
+    from pipeline.anchors import ANCHOR_DIR, check_streams
+
+    check_paths({"--streams": streams or ANCHOR_DIR, "--reference-python": reference_python}, {"--json": json_path})
     from pipeline.atomic import write_text
     from pipeline.bench import check_reference, track_bench
 

@@ -57,7 +57,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     if method is not None:
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
-    check_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
+    check_paths({"--segments": segments_path, "--runs": run_dir}, {"--out": out_path, "--candidates": cand_path})
     with user_errors():  # a bad segments file is refused before --method is taken from its metadata
         schema.read_segments(segments_path)
         meta = schema.read_metadata(segments_path)
