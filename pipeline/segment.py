@@ -199,8 +199,8 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
     """
     tracks = schema.read_tracks(in_path)
     tparams = schema.read_metadata(in_path).get("params") or {}
-    length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))
-    alpha = float(alpha if alpha is not None else tparams.get("alpha", DEFAULT_ALPHA))
+    length = float(length if length is not None else schema.recorded_number(in_path, tparams, "length", DEFAULT_LENGTH))
+    alpha = float(alpha if alpha is not None else schema.recorded_number(in_path, tparams, "alpha", DEFAULT_ALPHA))
     method = str(tparams.get("method", "stucco"))
     segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
     schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,

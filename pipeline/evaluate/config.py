@@ -136,8 +136,11 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
     if path.is_file():
         try:
             have = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise ValueError(f"{path}: unreadable ({e}); remove it or use another --out") from None
+        if not isinstance(have, dict):
+            raise ValueError(f"{path}: holds {type(have).__name__} {json.dumps(have)[:40]}, not the JSON object "
+                             "stucco evaluate writes; remove it or use another --out")
         diff = sorted(k for k in set(want) | set(have) if have.get(k) != want.get(k))
         if "layout" in diff:
             raise ValueError(f"{out}: was made with another layout of the output folder (layout "

@@ -37,6 +37,7 @@ __all__ = [
     "write_table",
     "read_metadata",
     "file_digest",
+    "recorded_number",
 ]
 
 # The provenance keys write_table sets, with their meaning (the metadata section of docs/tables.md).
@@ -276,6 +277,37 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
                 out[name] = json.loads(text)
             except json.JSONDecodeError as e:
                 raise SchemaError(p, None, None, f"metadata {key} is not valid JSON ({e})") from None
+            _check_shape(p, key, out[name])
         else:
             out[name] = text
     return out
+
+
+def _shown(value: Any) -> str:
+    """A decoded JSON value as its (short) text, for messages."""
+    return json.dumps(value, default=str)[:40]
+
+
+def recorded_number(path: str | os.PathLike, params: Mapping[str, Any], key: str, default: float) -> float:
+    """``params[key]`` (the ``stucco.params`` of ``path``) as a finite float, ``default`` when absent; SchemaError
+    naming the file and key for a value of another type (``[1]``, ``"x"``) or not finite."""
+    value = params.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise SchemaError(Path(path), None, None, f"metadata stucco.params.{key} is {_shown(value)}; "
+                                                  "expected a finite number")
+    return float(value)
+
+
+def _check_shape(path: Path, key: str, value: Any) -> None:
+    """SchemaError naming ``path`` and ``key`` unless the decoded JSON has the shape :data:`METADATA_KEYS` gives."""
+    if key == "stucco.seed":
+        if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+            raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected an integer or null")
+        return
+    if not isinstance(value, dict):
+        raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected a JSON object")
+    if key == "stucco.inputs":
+        for role, entry in value.items():
+            if not (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("file", "sha256"))):
+                raise SchemaError(path, None, None, f"metadata {key}: input {role!r} is {_shown(entry)}; "
+                                                    'expected {"file": name, "sha256": hex digest}')
