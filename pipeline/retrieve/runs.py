@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -119,6 +120,13 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
         raise ValueError(f"{directory}: not a directory of collected runs (nor a run file)")
     out: dict[str, Path] = {}
     for f in sorted(directory.glob("*.parquet")):
+        try:
+            regular = stat.S_ISREG(f.stat().st_mode)
+        except OSError as e:  # a dangling link or a link loop
+            raise schema.SchemaError(f, None, None, f"cannot be read ({e.strerror})") from None
+        if not regular:  # opening a FIFO would wait for a writer for ever
+            raise schema.SchemaError(f, None, None, "is not a regular file (a FIFO, socket or device); expected a "
+                                                    "run file written by stucco collect")
         name = _run_name(f)
         if name is None:
             continue  # another table kind living in the same directory

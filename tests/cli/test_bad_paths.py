@@ -138,3 +138,19 @@ def test_evaluate_never_opens_its_lock_through_a_link(tmp_path, kind):
     _refused(r, ".evaluate.lock", "symbolic link" if "link" in kind else "not a regular file")
     assert victim.read_text() == "precious\n" and not (tmp_path / "nowhere").exists()
     assert sorted(p.name for p in out.iterdir()) == [".evaluate.lock"]
+
+
+@pytest.mark.parametrize("command", ["retrieve", "evaluate --from-runs"])
+def test_a_fifo_among_the_run_files_is_refused_not_waited_on(stage, command):
+    tmp, runs, segments, retrieval = stage
+    fifo = runs / "FB-001.parquet"
+    os.mkfifo(fifo)
+    if command == "retrieve":
+        args = ["retrieve", "--segments", str(segments), "--runs", str(runs), "--out", str(tmp / "r.parquet"),
+                "--no-grasp"]
+    else:
+        args = ["evaluate", "--from-runs", str(runs), "--methods", "stucco", "--out", str(tmp / "ev"),
+                "--no-figures"]
+    r = CliRunner().invoke(cli, ["-q", *args])
+    _refused(r, str(fifo), "not a regular file")
+    assert not (tmp / "r.parquet").exists() and not (tmp / "ev").exists()
