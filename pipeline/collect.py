@@ -60,7 +60,7 @@ MAX_NO_CONTACT_FRACTION = 0.95
 
 def parse_seeds(text: str) -> list[int]:
     """Seeds from ``"0-19"``, ``"3"``, ``"0,2,5-7"``; raises ValueError naming the bad part."""
-    seeds: list[int] = []
+    seeds: set[int] = set()
     for part in str(text).split(","):
         part = part.strip()
         m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
@@ -70,8 +70,18 @@ def parse_seeds(text: str) -> list[int]:
         hi = int(m.group(2)) if m.group(2) is not None else lo
         if hi < lo:
             raise ValueError(f"seed range {part!r}: end before start")
-        seeds.extend(range(lo, hi + 1))
-    return sorted(set(seeds))
+        if hi > MAX_SEED:
+            raise ValueError(f"seed range {part!r}: seeds are at most {MAX_SEED}")
+        if len(seeds) + hi - lo + 1 > MAX_SEEDS:  # checked before the range is made: 0-1000000000 is 8 GB of ints
+            raise ValueError(f"seed range {part!r}: at most {MAX_SEEDS} seeds per command (one simulated run each)")
+        seeds.update(range(lo, hi + 1))
+    return sorted(seeds)
+
+
+#: Most seeds one command takes (each is a simulated run of seconds), and the largest seed (a uint32 of the
+#: job's SeedSequence, docs/simulation.md).
+MAX_SEEDS = 100_000
+MAX_SEED = 2**32 - 1
 
 
 def job_seed_sequence(root_seed: int, scene_name: str, seed: int) -> np.random.SeedSequence:

@@ -24,7 +24,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
                    "default to all found there).")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None,
               help="Cut every simulated run after N actions (small test grids).")
-@click.option("--restarts", type=click.IntRange(min=2), default=30, show_default=True,
+@click.option("--restarts", type=click.IntRange(2, 1000), default=30, show_default=True,
               help="ICP restarts per segment.")
 @click.option("--estimators", default="plausible,paper", show_default=True,
               help="Pose estimators to run on every job (comma-separated: plausible, paper); the report shows "

@@ -31,8 +31,8 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--estimator", type=click.Choice(["plausible", "paper"]), default="plausible", show_default=True,
               help="plausible: the paper's segment choice, then the best pose of a plausible set fitted to the "
                    "target's shape, the contacts and the gripper's free space; paper: the paper's ICP procedure.")
-@click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
-@click.option("--hypotheses", type=click.IntRange(min=1), default=None,
+@click.option("--restarts", type=click.IntRange(2, 1000), default=None, help="ICP restarts per segment [30].")
+@click.option("--hypotheses", type=click.IntRange(1, 4096), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
 @click.option("--grasp/--no-grasp", default=True, show_default=True,

@@ -14,6 +14,7 @@ from pipeline.atomic import write_text
 from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline.methods import METHOD_ORDER
 from pipeline.retrieve.estimators import ESTIMATORS
+from pipeline.retrieve.params import MAX_COUNT
 from pipeline.scenes import SceneError, load_scene, scene_names
 
 __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
@@ -66,8 +67,8 @@ class EvalConfig:
             raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
         if self.max_actions is not None and self.max_actions < 1:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
-        if self.restarts < 2:
-            raise ValueError(f"restarts must be at least 2, got {self.restarts!r}")
+        if not 2 <= self.restarts <= MAX_COUNT:
+            raise ValueError(f"restarts must be in [2, {MAX_COUNT}], got {self.restarts!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form kept in ``DIR/evaluation.json`` (estimators as a list)."""

@@ -10,7 +10,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RetrievalParams"]
+__all__ = ["RetrievalParams", "MAX_COUNT"]
+
+#: Largest restart, model point, iteration or point count accepted.
+MAX_COUNT = 1000
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,8 @@ class RetrievalParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+            if v > MAX_COUNT:  # every one is an ICP run or model point per segment: a bound on time and memory
+                raise ValueError(f"{name} must be at most {MAX_COUNT}, got {v!r}")
         if self.estimation not in ("point_to_plane", "point_to_point"):
             raise ValueError(f"estimation must be 'point_to_plane' or 'point_to_point', got {self.estimation!r}")
         if self.box_sampling not in ("perimeter", "tester"):

@@ -38,6 +38,10 @@ __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_pose
            "fit_segment", "consensus", "com_pose", "primitive_pose"]
 
 
+#: Most hypotheses (or iterations) per segment of the plausible estimator.
+MAX_HYPOTHESES = 4096
+
+
 @dataclass(frozen=True)
 class PlausibleParams:
     """Parameters of the plausible-set estimator; serialised into the retrieval metadata.
@@ -111,6 +115,8 @@ class PlausibleParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+            if v > MAX_HYPOTHESES:  # (hypotheses, points) residual arrays per start and segment
+                raise ValueError(f"{name} must be at most {MAX_HYPOTHESES}, got {v!r}")
         for name in ("contact_sigma", "max_sigma", "outlier_sigmas", "free_resolution", "sweep_spacing",
                      "yaw_agreement", "max_spread", "uniform_sigma"):
             v = getattr(self, name)

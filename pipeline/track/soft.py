@@ -35,6 +35,11 @@ WEIGHTINGS = ("reference", "paper")
 REPLACE_MODES = ("after-resample", "every-step", "never")
 
 
+#: Most particles a tracker holds: it keeps (particles, points, 2) float64 arrays, so 1e5 particles over 1,000
+#: tracked points is already 1.6 GB of the machine's memory.
+MAX_PARTICLES = 100_000
+
+
 @dataclass(frozen=True)
 class SoftTrackingParams:
     """Parameters of STUCCO soft tracking; defaults are the paper's Table I (simulation) and the authors' code.
@@ -82,10 +87,10 @@ class SoftTrackingParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if not math.isfinite(self.alpha):
-            raise ValueError(f"alpha must be a finite number, got {self.alpha!r}")
-        if not (isinstance(self.n_particles, (int, np.integer)) and self.n_particles >= 1):
-            raise ValueError(f"n_particles must be a positive integer, got {self.n_particles!r}")
+        if not 0.0 < self.alpha < 1.0:  # exp(-d^2/l) > alpha: 0 and 1 are degenerate (Alg. 3)
+            raise ValueError(f"alpha must be in (0, 1), got {self.alpha!r}")
+        if not (isinstance(self.n_particles, (int, np.integer)) and 1 <= self.n_particles <= MAX_PARTICLES):
+            raise ValueError(f"n_particles must be an integer in [1, {MAX_PARTICLES}], got {self.n_particles!r}")
         if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
             raise ValueError(f"tolerance must be a non-negative finite number (metres), got {self.tolerance!r}")
         if not 0.0 <= self.ess_threshold <= 1.0:
