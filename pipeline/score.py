@@ -155,7 +155,7 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
                          low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
                          track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts))))
     arrays = {c.name: pa.array([row[c.name] for row in rows], type=c.type) for c in SCORES_COLUMNS}
-    return validate_scores(pa.table(arrays))
+    return validate_scores(pa.table(arrays), "the scores computed from the retrieval, segments and diagnostics")
 
 
 _C = schema.Column

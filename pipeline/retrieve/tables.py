@@ -8,6 +8,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.schema.rules import MAX_SECONDS
 
 __all__ = ["RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "RETRIEVAL", "CANDIDATES", "validate_retrieval",
            "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table"]
@@ -50,9 +51,9 @@ RETRIEVAL_COLUMNS: tuple[schema.Column, ...] = (
     _C("grasp_success", pa.bool_(), "", True, "Simulated grasp at the estimate succeeded (null: not simulated)."),
     _C("grasp_outcome", pa.string(), "", False, "Why the grasp succeeded or failed ('' if not simulated)."),
     _C("icp_s", pa.float64(), "s", False, "Wall time of model sampling, ICP, scoring and choice.", finite=True,
-       minimum=0.0),
+       minimum=0.0, maximum=MAX_SECONDS),
     _C("grasp_s", pa.float64(), "s", True, "Wall time of the grasp simulation (null: not simulated).",
-       minimum=0.0),
+       finite=True, minimum=0.0, maximum=MAX_SECONDS),
 )
 
 CANDIDATES_COLUMNS: tuple[schema.Column, ...] = (

@@ -63,8 +63,10 @@ def load_robot(spec: str) -> GridSDF:
             radius = float(raw)
         except ValueError:
             raise ValueError(f"robot {spec!r}: radius {raw!r} is not a number; {_ROBOT_FORMS}") from None
-        if not (0 < radius <= MAX_RADIUS and math.isfinite(radius)):
-            raise ValueError(f"robot {spec!r}: radius must be in (0, {MAX_RADIUS}] metres (its 1 mm grid grows "
-                             f"with its square); {_ROBOT_FORMS}")
+        if not (radius > 0 and math.isfinite(radius)):
+            raise ValueError(f"robot {spec!r}: radius must be positive and finite; {_ROBOT_FORMS}")
+        if radius > MAX_RADIUS:
+            raise ValueError(f"robot {spec!r}: radius must be at most {MAX_RADIUS} metres (its 1 mm grid grows with "
+                             f"its square)")
         return disc_sdf(radius)
     raise ValueError(f"unknown robot {spec!r}; {_ROBOT_FORMS}")

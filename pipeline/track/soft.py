@@ -90,7 +90,8 @@ class SoftTrackingParams:
         if not 0.0 < self.alpha < 1.0:  # exp(-d^2/l) > alpha: 0 and 1 are degenerate (Alg. 3)
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha!r}")
         if not (isinstance(self.n_particles, (int, np.integer)) and 1 <= self.n_particles <= MAX_PARTICLES):
-            raise ValueError(f"n_particles must be an integer in [1, {MAX_PARTICLES}], got {self.n_particles!r}")
+            raise ValueError(f"n_particles must be a positive integer, at most {MAX_PARTICLES}, "
+                             f"got {self.n_particles!r}")
         if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
             raise ValueError(f"tolerance must be a non-negative finite number (metres), got {self.tolerance!r}")
         if not 0.0 <= self.ess_threshold <= 1.0:

@@ -39,7 +39,7 @@ def _one_line(r, *words: str) -> str:
     (["--set", "n_particles=1e9"], ["n_particles", str(MAX_PARTICLES)]),
     (["--set", "alpha=5"], ["alpha must be in (0, 1)"]),
     (["--set", "alpha=0"], ["alpha must be in (0, 1)"]),
-    (["--robot", "disc:1000"], ["radius must be in (0, 1.0]"]),
+    (["--robot", "disc:1000"], ["radius must be at most 1.0 metres"]),
     (["--robot", "panda:1e-7"], ["resolution must be in [0.00025, 0.05]"]),
 ], ids=["set particles", "set particles float", "set alpha 5", "set alpha 0", "huge disc", "fine panda grid"])
 def test_track_bounds_every_size_and_validates_set_like_the_options(tmp_path, contacts, args, words):
