@@ -33,7 +33,7 @@ from pipeline.geometry import gripper_yaw
 from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
 from pipeline.parallel import map_jobs
 from pipeline.schema import SIM_RUN, write_table
-from pipeline.scenes import Scene, SceneError, scene_hash
+from pipeline.scenes import Scene, SceneError, scene_digest, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World, action_noise
 from pipeline.sim.world import ActionTrace
 
@@ -395,6 +395,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str = "s
         "initial": initial, "goal_xy_m": None if goal is None else goal.tolist(),
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
+        # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.retrieve.runs)
+        "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),
     }
     result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),

@@ -51,7 +51,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         if d is not None:
             writable_dir(opt, d)  # before the evaluation, whose results a failed snapshot would not reach
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes
+    from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes, scene_files
 
     if suite == "training":
         if backend != "loky" or quick or from_runs or snapshot_dir:
@@ -64,7 +64,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         return
     try:
         if scenes is not None:
-            scene_list = parse_scenes(scenes)
+            scene_list = parse_scenes(scenes, files=True)  # a scene file is collected from that file
         elif from_runs is not None:
             scene_list = None
         else:
@@ -84,6 +84,8 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     from pipeline.retrieve.estimators import parse_estimators
 
     estimator_list = parsed("--estimators", parse_estimators, estimators)
+    if from_runs is not None and scenes is not None and scene_files(scenes):
+        raise click.UsageError("--scenes takes scene names with --from-runs (stored runs carry their scenes)")
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
@@ -91,7 +93,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     with user_errors("evaluate"):
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs),
-                         estimators=estimator_list)
+                         estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes))
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 

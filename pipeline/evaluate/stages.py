@@ -27,7 +27,6 @@ from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, retrieve_file
-from pipeline.scenes import load_scene
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
@@ -66,7 +65,7 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
             shutil.copyfile(src, tmp)
         wall = None
     else:
-        collect_file(load_scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy="scripted",
+        collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy="scripted",
                      max_actions=cfg.max_actions, keep_discarded=True)
         wall = time.perf_counter() - t0
     if wall is None:

@@ -15,9 +15,9 @@ from pipeline import schema
 from pipeline.geometry import Primitive
 from pipeline.retrieve.model import target_primitive
 from pipeline.seeds import run_key
-from pipeline.scenes import load_scene
+from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 
-__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", ]
+__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,10 +67,7 @@ def load_run(path: str | Path) -> RunInfo:
     t = schema.read_run(path)
     meta = schema.read_metadata(path)
     params = meta.get("params") or {}
-    scene_name = params.get("scene")
-    if not scene_name:
-        raise schema.SchemaError(path, None, None, "metadata has no params.scene; expected a file from stucco collect")
-    scene = load_scene(scene_name)
+    scene = run_scene(path, params)
     bodies = params.get("bodies")
     if bodies is not None and list(bodies) != list(scene.body_names):
         raise schema.SchemaError(path, "obj_pose", None, f"bodies {bodies} differ from scene {scene.name}'s "
@@ -85,6 +82,32 @@ def load_run(path: str | Path) -> RunInfo:
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
                    final_poses=final, target_id=tid, target=prim)
+
+
+def run_scene(path: Path, params: dict) -> Scene:
+    """The scene a run file was collected in: the TOML text its metadata carries (``params.scene_toml``), checked
+    against its recorded SHA-256; for files written before runs carried their scene, the shipped scene of the
+    recorded name. Never a file whose path a data file names (SchemaError naming the run file otherwise)."""
+    name = params.get("scene")
+    if not isinstance(name, str) or not name:
+        raise schema.SchemaError(path, None, None, "metadata has no params.scene; expected a file from stucco collect")
+    text, digest = params.get("scene_toml"), params.get("scene_sha256")
+    if text:
+        if not isinstance(text, str) or not isinstance(digest, str) or scene_digest(text) != digest:
+            raise schema.SchemaError(path, None, None, "metadata params.scene_toml does not match its recorded "
+                                                       "params.scene_sha256: the scene was edited after collection")
+        try:
+            scene = scene_from_text(text, path.parent / f"{path.name}#scene" / f"{name}.toml")
+        except SceneError as e:
+            raise schema.SchemaError(path, None, None, f"metadata params.scene_toml: {e}") from None
+        if scene.name != name:
+            raise schema.SchemaError(path, None, None, f"metadata params.scene {name!r} differs from the name "
+                                                       f"{scene.name!r} of the scene it carries")
+        return scene
+    if name not in scene_names():  # a name, never a path: the metadata must not choose files to load
+        raise schema.SchemaError(path, None, None, f"metadata params.scene {name[:60]!r} is not a shipped scene and "
+                                                   "the file carries no scene (params.scene_toml); collect it again")
+    return load_scene(name)
 
 
 def _run_name(f: Path) -> str | None:
