@@ -26,7 +26,7 @@ import pyarrow as pa
 from pipeline import schema
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.metrics import fmi
-from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
+from pipeline.retrieve import check_runs, load_run, read_retrieval, run_files_by_name
 from pipeline.segment import final_estimates
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
@@ -272,6 +272,7 @@ def score_file(retrieval_path: str | Path, segments_path: str | Path, run_dir: s
     segments = schema.read_segments(segments_path)
     diagnostics = schema.read_diagnostics(diagnostics_path) if diagnostics_path is not None else None
     check_score_inputs(retrieval_path, segments_path, segments, diagnostics, diagnostics_path)
+    check_runs(segments_path, segments, run_files_by_name(run_dir))
     table = score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
                   retrieval_path=str(retrieval_path))
     if amend is not None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import check_paths, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import check_paths, parsed, pass_settings, unique, user_errors, writable_dir
 
 
 @click.group()
@@ -171,7 +171,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
                                  f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    est = parsed("--estimators", parse_estimators, estimators)
+    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     if method not in METHODS:
         raise click.BadParameter(f"expected one of {', '.join(METHODS)}, got {method!r}", param_hint="--method")
     pairs = [(sc, s) for sc in scene_list for s in seed_list]

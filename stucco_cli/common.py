@@ -58,6 +58,14 @@ def parsed(param_hint: str, parse, text):
         raise click.BadParameter(str(e), param_hint=param_hint) from None
 
 
+def unique(param_hint: str, values: tuple) -> tuple:
+    """``values`` unless one is given twice: click's one-line "Invalid value for PARAM_HINT" (exit code 2)."""
+    twice = [v for i, v in enumerate(values) if v in values[:i]]
+    if twice:
+        raise click.BadParameter(f"{twice[0]!r} is given twice", param_hint=param_hint)
+    return values
+
+
 class FiniteFloat(click.FloatRange):
     """A float option that must be finite (nan and inf refused, unlike :class:`click.FloatRange`) and in range."""
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import Settings, parsed, pass_settings, unique, user_errors, writable_dir
 
 
 @click.command()
@@ -83,7 +83,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     method_list = parsed("--methods", parse_methods, methods)
     from pipeline.retrieve.estimators import parse_estimators
 
-    estimator_list = parsed("--estimators", parse_estimators, estimators)
+    estimator_list = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     if from_runs is not None and scenes is not None and scene_files(scenes):
         raise click.UsageError("--scenes takes scene names with --from-runs (stored runs carry their scenes)")
     if from_runs is not None and max_actions is not None:

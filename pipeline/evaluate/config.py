@@ -71,6 +71,8 @@ class EvalConfig:
         bad = [e for e in self.estimators if e not in ESTIMATORS]
         if not self.estimators or bad:
             raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(ESTIMATORS)}")
+        if len(set(self.estimators)) != len(self.estimators):  # each would count every run once more
+            raise ValueError(f"estimators {', '.join(self.estimators)}: each may be given once")
         if self.max_actions is not None and self.max_actions < 1:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
         if not 2 <= self.restarts <= MAX_COUNT:

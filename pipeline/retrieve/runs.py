@@ -17,7 +17,7 @@ from pipeline.retrieve.model import target_primitive
 from pipeline.seeds import run_key
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 
-__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene"]
+__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,6 +108,68 @@ def run_scene(path: Path, params: dict) -> Scene:
         raise schema.SchemaError(path, None, None, f"metadata params.scene {name[:60]!r} is not a shipped scene and "
                                                    "the file carries no scene (params.scene_toml); collect it again")
     return load_scene(name)
+
+
+def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, Path]) -> None:
+    """Refuse (SchemaError naming the run file) a run file that is not the one ``segments`` were made from.
+
+    Checked for every run of ``segments`` found in ``files`` (run name -> file): its root seed (``stucco.seed``)
+    is the one the segments were made with; its last step is the step the segments' final estimate was made at
+    (a truncated run, or a run of another scene filed under this name, has other steps), and every segment
+    point's step is an in-contact step of the run; and when the tracks and contacts files the segments record
+    (``stucco.inputs``) are still beside them unchanged, the run file is byte for byte the one the contacts were
+    isolated from (its SHA-256).
+    """
+    segments_path = Path(segments_path)
+    seg_seed = schema.read_metadata(segments_path).get("seed")
+    recorded = _recorded_runs(segments_path)
+    runs = segments.column("run").to_pylist()
+    steps = np.asarray(segments.column("step").to_numpy(zero_copy_only=False), dtype=np.int64)
+    estimate = np.asarray(segments.column("estimate_step").to_numpy(zero_copy_only=False), dtype=np.int64)
+    names = np.asarray(runs, dtype=object)
+    for name in dict.fromkeys(runs):
+        path = files.get(name)
+        if path is None:
+            continue  # a missing run is the stage's own error
+        seed = schema.read_metadata(path).get("seed")
+        if isinstance(seed, int) and isinstance(seg_seed, int) and seed != seg_seed:
+            raise schema.SchemaError(path, None, None, f"collected with root seed {seed}, but {segments_path.name} "
+                                                       f"was made with seed {seg_seed}: not the run it was tracked from")
+        entry = recorded.get(path.name)
+        if entry is not None and schema.file_digest(path) != entry:
+            raise schema.SchemaError(path, None, None, f"not the run file the contacts of {segments_path.name} were "
+                                                       f"isolated from (they recorded SHA-256 {entry[:12]}…)")
+        t = pq.read_table(path, columns=["step", "in_contact"])
+        run_steps = np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64)
+        contact = np.asarray(t.column("in_contact").to_numpy(zero_copy_only=False), dtype=bool)
+        mine = names == name
+        last = int(estimate[mine].max())
+        if not len(run_steps) or int(run_steps[-1]) != last:
+            raise schema.SchemaError(path, "step", None, f"run {name} ends at step "
+                                     f"{int(run_steps[-1]) if len(run_steps) else None}, but its segments in "
+                                     f"{segments_path.name} were estimated at step {last}: a truncated run or "
+                                     "another run under this name")
+        touched = set(run_steps[contact].tolist())
+        stray = sorted(set(steps[mine].tolist()) - touched)
+        if stray:
+            raise schema.SchemaError(path, "in_contact", None, f"run {name} is not in contact at step {stray[0]}, "
+                                     f"where {segments_path.name} has a contact point: another run under this name")
+
+
+def _recorded_runs(segments_path: Path) -> dict[str, str]:
+    """Run file name -> SHA-256 as the contacts behind ``segments_path`` recorded them, following the recorded
+    inputs (segments -> tracks -> contacts) through files beside each other whose digests still match; {} when
+    the chain is broken (files moved or remade), so only the other checks of :func:`check_runs` apply."""
+    path, meta = segments_path, schema.read_metadata(segments_path)
+    for role in ("tracks", "contacts"):
+        entry = (meta.get("inputs") or {}).get(role)
+        if not entry:
+            return {}
+        nxt = path.parent / Path(entry["file"]).name
+        if not nxt.is_file() or schema.file_digest(nxt) != entry["sha256"]:
+            return {}
+        path, meta = nxt, schema.read_metadata(nxt)
+    return {Path(e["file"]).name: e["sha256"] for e in (meta.get("inputs") or {}).values()}
 
 
 def _run_name(f: Path) -> str | None:

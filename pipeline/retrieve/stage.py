@@ -16,7 +16,7 @@ from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, Segment,
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams
-from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
+from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
 from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
@@ -140,6 +140,7 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     root seed.
     """
     segments = schema.read_segments(segments_path)
+    check_runs(segments_path, segments, run_files_by_name(run_dir))
     table, candidates = retrieve(segments, run_dir, method=method, root_seed=seed, params=params, grasp=grasp,
                                  grasp_params=grasp_params, jobs=jobs, progress=progress,
                                  segments_path=str(segments_path), estimator=estimator,
