@@ -99,6 +99,8 @@ class KMeansParams:
             raise ValueError(f"KMeansParams.min_points_to_grow must be an integer >= 2, got {self.min_points_to_grow!r}")
         if not (int(self.n_init) == self.n_init and self.n_init >= 1):
             raise ValueError(f"KMeansParams.n_init must be an integer >= 1, got {self.n_init!r}")
+        if self.n_init > 1000:  # k-means restarts per fit and per step: beyond this a run never ends
+            raise ValueError(f"KMeansParams.n_init must be at most 1000, got {self.n_init!r}")
         if not self.min_inertia >= 0:
             raise ValueError(f"KMeansParams.min_inertia must be >= 0, got {self.min_inertia!r}")
 

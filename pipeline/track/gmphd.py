@@ -103,6 +103,8 @@ class GMPHDParams:
         for name, ok in checks:
             if not ok:
                 raise ValueError(f"GMPHDParams.{name} out of range: {getattr(self, name)!r}")
+        if self.birth_grid > 100:  # birth_grid² birth components join every update: 100 is already 10,000
+            raise ValueError(f"GMPHDParams.birth_grid must be at most 100, got {self.birth_grid!r}")
 
     @classmethod
     def training_set(cls) -> "GMPHDParams":

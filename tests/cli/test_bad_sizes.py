@@ -91,3 +91,15 @@ def test_parse_seeds_counts_overlapping_parts_once():
 def test_parameter_dataclasses_check_their_bounds(make, match):
     with pytest.raises(ValueError, match=match):
         make()
+
+
+@pytest.mark.parametrize("method, setting, words", [
+    ("gmphd", "birth_grid=100000", ["birth_grid must be at most 100"]),
+    ("kmeans", "n_init=1000000000", ["n_init must be at most 1000"]),
+])
+def test_baseline_sizes_set_with_set_are_bounded(tmp_path, contacts, method, setting, words):
+    out = tmp_path / "tracks.parquet"
+    r = CliRunner().invoke(cli, ["-q", "track", "--in", str(contacts), "--out", str(out), "--robot", "disc:0.05",
+                                 "--method", method, "--set", setting])
+    _one_line(r, *words)
+    assert not out.exists()
