@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import check_paths, parsed, pass_settings, unique, user_errors, writable_dir
+from stucco_cli.common import JOBS, check_paths, parsed, pass_settings, unique, user_errors, writable_dir
 
 
 @click.group()
@@ -107,7 +107,7 @@ def _methods(text: str) -> tuple[str, ...]:
               help="Baselines at their defaults ('' for none).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes over (scene, seed).")
+@click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
                    baselines, out_dir, jobs) -> None:

@@ -84,6 +84,8 @@ class FiniteFloat(click.FloatRange):
 POSITIVE = FiniteFloat(min=0.0, min_open=True)
 NON_NEGATIVE = FiniteFloat(min=0.0)
 ALPHA = FiniteFloat(min=0.0, max=1.0, min_open=True, max_open=True)  # exp(-d^2/l) > alpha: 0 and 1 are degenerate
+#: Worker processes: each holds pybullet, numba and Open3D (a few hundred MB), so 64 already fill a 24 GiB machine.
+JOBS = click.IntRange(1, 64)
 
 
 def check_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:

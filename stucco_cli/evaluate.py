@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import Settings, parsed, pass_settings, unique, user_errors, writable_dir
+from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, user_errors, writable_dir
 
 
 @click.command()
@@ -16,7 +16,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, unique, user_erro
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Evaluation directory (one folder per stage table, report, figures) [out/evaluate; "
                    "out/quick with --quick].")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+@click.option("--jobs", "-j", type=JOBS, default=None,
               help="Worker processes over jobs [the group's -j].")
 @click.option("--quick", is_flag=True, help="A couple of seeds of one scene (FB 0-1), all methods, into out/quick.")
 @click.option("--from-runs", "from_runs", type=click.Path(file_okay=False, path_type=Path), default=None,

@@ -103,3 +103,11 @@ def test_baseline_sizes_set_with_set_are_bounded(tmp_path, contacts, method, set
                                  "--method", method, "--set", setting])
     _one_line(r, *words)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("args", [["-j", "100000", "scenes"], ["evaluate", "-j", "100000", "--quick"],
+                                  ["study", "training", "-j", "100000"]], ids=["group", "evaluate", "study"])
+def test_worker_processes_are_bounded(args):
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 2
+    _one_line(r, "100000", "1<=x<=64")
