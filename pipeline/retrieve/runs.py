@@ -115,13 +115,12 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
 
     Checked for every run of ``segments`` found in ``files`` (run name -> file): its root seed (``stucco.seed``)
     is the one the segments were made with; its last step is not before the step of the segments' final estimate
-    (a truncated run, or a shorter run filed under this name, ends before it); and when the tracks and contacts
-    files the segments record (``stucco.inputs``) are still beside them unchanged, the run file is byte for byte
-    the one the contacts were isolated from (its SHA-256).
+    (a truncated run, or a shorter run filed under this name, ends before it); and it is byte for byte the run
+    the segments derive from, when they record it (its SHA-256 in ``stucco.runs``, carried from the contacts).
     """
     segments_path = Path(segments_path)
-    seg_seed = schema.read_metadata(segments_path).get("seed")
-    recorded = _recorded_runs(segments_path)
+    seg_meta = schema.read_metadata(segments_path)
+    seg_seed, recorded = seg_meta.get("seed"), seg_meta.get("runs") or {}
     runs = segments.column("run").to_pylist()
     steps = np.asarray(segments.column("step").to_numpy(zero_copy_only=False), dtype=np.int64)
     estimate = np.asarray(segments.column("estimate_step").to_numpy(zero_copy_only=False), dtype=np.int64)
@@ -134,10 +133,10 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
         if isinstance(seed, int) and isinstance(seg_seed, int) and seed != seg_seed:
             raise schema.SchemaError(path, None, None, f"collected with root seed {seed}, but {segments_path.name} "
                                                        f"was made with seed {seg_seed}: not the run it was tracked from")
-        entry = recorded.get(path.name)
+        entry = recorded.get(name)
         if entry is not None and schema.file_digest(path) != entry:
-            raise schema.SchemaError(path, None, None, f"not the run file the contacts of {segments_path.name} were "
-                                                       f"isolated from (they recorded SHA-256 {entry[:12]}…)")
+            raise schema.SchemaError(path, None, None, f"not the run {name} that {segments_path.name} derives from "
+                                                       f"(it recorded SHA-256 {entry[:12]}…, this file differs)")
         run_steps = np.asarray(pq.read_table(path, columns=["step"]).column("step").to_numpy(), dtype=np.int64)
         mine = names == name
         last = int(max(estimate[mine].max(), steps[mine].max()))
@@ -146,25 +145,6 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
                                      f"{int(run_steps.max()) if len(run_steps) else None}, but its segments in "
                                      f"{segments_path.name} were estimated at step {last}: a truncated run or "
                                      "another run under this name")
-
-
-def _recorded_runs(segments_path: Path) -> dict[str, str]:
-    """Run file name -> SHA-256 as the contacts behind ``segments_path`` recorded them, following the recorded
-    inputs (segments -> tracks -> contacts) through files beside each other whose digests still match; {} when
-    the chain is broken (files moved or remade), so only the other checks of :func:`check_runs` apply."""
-    path, meta = segments_path, schema.read_metadata(segments_path)
-    for role in ("tracks", "contacts"):
-        entry = (meta.get("inputs") or {}).get(role)
-        if not entry:
-            return {}
-        nxt = path.parent / Path(entry["file"]).name
-        try:
-            if not nxt.is_file() or schema.file_digest(nxt) != entry["sha256"]:
-                return {}
-            path, meta = nxt, schema.read_metadata(nxt)
-        except (OSError, schema.SchemaError):  # unreadable: no chain to follow
-            return {}
-    return {Path(e["file"]).name: e["sha256"] for e in (meta.get("inputs") or {}).values()}
 
 
 def _run_name(f: Path) -> str | None:

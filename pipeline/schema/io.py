@@ -49,6 +49,9 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.inputs", "JSON object role -> {\"file\": file name, \"sha256\": hex digest of the file bytes}."),
     ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `segments`, `diagnostics` (or a stage's own "
                       "kind)."),
+    ("stucco.runs", "JSON object run name (`FB/0`) -> SHA-256 of the collected run file the table derives from, "
+                    "carried through every input (absent when none is known); retrieval and scoring check their "
+                    "run files against it."),
 )
 
 # Fixed writer options: same bytes for the same table (no timestamps are written by parquet-cpp; the
@@ -234,6 +237,7 @@ def write_table(
         params = dataclasses.asdict(params)
 
     recorded = {role: {"file": Path(p).name, "sha256": file_digest(p)} for role, p in (inputs or {}).items()}
+    runs = _runs_behind(inputs or {}, recorded)
     meta = {
         "stucco.stage": stage,
         "stucco.version": __version__,
@@ -242,6 +246,8 @@ def write_table(
         "stucco.inputs": _dumps(recorded),
         "stucco.schema": kind,
     }
+    if runs:
+        meta["stucco.runs"] = _dumps(runs)
     table = table.replace_schema_metadata(meta).combine_chunks()
 
     with atomic_path(path, fsync=True) as tmp:
@@ -250,13 +256,30 @@ def write_table(
     return path
 
 
+def _runs_behind(inputs: Mapping[str, str | os.PathLike], recorded: Mapping[str, dict]) -> dict[str, str]:
+    """Run name -> SHA-256 of the collected runs behind ``inputs``: a run file itself (its digest), or what an
+    input table recorded (``stucco.runs``). Inputs without provenance add nothing."""
+    runs: dict[str, str] = {}
+    for role, p in inputs.items():
+        try:
+            meta = read_metadata(p)
+        except SchemaError:
+            continue
+        params = meta.get("params") or {}
+        if meta.get("schema") == "sim_run" and "scene" in params and "run_seed" in params:
+            runs[f"{params['scene']}/{params['run_seed']}"] = recorded[role]["sha256"]
+        else:
+            runs.update(meta.get("runs") or {})
+    return dict(sorted(runs.items()))
+
+
 def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     """Decoded ``stucco.*`` schema metadata of a Parquet file, keys without the prefix.
 
     Returns
     -------
     dict
-        Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs`` (dict), ``seed``
+        Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs``, ``runs`` (dict), ``seed``
         (int or None). A file written by other tools gives ``{}``.
     """
     p = Path(path)
@@ -272,7 +295,7 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
         if not key.startswith("stucco."):
             continue
         name, text = key[len("stucco."):], v.decode()
-        if name in ("params", "inputs", "seed"):
+        if name in ("params", "inputs", "seed", "runs"):
             try:
                 out[name] = json.loads(text)
             except json.JSONDecodeError as e:
@@ -306,6 +329,8 @@ def _check_shape(path: Path, key: str, value: Any) -> None:
         return
     if not isinstance(value, dict):
         raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected a JSON object")
+    if key == "stucco.runs" and not all(isinstance(v, str) for v in value.values()):
+        raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected run name -> SHA-256")
     if key == "stucco.inputs":
         for role, entry in value.items():
             if not (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("file", "sha256"))):

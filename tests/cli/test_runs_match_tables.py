@@ -51,25 +51,42 @@ def _runs_with(tmp: Path, impostor: str) -> Path:
     return runs
 
 
-#: impostor folder -> what the one-line refusal says (with the segments beside their tracks and contacts, and
-#: with the segments moved away from them, where only the run's own content can tell).
+#: impostor folder -> what the one-line refusal says (segments recording the runs they derive from, as every
+#: stage writes them now, and segments without that record, as older files: only the run's content can tell).
 CASES = {"seed1": ("root seed 1", "root seed 1"), "cut": ("SHA-256", "ends at step 7"),
          "moved": ("SHA-256", None)}
 
 
-@pytest.mark.parametrize("chain", ["beside", "moved away"])
+def _without_runs_record(src: Path, dst: Path) -> Path:
+    t = pq.read_table(src)
+    meta = {k: v for k, v in t.schema.metadata.items() if k != b"stucco.runs"}
+    pq.write_table(t.replace_schema_metadata(meta), dst)
+    return dst
+
+
+def test_every_stage_carries_the_runs_it_derives_from(made):
+    from pipeline.schema import file_digest, read_metadata
+
+    digest = {"FB/0": file_digest(made / "runs" / "FB-000.parquet")}
+    for name in ("contacts", "tracks", "tracks.diagnostics", "segments", "retrieval"):
+        assert read_metadata(made / f"{name}.parquet")["runs"] == digest, name
+
+
+@pytest.mark.parametrize("chain", ["recorded", "not recorded"])
 @pytest.mark.parametrize("impostor", list(CASES))
 @pytest.mark.parametrize("command", ["retrieve", "score"])
 def test_a_run_file_that_is_not_the_tables_run_is_refused(made, tmp_path, impostor, chain, command):
-    expect = CASES[impostor][0 if chain == "beside" else 1]
+    expect = CASES[impostor][0 if chain == "recorded" else 1]
     if expect is None:
-        pytest.skip("a few actions of a moved box: only the digest tells the runs apart")
+        pytest.skip("same steps, a moved box: only the recorded digest tells the runs apart")
+    if command == "score" and chain == "not recorded":
+        pytest.skip("the retrieval recorded the segments' digest: an edited copy is refused as such")
     runs = _runs_with(tmp_path, made / impostor / "FB-000.parquet")
-    if chain == "beside":
-        segments = made / "segments.parquet"
-    else:
+    if chain == "recorded":
         segments = tmp_path / "segments.parquet"
-        shutil.copyfile(made / "segments.parquet", segments)
+        shutil.copyfile(made / "segments.parquet", segments)  # away from its tracks and contacts: it suffices
+    else:
+        segments = _without_runs_record(made / "segments.parquet", tmp_path / "segments.parquet")
     out = tmp_path / "out.parquet"
     if command == "retrieve":
         args = ["retrieve", "--segments", segments, "--runs", runs, "--out", out, "--no-grasp", "--estimator",
