@@ -311,13 +311,16 @@ def _shown(value: Any) -> str:
     return json.dumps(value, default=str)[:40]
 
 
-def recorded_number(path: str | os.PathLike, params: Mapping[str, Any], key: str, default: float) -> float:
-    """``params[key]`` (the ``stucco.params`` of ``path``) as a finite float, ``default`` when absent; SchemaError
-    naming the file and key for a value of another type (``[1]``, ``"x"``) or not finite."""
+def recorded_number(path: str | os.PathLike, params: Mapping[str, Any], key: str, default: float,
+                    above: float = -np.inf, below: float = np.inf) -> float:
+    """``params[key]`` (the ``stucco.params`` of ``path``) as a finite float in the open interval (``above``,
+    ``below``), ``default`` when absent; SchemaError naming the file and key for a value of another type (``[1]``,
+    ``"x"``), not finite or out of the interval."""
     value = params.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise SchemaError(Path(path), None, None, f"metadata stucco.params.{key} is {_shown(value)}; "
-                                                  "expected a finite number")
+    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
+            or not above < value < below):
+        raise SchemaError(Path(path), None, None, f"metadata stucco.params.{key} is {_shown(value)}; expected a "
+                                                  f"finite number in ({above:g}, {below:g})")
     return float(value)
 
 

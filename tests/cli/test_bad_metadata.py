@@ -68,16 +68,15 @@ def test_retrieve_names_the_file_with_bad_metadata(tmp_path, shape, culprit):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("value", ["[1]", '"x"', "1e999"], ids=["list", "string", "infinite"])
-def test_segment_names_a_recorded_length_of_the_wrong_type(tmp_path, value):
+@pytest.mark.parametrize("value", ["[1]", '"x"', "1e999", "-0.02"], ids=["list", "string", "infinite", "negative"])
+def test_segment_names_a_recorded_length_of_the_wrong_type_or_range(tmp_path, value):
     contacts = tmp_path / "contacts.parquet"
     pq.write_table(stream_to_contacts(load_stream(stream_path(50)), "r").slice(0, 70), contacts)
     tracks = tmp_path / "tracks.parquet"
     r = CliRunner().invoke(cli, ["-q", "track", "--in", str(contacts), "--out", str(tracks), "--robot", "disc:0.05"])
     assert r.exit_code == 0, r.output
     params = json.loads(pq.read_schema(tracks).metadata[b"stucco.params"])
-    text = json.dumps(params).replace(json.dumps(params["length"]), value, 1) if value != "1e999" else \
-        json.dumps(dict(params, length=1e999))
+    text = json.dumps(dict(params, length=json.loads(value)))
     _with_metadata(tracks, tracks, "params", text)
     out = tmp_path / "segments.parquet"
     r = CliRunner().invoke(cli, ["-q", "segment", "--in", str(tracks), "--out", str(out)])
