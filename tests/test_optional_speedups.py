@@ -1,4 +1,4 @@
-"""The environment does not change what stucco does (issue 17, environment): STUCCO's numba kernels
+"""Optional speed-ups do not change what stucco does (issue 17, environment): STUCCO's numba kernels
 (pipeline/track/kernels.py) run as plain Python (``NUMBA_DISABLE_JIT=1``; a kernel's ``py_func`` is what that runs)
 give the compiled kernels' results, and an unwritable cache folder (the Panda grid's, under ``$HOME``) only costs
 time."""

@@ -85,8 +85,8 @@ def test_parse_seeds_counts_overlapping_parts_once():
 @pytest.mark.parametrize("make, match", [
     (lambda: SoftTrackingParams(alpha=1.5), r"alpha must be in \(0, 1\)"),
     (lambda: SoftTrackingParams(n_particles=MAX_PARTICLES + 1), "n_particles"),
-    (lambda: RetrievalParams(n_restarts=10**6), "n_restarts must be at most 1000"),
-    (lambda: PlausibleParams(n_hypotheses=10**6), "n_hypotheses must be at most 4096"),
+    (lambda: RetrievalParams(n_restarts=10**6), "n_restarts must be .*at most 1000"),
+    (lambda: PlausibleParams(n_hypotheses=10**6), "n_hypotheses must be .*at most 4096"),
 ], ids=["alpha", "particles", "restarts", "hypotheses"])
 def test_parameter_dataclasses_check_their_bounds(make, match):
     with pytest.raises(ValueError, match=match):
@@ -94,8 +94,8 @@ def test_parameter_dataclasses_check_their_bounds(make, match):
 
 
 @pytest.mark.parametrize("method, setting, words", [
-    ("gmphd", "birth_grid=100000", ["birth_grid must be at most 100"]),
-    ("kmeans", "n_init=1000000000", ["n_init must be at most 1000"]),
+    ("gmphd", "birth_grid=100000", ["birth_grid must be", "at most 100,"]),
+    ("kmeans", "n_init=1000000000", ["n_init must be", "at most 1000,"]),
 ])
 def test_baseline_sizes_set_with_set_are_bounded(tmp_path, contacts, method, setting, words):
     out = tmp_path / "tracks.parquet"
