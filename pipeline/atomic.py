@@ -8,9 +8,11 @@ a time write a folder that several commands may target (``stucco evaluate --out`
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 import secrets
+import stat
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -103,11 +105,21 @@ def exclusive(folder: str | os.PathLike, name: str = ".lock") -> Iterator[Path]:
 
     The lock is an advisory ``flock`` on ``folder/name``, released by the operating system when the process ends,
     so a killed process never leaves the folder locked. The holder's pid is written into the file for the message.
+    A ``folder/name`` that is a symbolic link or not a regular file is refused (ValueError), never followed.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     lock = folder / name
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    # Never through a link (its target would be truncated) nor into a FIFO or device (open or write could block).
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise ValueError(f"{lock}: is a symbolic link; the lock must be a plain file (remove the link)") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ValueError(f"{lock}: is not a regular file; the lock must be a plain file (remove it)")
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

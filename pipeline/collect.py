@@ -27,7 +27,7 @@ from pipeline.geometry import gripper_yaw
 from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
 from pipeline.parallel import map_jobs
 from pipeline.schema import SIM_RUN, write_table
-from pipeline.scenes import Scene, SceneError, scene_hash
+from pipeline.scenes import Scene, SceneError, scene_digest, scene_hash
 from pipeline.sim import NO_CONTACT, STEPS_PER_ACTION, World
 from pipeline.sim.world import ActionTrace
 
@@ -53,7 +53,7 @@ MAX_NO_CONTACT_FRACTION = 0.95
 
 def parse_seeds(text: str) -> list[int]:
     """Seeds from ``"0-19"``, ``"3"``, ``"0,2,5-7"``; raises ValueError naming the bad part."""
-    seeds: list[int] = []
+    seeds: set[int] = set()
     for part in str(text).split(","):
         part = part.strip()
         m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
@@ -63,8 +63,18 @@ def parse_seeds(text: str) -> list[int]:
         hi = int(m.group(2)) if m.group(2) is not None else lo
         if hi < lo:
             raise ValueError(f"seed range {part!r}: end before start")
-        seeds.extend(range(lo, hi + 1))
-    return sorted(set(seeds))
+        if hi > MAX_SEED:
+            raise ValueError(f"seed range {part!r}: seeds are at most {MAX_SEED}")
+        if len(seeds) + hi - lo + 1 > MAX_SEEDS:  # checked before the range is made: 0-1000000000 is 8 GB of ints
+            raise ValueError(f"seed range {part!r}: at most {MAX_SEEDS} seeds per command (one simulated run each)")
+        seeds.update(range(lo, hi + 1))
+    return sorted(seeds)
+
+
+#: Most seeds one command takes (each is a simulated run of seconds), and the largest seed (a uint32 of the
+#: job's SeedSequence, docs/simulation.md).
+MAX_SEEDS = 100_000
+MAX_SEED = 2**32 - 1
 
 
 def job_seed_sequence(root_seed: int, scene_name: str, seed: int) -> np.random.SeedSequence:
@@ -342,6 +352,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         "initial": initial, "goal_xy_m": None if mover.goal is None else mover.goal.tolist(),
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
+        # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.retrieve.runs)
+        "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),
     }
     result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),

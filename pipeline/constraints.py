@@ -72,15 +72,19 @@ def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = 
     return Constraint(text, ok)
 
 
-def integer(lo: int = 1, *, whole: bool = False) -> Constraint:
-    """An integer >= ``lo`` (not a flag); ``whole`` also accepts a whole-valued float (2.0)."""
+def integer(lo: int = 1, hi: int | None = None, *, whole: bool = False) -> Constraint:
+    """An integer in [lo, hi] (no upper bound for None; not a flag); ``whole`` also accepts a whole-valued float
+    (2.0). An upper bound keeps a size within what the machine can hold (its reason beside the declaration)."""
 
     def ok(v: Any, params: Any) -> bool:
         if whole:
-            return _is_number(v) and math.isfinite(v) and int(v) == v and v >= lo
-        return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo
+            good = _is_number(v) and math.isfinite(v) and int(v) == v and v >= lo
+        else:
+            good = isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo
+        return good and (hi is None or v <= hi)
 
-    return Constraint("a positive integer" if lo == 1 else f"an integer >= {lo}", ok)
+    text = "a positive integer" if lo == 1 else f"an integer >= {lo}"
+    return Constraint(text if hi is None else f"{text} at most {hi}", ok)
 
 
 def one_of(*choices: Any) -> Constraint:

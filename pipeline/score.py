@@ -26,7 +26,7 @@ import pyarrow as pa
 from pipeline import schema
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.metrics import fmi
-from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
+from pipeline.retrieve import check_runs, load_run, read_retrieval, run_files_by_name
 from pipeline.schema.results import SCORES, SCORES_COLUMNS
 from pipeline.segment import final_estimates
 
@@ -156,7 +156,7 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
                          low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
                          track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts))))
     arrays = {c.name: pa.array([row[c.name] for row in rows], type=c.type) for c in SCORES_COLUMNS}
-    return validate_scores(pa.table(arrays))
+    return validate_scores(pa.table(arrays), "the scores computed from the retrieval, segments and diagnostics")
 
 
 def validate_scores(table: pa.Table, path: str | Path = "<table>") -> pa.Table:
@@ -232,6 +232,7 @@ def score_file(retrieval_path: str | Path, segments_path: str | Path, run_dir: s
     segments = schema.read_segments(segments_path)
     diagnostics = schema.read_diagnostics(diagnostics_path) if diagnostics_path is not None else None
     check_score_inputs(retrieval_path, segments_path, segments, diagnostics, diagnostics_path)
+    check_runs(segments_path, segments, run_files_by_name(run_dir))
     table = score(segments, retrieval, run_dir, diagnostics=diagnostics, segments_path=str(segments_path),
                   retrieval_path=str(retrieval_path))
     if amend is not None:

@@ -165,8 +165,10 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
         return segments
     tracks = schema.read_tracks(in_path)
     tparams = schema.read_metadata(in_path).get("params") or {}
-    length = float(length if length is not None else tparams.get("length", DEFAULT_LENGTH))
-    alpha = float(alpha if alpha is not None else tparams.get("alpha", DEFAULT_ALPHA))
+    length = float(length if length is not None else
+                   schema.recorded_number(in_path, tparams, "length", DEFAULT_LENGTH, above=0.0))
+    alpha = float(alpha if alpha is not None else
+                  schema.recorded_number(in_path, tparams, "alpha", DEFAULT_ALPHA, above=0.0, below=1.0))
     method = str(tparams.get("method", "stucco"))
     segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
     schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,

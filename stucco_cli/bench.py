@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import parsed, pass_settings, user_errors, writable_dir, writable_file
+from stucco_cli.common import JOBS, check_paths, parsed, pass_settings, unique, user_errors, writable_dir
 from stucco_cli.progress import run_bar
 
 
@@ -52,9 +52,9 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
     for name, values in (("--T", ts), ("--N", ns)):
         if not values:
             raise click.BadParameter("expected at least one value", param_hint=name)
-    if json_path is not None:
-        writable_file("--json", json_path)
-    from pipeline.anchors import check_streams
+    from pipeline.anchors import ANCHOR_DIR, check_streams
+
+    check_paths({"--streams": streams or ANCHOR_DIR, "--reference-python": reference_python}, {"--json": json_path})
     from pipeline.atomic import write_text
     from pipeline.bench import check_reference, track_bench
 
@@ -109,7 +109,7 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
                    "the first: " + ",".join(registry.baseline_names()) + "].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes over (scene, seed).")
+@click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
                    baselines, out_dir, jobs) -> None:
@@ -173,7 +173,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
                                  f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    est = parsed("--estimators", parse_estimators, estimators)
+    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     _methods(method, "--method")
     pairs = [(sc, s) for sc in scene_list for s in seed_list]
     missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]

@@ -58,6 +58,14 @@ def parsed(param_hint: str, parse, text):
         raise click.BadParameter(str(e), param_hint=param_hint) from None
 
 
+def unique(param_hint: str, values: tuple) -> tuple:
+    """``values`` unless one is given twice: click's one-line "Invalid value for PARAM_HINT" (exit code 2)."""
+    twice = [v for i, v in enumerate(values) if v in values[:i]]
+    if twice:
+        raise click.BadParameter(f"{twice[0]!r} is given twice", param_hint=param_hint)
+    return values
+
+
 class FiniteFloat(click.FloatRange):
     """A float option that must be finite (nan and inf refused, unlike :class:`click.FloatRange`) and in range."""
 
@@ -76,39 +84,61 @@ class FiniteFloat(click.FloatRange):
 POSITIVE = FiniteFloat(min=0.0, min_open=True)
 NON_NEGATIVE = FiniteFloat(min=0.0)
 ALPHA = FiniteFloat(min=0.0, max=1.0, min_open=True, max_open=True)  # exp(-d^2/l) > alpha: 0 and 1 are degenerate
+#: Worker processes: each holds pybullet, numba and Open3D (a few hundred MB), so 64 already fill a 24 GiB machine.
+JOBS = click.IntRange(1, 64)
 
 
 def check_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:
     """Refuse, in one line and before any work, outputs that could not be written or would destroy data.
 
-    ``inputs`` and ``outputs`` map option names (``--in``) to paths (None: not given). An output may not be one of
-    the command's inputs or another output, an existing directory, a name longer than the file system allows, or
-    lie under a file or in a directory this user cannot write (missing parent directories are created later).
+    ``inputs`` and ``outputs`` map option names (``--in``) to paths (None: not given); every input of the command
+    is listed, folders included. An output may not be one of the command's inputs, a file inside an input folder
+    (``--runs DIR``'s run files), another output, an existing directory, a name longer than the file system
+    allows, behind a symbolic link loop, or lie under a file or in a directory this user cannot write (missing
+    parent directories are created later). Paths are compared after following symbolic links.
     """
-    def key(p) -> Path:
-        return Path(p).expanduser().resolve()
-
     for opt, path in outputs.items():
         if path is not None:
             writable_file(opt, path)
-    ins = {k: key(v) for k, v in inputs.items() if v is not None}
+    ins: dict[Path, str] = {}
+    for opt, path in inputs.items():
+        if path is None:
+            continue
+        k = resolved(opt, path)
+        ins.setdefault(k, f"{opt} {path}")
+        if k.is_dir():  # a folder's files are inputs too (the run files of --runs DIR)
+            for entry in sorted(k.iterdir()):
+                try:
+                    ins.setdefault(entry.resolve(), f"{entry.name} of {opt} {path}")
+                except (RuntimeError, OSError):  # a link loop inside an input folder is nothing one can overwrite
+                    continue
     seen: dict[Path, str] = {}
     for opt, path in outputs.items():
         if path is None:
             continue
-        k = key(path)
-        for in_opt, in_key in ins.items():
-            if k == in_key:
-                raise click.UsageError(f"{opt} {path} is also {in_opt}: a command never overwrites its own input; "
-                                       f"choose another {opt}")
+        k = resolved(opt, path)
+        if k in ins:
+            raise click.UsageError(f"{opt} {path} is also {ins[k]}: a command never overwrites its own input; "
+                                   f"choose another {opt}")
         if k in seen:
             raise click.UsageError(f"{opt} {path} is also {seen[k]}: two outputs cannot share one file")
         seen[k] = opt
 
 
+def resolved(opt: str, path) -> Path:
+    """``path`` with ``~`` expanded and symbolic links followed; a one-line :class:`click.UsageError` naming
+    ``opt`` for a symbolic link loop (or a path the system cannot follow)."""
+    try:
+        return Path(path).expanduser().resolve()
+    except (RuntimeError, OSError) as e:  # Python 3.11 raises RuntimeError("Symlink loop ...")
+        raise click.UsageError(f"{opt} {path}: cannot follow its symbolic links ({e}); remove the loop or choose "
+                               f"another {opt}") from None
+
+
 def writable_file(opt: str, path) -> None:
     """Raise a one-line :class:`click.UsageError` naming ``opt`` unless ``path`` can be created as a file."""
     p = Path(path).expanduser()
+    resolved(opt, p)
     if len(p.name.encode()) > _NAME_MAX:
         raise click.UsageError(f"{opt}: the file name is {len(p.name.encode())} bytes long; at most {_NAME_MAX}")
     writable_dir(opt, p.parent)
@@ -119,7 +149,7 @@ def writable_file(opt: str, path) -> None:
 def writable_dir(opt: str, path) -> None:
     """Raise a one-line :class:`click.UsageError` naming ``opt`` unless ``path`` is, or can be made, a directory
     this user can write."""
-    d = Path(path).expanduser().resolve()
+    d = resolved(opt, path)
     if any(len(part.encode()) > _NAME_MAX for part in d.parts):
         raise click.UsageError(f"{opt} {path}: a directory name is longer than {_NAME_MAX} bytes")
     existing = d

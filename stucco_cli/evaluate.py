@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, user_errors, writable_dir
 
 
 @click.command()
@@ -17,7 +17,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Evaluation directory (one folder per stage table, report, figures) [out/evaluate; "
                    "out/quick with --quick].")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+@click.option("--jobs", "-j", type=JOBS, default=None,
               help="Worker processes over jobs [the group's -j].")
 @click.option("--quick", is_flag=True, help="A couple of seeds of one scene (FB 0-1), all methods, into out/quick.")
 @click.option("--from-runs", "from_runs", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -25,7 +25,7 @@ from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writ
                    "default to all found there).")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None,
               help="Cut every simulated run after N actions (small test grids).")
-@click.option("--restarts", type=click.IntRange(min=2), default=30, show_default=True,
+@click.option("--restarts", type=click.IntRange(2, 1000), default=30, show_default=True,
               help="ICP restarts per segment.")
 @click.option("--estimators", default="all", show_default=True,
               help=f"Pose estimators to run on every job (comma-separated: {', '.join(registry.estimator_names())}; "
@@ -52,7 +52,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         if d is not None:
             writable_dir(opt, d)  # before the evaluation, whose results a failed snapshot would not reach
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes
+    from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes, scene_files
 
     if suite == "training":
         if backend != "loky" or quick or from_runs or snapshot_dir:
@@ -65,7 +65,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         return
     try:
         if scenes is not None:
-            scene_list = parse_scenes(scenes)
+            scene_list = parse_scenes(scenes, files=True)  # a scene file is collected from that file
         elif from_runs is not None:
             scene_list = None
         else:
@@ -84,7 +84,9 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     method_list = parsed("--methods", parse_methods, methods)
     from pipeline.retrieve.estimators import parse_estimators
 
-    estimator_list = parsed("--estimators", parse_estimators, estimators)
+    estimator_list = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
+    if from_runs is not None and scenes is not None and scene_files(scenes):
+        raise click.UsageError("--scenes takes scene names with --from-runs (stored runs carry their scenes)")
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
@@ -92,7 +94,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     with user_errors("evaluate"):
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs),
-                         estimators=estimator_list)
+                         estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes))
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 

@@ -12,13 +12,13 @@ import click
 
 from pipeline import __version__
 from stucco_cli import bench, evaluate, retrieve, score, sim, study, track
-from stucco_cli.common import Settings
+from stucco_cli.common import JOBS, Settings
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Root seed; every random draw of every stage derives from it.")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--jobs", "-j", type=JOBS, default=1, show_default=True,
               help="Parallel worker processes for stages that process independent runs.")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")

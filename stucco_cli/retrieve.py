@@ -29,8 +29,8 @@ def _side_path(out_path: Path, suffix: str) -> Path:
               show_default=True, help="Pose estimator: " + "; ".join(f"{s.name}: {s.title}" for s in
                                                                      registry.estimators())
               + " (pipeline/registry.py, docs/retrieval.md).")
-@click.option("--restarts", type=click.IntRange(min=2), default=None, help="ICP restarts per segment [30].")
-@click.option("--hypotheses", type=click.IntRange(min=1), default=None,
+@click.option("--restarts", type=click.IntRange(2, 1000), default=None, help="ICP restarts per segment [30].")
+@click.option("--hypotheses", type=click.IntRange(1, 4096), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
 @click.option("--grasp/--no-grasp", default=True, show_default=True,
@@ -54,7 +54,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     if method is not None:
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
-    check_paths({"--segments": segments_path}, {"--out": out_path, "--candidates": cand_path})
+    check_paths({"--segments": segments_path, "--runs": run_dir}, {"--out": out_path, "--candidates": cand_path})
     with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
         # --hypotheses sets the estimator's own n_hypotheses (the plausible one's); other estimators ignore it.

@@ -25,10 +25,10 @@ def score(settings: Settings, retrieval_path: Path, segments_path: Path, run_dir
     """Score runs: grasp success, FMI, contact error (cm), pose error and stage timings (scores.parquet)."""
     from pipeline.score import diagnostics_beside, score_file, summary_lines
 
-    check_paths({"--retrieval": retrieval_path, "--segments": segments_path, "--diagnostics": diag_path},
-                {"--out": out_path})
+    inputs = {"--retrieval": retrieval_path, "--segments": segments_path, "--runs": run_dir}
+    check_paths(dict(inputs, **{"--diagnostics": diag_path}), {"--out": out_path})
     diag_path = diag_path or diagnostics_beside(segments_path)
-    check_paths({"--diagnostics": diag_path}, {"--out": out_path})
+    check_paths(dict(inputs, **{"--diagnostics": diag_path}), {"--out": out_path})
     with user_errors("score"):
         table = score_file(retrieval_path, segments_path, run_dir, out_path, seed=settings.seed,
                            diagnostics_path=diag_path)

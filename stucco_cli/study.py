@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import Settings, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import JOBS, Settings, parsed, pass_settings, user_errors, writable_dir
 
 
 @click.group()
@@ -35,7 +35,7 @@ _common = [
     click.option("--seeds", default="7-46", show_default=True),
     click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/training"),
                  show_default=True, help="Runs, contacts.parquet and the study's outputs."),
-    click.option("--jobs", "-j", type=click.IntRange(min=1), default=None, help="Processes [the group's -j]."),
+    click.option("--jobs", "-j", type=JOBS, default=None, help="Processes [the group's -j]."),
     click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Cut runs (test grids)."),
 ]
 

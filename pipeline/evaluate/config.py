@@ -13,10 +13,11 @@ from typing import Any
 from pipeline.atomic import write_text
 from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline import registry
-from pipeline.scenes import SceneError, load_scene, scene_names
+from pipeline.retrieve.params import MAX_COUNT
+from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 
 __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
-           "parse_methods", "check_config"]
+           "parse_methods", "check_config", "scene_files"]
 
 #: The paper's Table II tasks, in its order.
 SCENES = ("FB", "BC", "IB", "TC")
@@ -49,6 +50,10 @@ class EvalConfig:
     estimators : tuple of str
         Pose estimators run on every job's segments (:func:`pipeline.registry.estimator_names`), each into its own
         ``estimator=`` partition; the report shows them side by side.
+    scene_files : tuple of (name, path, sha256)
+        Scenes given as files whose content is not the shipped scene of their name (:func:`scene_files`):
+        collected from that file, checked against its digest; empty for shipped scenes (and then left out of
+        ``evaluation.json``, which older folders lack).
     """
 
     root_seed: int = 0
@@ -58,21 +63,40 @@ class EvalConfig:
     robot: str = "panda"
     source: str | None = None
     estimators: tuple[str, ...] = registry.estimator_names()
+    scene_files: tuple[tuple[str, str, str], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimators", tuple(self.estimators))
+        object.__setattr__(self, "scene_files", tuple(tuple(f) for f in self.scene_files))
         known = registry.estimator_names()
         bad = [e for e in self.estimators if e not in known]
         if not self.estimators or bad:
             raise ValueError(f"unknown estimator {bad[0] if bad else ''!r}; expected some of {', '.join(known)}")
+        if len(set(self.estimators)) != len(self.estimators):  # each would count every run once more
+            raise ValueError(f"estimators {', '.join(self.estimators)}: each may be given once")
         if self.max_actions is not None and self.max_actions < 1:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
-        if self.restarts < 2:
-            raise ValueError(f"restarts must be at least 2, got {self.restarts!r}")
+        if not 2 <= self.restarts <= MAX_COUNT:
+            raise ValueError(f"restarts must be in [2, {MAX_COUNT}], got {self.restarts!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form kept in ``DIR/evaluation.json`` (estimators as a list)."""
-        return dict(asdict(self), estimators=list(self.estimators))
+        out = dict(asdict(self), estimators=list(self.estimators), scene_files=[list(f) for f in self.scene_files])
+        if not self.scene_files:
+            del out["scene_files"]
+        return out
+
+    def scene(self, name: str) -> Scene:
+        """The scene ``name`` to collect: its file of ``scene_files`` (ValueError if it changed since the
+        evaluation began), else the shipped scene."""
+        for n, path, digest in self.scene_files:
+            if n == name:
+                scene = load_scene(path)
+                if scene_digest(scene.source) != digest:
+                    raise ValueError(f"{path}: scene file changed since this evaluation began (SHA-256 "
+                                     f"{digest[:12]}…); use another --out")
+                return scene
+        return load_scene(name)
 
 
 @dataclass(frozen=True, order=True)
@@ -91,17 +115,36 @@ def _split(text: str) -> list[str]:
     return [p.strip() for p in str(text).split(",") if p.strip()]
 
 
-def parse_scenes(text: str) -> tuple[str, ...]:
+def parse_scenes(text: str, files: bool = False) -> tuple[str, ...]:
     """``"FB,BC"`` or ``"all"`` -> scene names; ValueError (one line) for a scene that cannot be evaluated.
 
-    A scene can be evaluated when it has a scripted action sequence and a target (``kind = "retrieval"``).
+    A scene can be evaluated when it has a scripted action sequence and a target (``kind = "retrieval"``). A
+    scene file whose content is not the shipped scene of its name is accepted only with ``files`` (callers that
+    pass :func:`scene_files` on, as ``stucco evaluate`` does): stages look scenes up by name.
     """
+    return tuple(name for name, _, _ in _scenes(text, files))
+
+
+def scene_files(text: str) -> tuple[tuple[str, str, str], ...]:
+    """(name, absolute path, SHA-256 of the text) of the scene files of ``text`` whose content is not the shipped
+    scene of their name: :attr:`EvalConfig.scene_files`."""
+    return tuple((name, str(Path(given).resolve()), scene_digest(sc.source))
+                 for name, given, sc in _scenes(text, True) if sc is not None and not _shipped(sc))
+
+
+def _shipped(sc: Scene) -> bool:
+    """Whether ``sc`` has the content of the shipped scene of its name."""
+    return sc.name in scene_names() and load_scene(sc.name).source == sc.source
+
+
+def _scenes(text: str, files: bool) -> list[tuple[str, str, Scene | None]]:
+    """(name, as given, scene) of every distinct scene of ``text`` (no scene object for 'all')."""
     names = _split(text)
     if not names:
         raise ValueError("no scene given; expected a comma-separated list such as FB,BC,IB,TC or 'all'")
     if names == ["all"]:
-        return SCENES
-    out: list[str] = []
+        return [(n, n, None) for n in SCENES]
+    out: dict[str, tuple[str, Scene]] = {}
     for n in names:
         try:
             sc = load_scene(n)
@@ -111,9 +154,13 @@ def parse_scenes(text: str) -> tuple[str, ...]:
         if sc.actions is None or sc.target is None:
             raise ValueError(f"scene {n!r} is a training scene (no scripted actions or no target); "
                              f"evaluate retrieval tasks: {', '.join(SCENES)}")
-        if sc.name not in out:
-            out.append(sc.name)
-    return tuple(out)
+        if not files and not _shipped(sc):
+            raise ValueError(f"{sc.path}: is not the shipped scene {sc.name!r}; this command runs shipped scenes "
+                             "(stucco evaluate --scenes takes scene files)")
+        if sc.name in out and out[sc.name][1].source != sc.source:
+            raise ValueError(f"{n} and {out[sc.name][0]} are two different scenes named {sc.name!r}")
+        out.setdefault(sc.name, (n, sc))
+    return [(name, given, sc) for name, (given, sc) in out.items()]
 
 
 def parse_methods(text: str) -> tuple[str, ...]:
@@ -138,8 +185,11 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
     if path.is_file():
         try:
             have = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise ValueError(f"{path}: unreadable ({e}); remove it or use another --out") from None
+        if not isinstance(have, dict):
+            raise ValueError(f"{path}: holds {type(have).__name__} {json.dumps(have)[:40]}, not the JSON object "
+                             "stucco evaluate writes; remove it or use another --out")
         diff = sorted(k for k in set(want) | set(have) if have.get(k) != want.get(k))
         if "layout" in diff:
             raise ValueError(f"{out}: was made with another layout of the output folder (layout "

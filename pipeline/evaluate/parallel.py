@@ -40,6 +40,38 @@ def parallel_backend(backend: str = "loky", scheduler: str | None = None):
     except ImportError:
         raise ValueError("--backend dask needs the optional extra: pip install 'stucco[dask]'") from None
 
+    _check_listening(scheduler)
     with Client(scheduler) as client, parallel_config(backend="dask", wait_for_workers_timeout=60):
         client.wait_for_workers(1, timeout=60)
         yield -1
+
+
+def _check_listening(scheduler: str) -> None:
+    """ValueError (one line) at once when the scheduler's TCP port refuses connections or its host is unknown;
+    an address that does not answer is left to the Client's own (longer) connect timeout."""
+    # distributed retries a refused connection until its timeout (30 s): a closed port is known in microseconds.
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme not in ("tcp", "tls"):
+            return
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"--scheduler {scheduler}: not a scheduler address ({e}); expected tcp://HOST:PORT") from None
+    try:
+        with socket.create_connection((host, int(port)), timeout=_PROBE_TIMEOUT_S):
+            return
+    except ConnectionRefusedError:
+        raise ValueError(f"--scheduler {scheduler}: connection refused (no Dask scheduler listens on {host}:{port}); "
+                         f"start one with `dask scheduler --port {port}` or fix the address") from None
+    except socket.gaierror as e:
+        raise ValueError(f"--scheduler {scheduler}: unknown host {host!r} ({e.strerror})") from None
+    except OSError:  # no answer within the probe (firewall, busy host): the Client decides, with its timeout
+        return
+
+
+#: Seconds the probe of :func:`_check_listening` waits for an answer.
+_PROBE_TIMEOUT_S = 3.0

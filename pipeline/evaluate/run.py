@@ -24,6 +24,7 @@ from pipeline.figures import figure_path, run_figure, summary_figure
 from pipeline.layout import LOCK, partition
 from pipeline.parallel import map_jobs
 from pipeline.report import table_ii
+from pipeline import schema
 from pipeline.retrieve import load_run, run_files_by_name
 
 __all__ = ["Evaluation", "evaluate"]
@@ -47,11 +48,16 @@ class Evaluation:
         return sum(1 for r in self.results if not r.ran)
 
 
-def _runs_in(source: Path) -> list[tuple[str, int]]:
-    """(scene, seed) of every stored run file in ``source``."""
+def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
+    """(scene, seed) of every stored run file in ``source``; ValueError naming a run collected with another root
+    seed (its later stages would be made with ``root_seed``, and retrieval refuses such a run)."""
     pairs = []
     for _, path in sorted(run_files_by_name(source).items()):
         info = load_run(path)
+        recorded = schema.read_metadata(path).get("seed")
+        if isinstance(recorded, int) and recorded != root_seed:
+            raise ValueError(f"{path}: collected with root seed {recorded}; replay it with `stucco --seed {recorded} "
+                             f"evaluate`")
         pairs.append((info.scene.name, info.seed))
     if not pairs:
         raise ValueError(f"{source}: no collected run files (*.parquet written by `stucco collect`)")
@@ -96,7 +102,7 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
     out = Path(out)
     methods = tuple(methods)
     if cfg.source is not None:
-        pairs = [(sc, s) for sc, s in _runs_in(Path(cfg.source))
+        pairs = [(sc, s) for sc, s in _runs_in(Path(cfg.source), cfg.root_seed)
                  if (scenes is None or sc in scenes) and (seeds is None or s in seeds)]
         if not pairs:
             raise ValueError(f"{cfg.source}: no stored run matches the requested scenes and seeds")

@@ -28,7 +28,6 @@ from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
-from pipeline.scenes import load_scene
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
@@ -67,7 +66,7 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
             shutil.copyfile(src, tmp)
         wall = None
     else:
-        collect_file(load_scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy=registry.default_policy("retrieval"),
+        collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy=registry.default_policy("retrieval"),
                      max_actions=cfg.max_actions, keep_discarded=True)
         wall = time.perf_counter() - t0
     if wall is None:

@@ -23,7 +23,7 @@ from pipeline.retrieve.model import (model_normals, model_points, outline_point,
 from pipeline.retrieve.paper import Choice, Estimate, choose_segment, confidence_notes, estimate_run, min_clearance
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
-from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
+from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
 from pipeline.retrieve.stage import RetrieveConfig, final_segments_by_run, retrieve, retrieve_file
 from pipeline.retrieve.tables import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS, candidates_table,
                                       read_retrieval, retrieval_table, validate_candidates, validate_retrieval)
@@ -34,7 +34,8 @@ __all__ = [
     "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
     "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose_segment",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
-    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "RetrieveConfig", "final_segments_by_run", "retrieve",
+    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "check_runs", "RetrieveConfig",
+    "final_segments_by_run", "retrieve",
     "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",
     "read_retrieval", "retrieval_table", "validate_candidates", "validate_retrieval",
 ]

@@ -9,7 +9,10 @@ from typing import Any, ClassVar
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
 
-__all__ = ["RetrievalParams"]
+__all__ = ["RetrievalParams", "MAX_COUNT"]
+
+#: Largest restart, model point, iteration or point count accepted.
+MAX_COUNT = 1000
 
 
 @dataclass(frozen=True)
@@ -91,8 +94,9 @@ class RetrievalParams:
     collinear_tolerance: float = 0.002
     max_rmse: float = 0.005
     constraints: ClassVar[dict[str, Constraint]] = {
-        **{name: integer(1) for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration",
-                                         "min_points")},
+        # MAX_COUNT: every one is an ICP run or model point per segment, a bound on time and memory.
+        **{name: integer(1, MAX_COUNT) for name in ("n_restarts", "n_box_points", "n_can_points", "max_iteration",
+                                                    "min_points")},
         "estimation": one_of("point_to_plane", "point_to_point"), "box_sampling": one_of("perimeter", "tester"),
         **{name: number(0, lo_open=True) for name in ("tester_sigma", "max_correspondence_distance", "max_rmse",
                                                       "segment_fit_gate", "max_point_distance")},

@@ -44,6 +44,10 @@ __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_pose
 COST_TIE = 1e-9
 
 
+#: Most hypotheses (or iterations) per segment of the plausible estimator.
+MAX_HYPOTHESES = 4096
+
+
 @dataclass(frozen=True)
 class PlausibleParams:
     """Parameters of the plausible-set estimator; serialised into the retrieval metadata.
@@ -112,7 +116,8 @@ class PlausibleParams:
     uniform_sigma: float = 0.005
     icp_seeds: bool = True
     constraints: ClassVar[dict[str, Constraint]] = {
-        **{name: integer(1) for name in ("n_hypotheses", "iterations")},
+        # MAX_HYPOTHESES: (hypotheses, points) residual arrays per start and segment.
+        **{name: integer(1, MAX_HYPOTHESES) for name in ("n_hypotheses", "iterations")},
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "max_sigma", "outlier_sigmas",
                                                       "free_resolution", "sweep_spacing", "yaw_agreement",
                                                       "max_spread", "uniform_sigma")},

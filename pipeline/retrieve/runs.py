@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,9 +15,9 @@ from pipeline import schema
 from pipeline.geometry import Primitive
 from pipeline.retrieve.model import target_primitive
 from pipeline.seeds import run_key
-from pipeline.scenes import load_scene
+from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 
-__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", ]
+__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,10 +67,7 @@ def load_run(path: str | Path) -> RunInfo:
     t = schema.read_run(path)
     meta = schema.read_metadata(path)
     params = meta.get("params") or {}
-    scene_name = params.get("scene")
-    if not scene_name:
-        raise schema.SchemaError(path, None, None, "metadata has no params.scene; expected a file from stucco collect")
-    scene = load_scene(scene_name)
+    scene = run_scene(path, params)
     bodies = params.get("bodies")
     if bodies is not None and list(bodies) != list(scene.body_names):
         raise schema.SchemaError(path, "obj_pose", None, f"bodies {bodies} differ from scene {scene.name}'s "
@@ -84,6 +82,69 @@ def load_run(path: str | Path) -> RunInfo:
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
                    final_poses=final, target_id=tid, target=prim)
+
+
+def run_scene(path: Path, params: dict) -> Scene:
+    """The scene a run file was collected in: the TOML text its metadata carries (``params.scene_toml``), checked
+    against its recorded SHA-256; for files written before runs carried their scene, the shipped scene of the
+    recorded name. Never a file whose path a data file names (SchemaError naming the run file otherwise)."""
+    name = params.get("scene")
+    if not isinstance(name, str) or not name:
+        raise schema.SchemaError(path, None, None, "metadata has no params.scene; expected a file from stucco collect")
+    text, digest = params.get("scene_toml"), params.get("scene_sha256")
+    if text:
+        if not isinstance(text, str) or not isinstance(digest, str) or scene_digest(text) != digest:
+            raise schema.SchemaError(path, None, None, "metadata params.scene_toml does not match its recorded "
+                                                       "params.scene_sha256: the scene was edited after collection")
+        try:
+            scene = scene_from_text(text, path.parent / f"{path.name}#scene" / f"{name}.toml")
+        except SceneError as e:
+            raise schema.SchemaError(path, None, None, f"metadata params.scene_toml: {e}") from None
+        if scene.name != name:
+            raise schema.SchemaError(path, None, None, f"metadata params.scene {name!r} differs from the name "
+                                                       f"{scene.name!r} of the scene it carries")
+        return scene
+    if name not in scene_names():  # a name, never a path: the metadata must not choose files to load
+        raise schema.SchemaError(path, None, None, f"metadata params.scene {name[:60]!r} is not a shipped scene and "
+                                                   "the file carries no scene (params.scene_toml); collect it again")
+    return load_scene(name)
+
+
+def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, Path]) -> None:
+    """Refuse (SchemaError naming the run file) a run file that is not the one ``segments`` were made from.
+
+    Checked for every run of ``segments`` found in ``files`` (run name -> file): its root seed (``stucco.seed``)
+    is the one the segments were made with; its last step is not before the step of the segments' final estimate
+    (a truncated run, or a shorter run filed under this name, ends before it); and it is byte for byte the run
+    the segments derive from, when they record it (its SHA-256 in ``stucco.runs``, carried from the contacts).
+    """
+    segments_path = Path(segments_path)
+    seg_meta = schema.read_metadata(segments_path)
+    seg_seed, recorded = seg_meta.get("seed"), seg_meta.get("runs") or {}
+    runs = segments.column("run").to_pylist()
+    steps = np.asarray(segments.column("step").to_numpy(zero_copy_only=False), dtype=np.int64)
+    estimate = np.asarray(segments.column("estimate_step").to_numpy(zero_copy_only=False), dtype=np.int64)
+    names = np.asarray(runs, dtype=object)
+    for name in dict.fromkeys(runs):
+        path = files.get(name)
+        if path is None:
+            continue  # a missing run is the stage's own error
+        seed = schema.read_metadata(path).get("seed")
+        if isinstance(seed, int) and isinstance(seg_seed, int) and seed != seg_seed:
+            raise schema.SchemaError(path, None, None, f"collected with root seed {seed}, but {segments_path.name} "
+                                                       f"was made with seed {seg_seed}: not the run it was tracked from")
+        entry = recorded.get(name)
+        if entry is not None and schema.file_digest(path) != entry:
+            raise schema.SchemaError(path, None, None, f"not the run {name} that {segments_path.name} derives from "
+                                                       f"(it recorded SHA-256 {entry[:12]}…, this file differs)")
+        run_steps = np.asarray(pq.read_table(path, columns=["step"]).column("step").to_numpy(), dtype=np.int64)
+        mine = names == name
+        last = int(max(estimate[mine].max(), steps[mine].max()))
+        if not len(run_steps) or int(run_steps.max()) < last:
+            raise schema.SchemaError(path, "step", None, f"run {name} ends at step "
+                                     f"{int(run_steps.max()) if len(run_steps) else None}, but its segments in "
+                                     f"{segments_path.name} were estimated at step {last}: a truncated run or "
+                                     "another run under this name")
 
 
 def _run_name(f: Path) -> str | None:
@@ -119,6 +180,13 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
         raise ValueError(f"{directory}: not a directory of collected runs (nor a run file)")
     out: dict[str, Path] = {}
     for f in sorted(directory.glob("*.parquet")):
+        try:
+            regular = stat.S_ISREG(f.stat().st_mode)
+        except OSError as e:  # a dangling link or a link loop
+            raise schema.SchemaError(f, None, None, f"cannot be read ({e.strerror})") from None
+        if not regular:  # opening a FIFO would wait for a writer for ever
+            raise schema.SchemaError(f, None, None, "is not a regular file (a FIFO, socket or device); expected a "
+                                                    "run file written by stucco collect")
         name = _run_name(f)
         if name is None:
             continue  # another table kind living in the same directory

@@ -16,7 +16,7 @@ from pipeline.parallel import run_calls
 from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, Segment, estimate, retrieval_metadata
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng, run_files_by_name
+from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
 from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
@@ -176,6 +176,7 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
             config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
         except ValueError as e:
             raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
+    check_runs(segments_path, segments, run_files_by_name(run_dir))
     table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
                                  segments_path=str(segments_path))
     meta = config.metadata()

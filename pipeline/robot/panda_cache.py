@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -81,18 +82,36 @@ def panda_sdf(
     if not (resolution > 0 and math.isfinite(resolution)):
         raise ValueError(f"panda_sdf: resolution must be a positive finite number, got {resolution!r}")
     path = _panda_cache_path(resolution, cache_dir, collision_margin)
-    if path.is_file():
+    try:
+        cached = path.is_file()
+    except OSError:  # an unreadable cache folder (e.g. a locked $HOME) is no cache
+        cached = False
+    if cached:
         try:
             return _read_grid_npz(path)
         except Exception:  # noqa: BLE001 -- a truncated/corrupt cache is rebuilt, never trusted
             pass
     grid = build_panda_grid(resolution, collision_margin)
-    _write_atomic_npz(
-        path,
-        values=grid.values,
-        origin=grid.origin,
-        resolution=np.float64(grid.resolution),
-        outside_value=np.float64(grid.outside_value),
-        name=np.str_(grid.name),
-    )
+    try:
+        _write_atomic_npz(
+            path,
+            values=grid.values,
+            origin=grid.origin,
+            resolution=np.float64(grid.resolution),
+            outside_value=np.float64(grid.outside_value),
+            name=np.str_(grid.name),
+        )
+    except OSError as e:  # the cache only saves time: an unwritable $HOME must not stop tracking
+        _warn_once(f"stucco: cannot write the Panda grid cache {path} ({e.strerror or e}); building it in memory "
+                   "each time (set STUCCO_CACHE_DIR to a writable folder)")
     return grid
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    """Print ``message`` to stderr once per process."""
+    if message not in _WARNED:
+        _WARNED.add(message)
+        print(message, file=sys.stderr)

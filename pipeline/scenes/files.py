@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import hashlib
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 from pipeline.scenes.parse import parse_scene
 from pipeline.scenes.types import Scene, SceneError
 
-__all__ = ["SCENE_DIR", "scene_names", "scene_path", "scene_hash", "load_scene", "load_all"]
+__all__ = ["SCENE_DIR", "scene_names", "scene_path", "scene_hash", "load_scene", "load_all", "scene_from_text",
+           "scene_digest"]
 
 #: Directory of the shipped scene files (``data/scenes/`` at the repository root).
 SCENE_DIR = Path(__file__).resolve().parents[2] / "data" / "scenes"
@@ -59,12 +61,23 @@ def load_scene(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Scene:
     """
     path = scene_path(name_or_path, directory)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise SceneError(f"{path}: not a TOML text file (byte {exc.start} is not UTF-8)") from None
     except OSError as exc:
         raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
-    return parse_scene(data, path)
+    return scene_from_text(text, path)
+
+
+def scene_from_text(text: str, path: Path) -> Scene:
+    """Parse and validate a scene's TOML ``text`` (``path`` names it in errors; its stem is the default name)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+    return replace(parse_scene(data, path), source=text)
+
+
+def scene_digest(text: str) -> str:
+    """Hex SHA-256 of a scene's TOML text (UTF-8): what a run file records of the scene it was collected in."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()

@@ -192,6 +192,9 @@ class Scene:
     action_scale : float, metres
         Displacement per unit action.
     walk : WalkSpec or None
+    source : str
+        The TOML text the scene was parsed from ('' if built in code); collect stores it in every run file so the
+        later stages use this scene, not whatever file has its name then (docs/simulation.md).
     """
 
     name: str
@@ -207,6 +210,7 @@ class Scene:
     action_scale: float = DEFAULT_ACTION_SCALE
     walk: WalkSpec | None = None
     notes: str = field(default="", compare=False)
+    source: str = field(default="", compare=False, repr=False)
 
     @property
     def body_names(self) -> tuple[str, ...]:

@@ -63,6 +63,7 @@ from pipeline.schema.io import (
     read_segments,
     read_table,
     read_tracks,
+    recorded_number,
     write_table,
 )
 from pipeline.schema.runs import SIM_RUN, SIM_RUN_COLUMNS
@@ -117,6 +118,7 @@ __all__ = [
     "write_table",
     "read_metadata",
     "file_digest",
+    "recorded_number",
     "RunContacts",
     "contacts_by_run",
     "columns_markdown",

@@ -38,6 +38,7 @@ __all__ = [
     "write_table",
     "read_metadata",
     "file_digest",
+    "recorded_number",
 ]
 
 # The provenance keys write_table sets, with their meaning (the metadata section of docs/tables.md).
@@ -50,6 +51,9 @@ METADATA_KEYS: tuple[tuple[str, str], ...] = (
     ("stucco.environment", "JSON object: Python's version and those of the libraries that compute (numpy, scipy, "
                            "scikit-learn, numba, llvmlite, open3d-cpu, pybullet, pyarrow), pinned by "
                            "`requirements.lock`."),
+    ("stucco.runs", "JSON object run name (`FB/0`) -> SHA-256 of the collected run file the table derives from, "
+                    "carried through every input (absent when none is known); retrieval and scoring check their "
+                    "run files against it."),
     ("stucco.schema", "Table kind: `sim_run`, `contacts`, `tracks`, `diagnostics`, `segments`, `retrieval`, "
                       "`candidates`, `scores` (or a stage's own kind)."),
 )
@@ -243,6 +247,7 @@ def write_table(
         params = dataclasses.asdict(params)
 
     recorded = {role: {"file": Path(p).name, "sha256": file_digest(p)} for role, p in (inputs or {}).items()}
+    runs = _runs_behind(inputs or {}, recorded)
     meta = {
         "stucco.stage": stage,
         "stucco.version": __version__,
@@ -252,6 +257,8 @@ def write_table(
         "stucco.environment": _dumps(environment()),
         "stucco.schema": kind,
     }
+    if runs:
+        meta["stucco.runs"] = _dumps(runs)
     table = table.replace_schema_metadata(meta).combine_chunks()
 
     with atomic_path(path, fsync=True) as tmp:
@@ -260,13 +267,30 @@ def write_table(
     return path
 
 
+def _runs_behind(inputs: Mapping[str, str | os.PathLike], recorded: Mapping[str, dict]) -> dict[str, str]:
+    """Run name -> SHA-256 of the collected runs behind ``inputs``: a run file itself (its digest), or what an
+    input table recorded (``stucco.runs``). Inputs without provenance add nothing."""
+    runs: dict[str, str] = {}
+    for role, p in inputs.items():
+        try:
+            meta = read_metadata(p)
+        except SchemaError:
+            continue
+        params = meta.get("params") or {}
+        if meta.get("schema") == "sim_run" and "scene" in params and "run_seed" in params:
+            runs[f"{params['scene']}/{params['run_seed']}"] = recorded[role]["sha256"]
+        else:
+            runs.update(meta.get("runs") or {})
+    return dict(sorted(runs.items()))
+
+
 def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     """Decoded ``stucco.*`` schema metadata of a Parquet file, keys without the prefix.
 
     Returns
     -------
     dict
-        Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs`` (dict), ``seed``
+        Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs``, ``runs`` (dict), ``seed``
         (int or None). A file written by other tools gives ``{}``.
     """
     p = Path(path)
@@ -282,11 +306,47 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
         if not key.startswith("stucco."):
             continue
         name, text = key[len("stucco."):], v.decode()
-        if name in ("params", "inputs", "seed", "environment"):
+        if name in ("params", "inputs", "seed", "environment", "runs"):
             try:
                 out[name] = json.loads(text)
             except json.JSONDecodeError as e:
                 raise SchemaError(p, None, None, f"metadata {key} is not valid JSON ({e})") from None
+            _check_shape(p, key, out[name])
         else:
             out[name] = text
     return out
+
+
+def _shown(value: Any) -> str:
+    """A decoded JSON value as its (short) text, for messages."""
+    return json.dumps(value, default=str)[:40]
+
+
+def recorded_number(path: str | os.PathLike, params: Mapping[str, Any], key: str, default: float,
+                    above: float = -np.inf, below: float = np.inf) -> float:
+    """``params[key]`` (the ``stucco.params`` of ``path``) as a finite float in the open interval (``above``,
+    ``below``), ``default`` when absent; SchemaError naming the file and key for a value of another type (``[1]``,
+    ``"x"``), not finite or out of the interval."""
+    value = params.get(key, default)
+    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
+            or not above < value < below):
+        raise SchemaError(Path(path), None, None, f"metadata stucco.params.{key} is {_shown(value)}; expected a "
+                                                  f"finite number in ({above:g}, {below:g})")
+    return float(value)
+
+
+def _check_shape(path: Path, key: str, value: Any) -> None:
+    """SchemaError naming ``path`` and ``key`` unless the decoded JSON has the shape :data:`METADATA_KEYS` gives."""
+    if key == "stucco.seed":
+        if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+            raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected an integer or null")
+        return
+    if not isinstance(value, dict):
+        raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected a JSON object")
+    if key == "stucco.runs" and not all(isinstance(v, str) for v in value.values()):
+        raise SchemaError(path, None, None, f"metadata {key} is {_shown(value)}; expected run name -> SHA-256")
+    if key == "stucco.inputs":
+        for role, entry in value.items():
+            if not (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("file", "sha256"))):
+                raise SchemaError(path, None, None, f"metadata {key}: input {role!r} is {_shown(entry)}; "
+                                                    'expected {"file": name, "sha256": hex digest}')

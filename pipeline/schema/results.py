@@ -10,6 +10,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.schema.columns import Column, TableSpec, _Columns
+from pipeline.schema.rules import MAX_SECONDS
 
 __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS", "RETRIEVAL", "CANDIDATES",
            "SCORES"]
@@ -58,9 +59,9 @@ RETRIEVAL_COLUMNS: tuple[Column, ...] = (
     _C("grasp_success", pa.bool_(), "", True, "Simulated grasp at the estimate succeeded (null: not simulated)."),
     _C("grasp_outcome", pa.string(), "", False, "Why the grasp succeeded or failed ('' if not simulated)."),
     _C("icp_s", pa.float64(), "s", False, "Wall time of model sampling, ICP, scoring and choice.", finite=True,
-       minimum=0.0),
+       minimum=0.0, maximum=MAX_SECONDS),
     _C("grasp_s", pa.float64(), "s", True, "Wall time of the grasp simulation (null: not simulated).",
-       minimum=0.0),
+       finite=True, minimum=0.0, maximum=MAX_SECONDS),
 )
 
 CANDIDATES_COLUMNS: tuple[Column, ...] = (

@@ -11,11 +11,13 @@ import numpy as np
 from pipeline.schema.columns import _Columns, _num
 from pipeline.schema.validate import _check_steps_nondecreasing, _first, _fmt
 
-__all__ = ["MAX_POSITION_M", "MAX_STEP_DISPLACEMENT_M"]
+__all__ = ["MAX_POSITION_M", "MAX_SECONDS", "MAX_STEP_DISPLACEMENT_M"]
 
 # Values beyond these are almost certainly millimetres (or centimetres) passed as metres: the paper's
 # workspace is well under a metre across and a control step moves the gripper by millimetres.
 MAX_POSITION_M = 100.0
+#: Longest wall time a timing column may record (one day, s): sums of such times stay finite.
+MAX_SECONDS = 86_400.0
 MAX_STEP_DISPLACEMENT_M = 1.0
 
 

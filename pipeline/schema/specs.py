@@ -13,7 +13,7 @@ import pyarrow as pa
 
 from pipeline.schema.columns import Column, TableSpec
 from pipeline.schema.results import CANDIDATES, RETRIEVAL, SCORES
-from pipeline.schema.rules import _check_contacts, _check_diagnostics, _check_tracks
+from pipeline.schema.rules import MAX_POSITION_M, MAX_SECONDS, _check_contacts, _check_diagnostics, _check_tracks
 from pipeline.schema.runs import SIM_RUN
 from pipeline.schema.validate import _validate
 
@@ -65,8 +65,11 @@ TRACKS_COLUMNS: tuple[Column, ...] = (
     Column("estimate_step", pa.int64(), "", False,
            "Step after which this estimate was made; the final estimate of a run has estimate_step = the "
            "run's last step."),
-    Column("x_m", pa.float64(), "m", False, "Tracked x position of the contact point.", finite=True),
-    Column("y_m", pa.float64(), "m", False, "Tracked y position of the contact point.", finite=True),
+    # bounded like the contacts they come from: 1e300 would overflow the estimators (issue 17)
+    Column("x_m", pa.float64(), "m", False, "Tracked x position of the contact point.", finite=True,
+           minimum=-MAX_POSITION_M, maximum=MAX_POSITION_M),
+    Column("y_m", pa.float64(), "m", False, "Tracked y position of the contact point.", finite=True,
+           minimum=-MAX_POSITION_M, maximum=MAX_POSITION_M),
     Column("tracker_label", pa.int64(), "", False, "The tracker's own hard object assignment.", minimum=0),
     Column("object_id", pa.int64(), "", False,
            "Ground-truth object, carried from the contacts table (-1 unknown).", required=False, minimum=-1),
@@ -87,7 +90,8 @@ DIAGNOSTICS_COLUMNS: tuple[Column, ...] = (
            "particles.", finite=True, minimum=0.0, maximum=1.0, exclusive_minimum=True),
     Column("resampled", pa.bool_(), "", False, "Whether the particles were resampled after the update."),
     Column("n_replaced", pa.int64(), "", False, "Points replaced by ReplaceInconsistentPoints.", minimum=0),
-    Column("update_ms", pa.float64(), "ms", False, "Wall time of the update.", finite=True, minimum=0.0),
+    Column("update_ms", pa.float64(), "ms", False, "Wall time of the update.", finite=True, minimum=0.0,
+           maximum=MAX_SECONDS * 1000.0),
 )
 
 

@@ -23,6 +23,7 @@ from pipeline.collect import MIN_REP_FORCE_N, collect, output_path
 from pipeline.evaluate import map_jobs, single_threaded
 from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict
 from pipeline.retrieve import Primitive, primitive_of
+from pipeline.retrieve.runs import run_scene
 from pipeline.scenes import load_scene
 from pipeline.score import contact_error_cm, fmi
 from pipeline.segment import final_estimates, segment_table, segmentation_params
@@ -90,7 +91,7 @@ def _run_truth(path: Path) -> dict[str, Any]:
     t = pq.read_table(path, columns=["run", "step", "object_id", "force_rep_x_n", "force_rep_y_n", "obj_pose",
                                      "obj_distance_m"])
     params = schema.read_metadata(path).get("params") or {}
-    scene = load_scene(params["scene"])
+    scene = run_scene(path, params)  # the scene the run carries, never a path named in its metadata
     ids = t.column("object_id").to_numpy().astype(np.int64)
     force = np.hypot(t.column("force_rep_x_n").to_numpy(), t.column("force_rep_y_n").to_numpy())
     # The collect stage's label rule (docs/simulation.md): below MIN_REP_FORCE_N newtons, no ground truth.

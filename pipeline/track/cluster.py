@@ -94,7 +94,8 @@ class KMeansParams:
     min_inertia: float = 1e-10
     constraints: ClassVar[dict[str, Constraint]] = {
         "inertia_ratio": number(0, 1, lo_open=True), "min_points_to_grow": integer(2, whole=True),
-        "n_init": integer(1, whole=True), "min_inertia": number(0)}
+        # n_init: k-means restarts per fit and per step; beyond 1000 a run never ends.
+        "n_init": integer(1, 1000, whole=True), "min_inertia": number(0)}
 
     def __post_init__(self) -> None:
         check(self)

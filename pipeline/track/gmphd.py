@@ -91,7 +91,8 @@ class GMPHDParams:
         "r": number(0, lo_open=True), "bias": number(0, lo_open=True), "survival": number(0, 1, lo_open=True),
         "bounds": rule("(x_min, y_min, x_max, y_max) with x_min < x_max and y_min < y_max",
                        lambda b: len(b) == 4 and b[0] < b[2] and b[1] < b[3]),
-        "birth_grid": integer(1, whole=True), "birth_variance": number(0, lo_open=True), "clutter": number(0),
+        # birth_grid: birth_grid² birth components join every update (100 is already 10,000).
+        "birth_grid": integer(1, 100, whole=True), "birth_variance": number(0, lo_open=True), "clutter": number(0),
         "truncation": number(0), "merge_threshold": number(0), "max_components": integer(1, whole=True)}
 
     def __post_init__(self) -> None:

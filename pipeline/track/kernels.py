@@ -181,7 +181,7 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
                                             lo, hi, tol)
                         if new != old:
                             colpen[n, j] += new - old
-                            npen[n, j] += (new < 0.0) - (old < 0.0)
+                            npen[n, j] += int(new < 0.0) - int(old < 0.0)  # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT)
                             if npen[n, j] == 0:
                                 colpen[n, j] = 0.0
         # The new points against every config, and the new configs against the old points.

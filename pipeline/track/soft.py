@@ -37,6 +37,11 @@ WEIGHTINGS = ("reference", "paper")
 REPLACE_MODES = ("after-resample", "every-step", "never")
 
 
+#: Most particles a tracker holds: it keeps (particles, points, 2) float64 arrays, so 1e5 particles over 1,000
+#: tracked points is already 1.6 GB of the machine's memory.
+MAX_PARTICLES = 100_000
+
+
 @dataclass(frozen=True)
 class SoftTrackingParams:
     """Parameters of STUCCO soft tracking; defaults are the paper's Table I (simulation) and the authors' code.
@@ -75,8 +80,9 @@ class SoftTrackingParams:
     replace: str = "after-resample"
     weight_floor: float = 1e-15
     constraints: ClassVar[dict[str, Constraint]] = {
-        "length": number(0, lo_open=True), "penetration_length": number(0, lo_open=True), "alpha": number(),
-        "n_particles": integer(1), "tolerance": number(0), "ess_threshold": number(0, 1),
+        "length": number(0, lo_open=True), "penetration_length": number(0, lo_open=True), "alpha": number(0, 1, lo_open=True, hi_open=True),
+        # MAX_PARTICLES: (particles, points) arrays of a long run stay within the machine's memory.
+        "n_particles": integer(1, MAX_PARTICLES), "tolerance": number(0), "ess_threshold": number(0, 1),
         "weight_floor": number(0, hi_of=lambda p: 1.0 / p.n_particles, hi_open=True, text="in [0, 1/N)"),
         "weighting": one_of(*WEIGHTINGS), "replace": one_of(*REPLACE_MODES)}
 
