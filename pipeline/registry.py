@@ -14,7 +14,7 @@ registered later shows up in the CLI choices of any command run afterwards (docs
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Union
 
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "unregister", "tracker", "estimator",
