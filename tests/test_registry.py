@@ -201,3 +201,40 @@ def test_toy_names_leave_with_the_fixture_and_are_refused_after():
     assert "toy" not in registry.tracker_names()
     res = CliRunner().invoke(cli, ["retrieve", "--segments", "s", "--runs", "r", "--out", "o", "--estimator", "toy"])
     assert res.exit_code == 2 and "'toy' is not one of 'plausible', 'paper'" in res.output
+
+
+class StillPolicy:
+    """Toy collection policy: the scene's gripper start, then ``params.steps`` actions of zero (never moves)."""
+
+    discards = False
+    goal = None
+
+    def __init__(self, scene, policy_rng, noise_rng, max_actions, params) -> None:
+        self.gripper_start, self.steps = scene.gripper_start, params.steps
+
+    def start(self, world) -> None:
+        pass
+
+    def plan(self) -> int:
+        return self.steps
+
+    def action(self, world, k, last_contact):
+        return np.zeros(2)
+
+
+@dataclass(frozen=True)
+class StillParams:
+    steps: int = 2
+
+
+def test_a_collection_policy_registered_here_runs_through_the_cli(tmp_path):
+    registry.register(registry.PolicySpec("still", "Toy: stand still", StillPolicy, params=StillParams,
+                                          needs=(("actions", "action sequence"),)))
+    try:
+        _cli("collect", "--scene", "FB", "--seeds", "0", "--policy", "still", "--out", str(tmp_path))
+    finally:
+        registry.unregister("policy", "still")
+    path, = tmp_path.glob("*.parquet")
+    run = pq.read_table(path)
+    assert run.num_rows == 2 and set(run.column("cmd_ux").to_pylist()) == {0.0}
+    assert json.loads(pq.read_schema(path).metadata[b"stucco.params"])["policy"] == "still"
