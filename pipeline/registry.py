@@ -268,14 +268,17 @@ register(TrackerSpec("kmeans", "k-means", "pipeline.track.cluster:KMeansParams",
 register(TrackerSpec("gmphd", "GM-PHD", "pipeline.track.gmphd:GMPHDParams", "pipeline.track.cluster:gmphd_tracker",
                      tune=("detection", (0.3, 0.5, 0.7, 0.9, 0.99))))
 
-register(EstimatorSpec("plausible", "plausible set", "pipeline.retrieve.estimators:plausible_estimator",
+register(EstimatorSpec("plausible", "the paper's segment choice, then the best pose of a plausible set fitted to "
+                                    "the target's shape, the contacts and the gripper's free space",
+                       "pipeline.retrieve.estimators:plausible_estimator",
                        params="pipeline.retrieve.plausible:PlausibleParams"))
-register(EstimatorSpec("paper", "paper (ICP)", "pipeline.retrieve.estimators:paper_estimator"))
+register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C)", "pipeline.retrieve.estimators:paper_estimator"))
 
-register(PolicySpec("scripted", "scripted actions", "pipeline.policies:ScriptedPolicy",
+register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))
-register(PolicySpec("greedy-walk", "greedy walk", "pipeline.policies:GreedyWalkPolicy",
-                    needs=(("walk", "[walk] table"),), default_for=("training",)))
+register(PolicySpec("greedy-walk", "a greedy random walk to a random goal (the training set, §V-B)",
+                    "pipeline.policies:GreedyWalkPolicy", needs=(("walk", "[walk] table"),),
+                    default_for=("training",)))
 
 #: The pose estimator used when none is named (the first registered).
 DEFAULT_ESTIMATOR: str = estimator_names()[0]

@@ -29,7 +29,8 @@ def test_builtin_names_in_report_order_with_the_default_first():
     assert registry.estimator_names() == ("plausible", "paper") and registry.DEFAULT_ESTIMATOR == "plausible"
     assert registry.policy_names() == ("scripted", "greedy-walk")
     assert registry.default_policy("retrieval") == "scripted" and registry.default_policy("training") == "greedy-walk"
-    assert registry.method_title("stucco") == "ours (STUCCO)" and registry.method_title("unregistered") == "unregistered"
+    assert registry.method_title("stucco") == "ours (STUCCO)"
+    assert registry.method_title("unregistered") == "unregistered"
 
 
 def test_every_builtin_spec_resolves_to_its_factory_and_parameter_class():

@@ -34,7 +34,8 @@ __all__ = [
     "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
     "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose_segment",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
-    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "RetrieveConfig", "final_segments_by_run", "retrieve",
+    "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "RetrieveConfig",
+    "final_segments_by_run", "retrieve",
     "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",
     "read_retrieval", "retrieval_table", "validate_candidates", "validate_retrieval",
 ]
