@@ -17,8 +17,8 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, Callable, Union
 
-__all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "unregister", "tracker", "estimator",
-           "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
+__all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
+           "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
            "estimator_names", "policy_names", "default_policy", "method_title", "resolve", "build_params", "choices",
            "DEFAULT_ESTIMATOR"]
 
@@ -133,6 +133,21 @@ def register(spec: Spec, *, replace: bool = False) -> Spec:
         raise ValueError(f"{kind} {spec.name!r} is already registered")
     _REGISTRY[kind][spec.name] = spec
     return spec
+
+
+def registers(spec_class: type, name: str, title: str, **fields: Any) -> Callable:
+    """Decorator form of :func:`register` for a factory::
+
+        @registers(EstimatorSpec, "mine", "My estimator")
+        def my_estimator(segments, info, sdf, rngs, params, own): ...
+
+    registers ``spec_class(name, title, factory=<the function>, **fields)`` and returns the function unchanged."""
+
+    def decorate(factory: Callable) -> Callable:
+        register(spec_class(name=name, title=title, factory=factory, **fields))
+        return factory
+
+    return decorate
 
 
 def unregister(kind: str, name: str) -> None:

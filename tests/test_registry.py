@@ -151,7 +151,7 @@ def toy():
     """Register the toy tracker and estimator for one test, from this file alone."""
     registry.register(registry.TrackerSpec("toy", "Toy tracker", ToyParams, lambda prm, robot, rng: ToyTracker(prm),
                                            tune=("shift", (0.0, 0.01))))
-    registry.register(registry.EstimatorSpec("toy", "Toy centroid", toy_estimator))
+    registry.registers(registry.EstimatorSpec, "toy", "Toy centroid")(toy_estimator)  # the decorator form
     yield
     registry.unregister("tracker", "toy")
     registry.unregister("estimator", "toy")
