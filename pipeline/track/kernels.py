@@ -20,6 +20,8 @@ exactly as :meth:`pipeline.robot.GridSDF.query` does.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -137,7 +139,7 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
             if d2 < best_d2:
                 best_d2 = d2
                 best = k
-        if u[n, j] < np.exp(-best_d2 / length):
+        if u[n, j] < math.exp(-best_d2 / length):
             group[j] = best
             for d in range(D):
                 P[n, j, d] += dx[best, d]
