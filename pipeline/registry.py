@@ -243,7 +243,7 @@ def build_params(spec: Spec, values: Any = None) -> Any:
         return values
     if not isinstance(values, dict):
         raise ValueError(f"params for {spec.name!r} must be a dict or {cls.__name__}, got {type(values).__name__}")
-    from pipeline.constraints import from_dict  # a bottom-layer module; imported here to keep this one minimal
+    from pipeline.constraints import from_dict  # imported here: it loads numpy, which importing the registry avoids
 
     return from_dict(cls, values, spec.name)
 
@@ -251,7 +251,7 @@ def build_params(spec: Spec, values: Any = None) -> Any:
 def choices(kind: str) -> Any:
     """A ``click.Choice`` over the names of ``kind`` read when the command runs, so that a component registered
     after import (a plug-in, a test) is accepted."""
-    import click  # only the CLI asks for choices
+    import click  # imported here: only the CLI asks for choices, and importing the registry stays cheap
 
     class _Lazy(click.Choice):
         def __init__(self) -> None:
