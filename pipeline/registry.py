@@ -14,11 +14,11 @@ registered later shows up in the CLI choices of any command run afterwards (docs
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Union
 
-__all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "unregister", "tracker", "estimator",
-           "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
+__all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
+           "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
            "estimator_names", "policy_names", "default_policy", "method_title", "resolve", "build_params", "choices",
            "DEFAULT_ESTIMATOR"]
 
@@ -135,6 +135,21 @@ def register(spec: Spec, *, replace: bool = False) -> Spec:
     return spec
 
 
+def registers(spec_class: type, name: str, title: str, **fields: Any) -> Callable:
+    """Decorator form of :func:`register` for a factory::
+
+        @registers(EstimatorSpec, "mine", "My estimator")
+        def my_estimator(segments, info, sdf, rngs, params, own): ...
+
+    registers ``spec_class(name, title, factory=<the function>, **fields)`` and returns the function unchanged."""
+
+    def decorate(factory: Callable) -> Callable:
+        register(spec_class(name=name, title=title, factory=factory, **fields))
+        return factory
+
+    return decorate
+
+
 def unregister(kind: str, name: str) -> None:
     """Remove a component (tests that register a toy one clean up with this)."""
     _REGISTRY[kind].pop(name, None)
@@ -228,7 +243,7 @@ def build_params(spec: Spec, values: Any = None) -> Any:
         return values
     if not isinstance(values, dict):
         raise ValueError(f"params for {spec.name!r} must be a dict or {cls.__name__}, got {type(values).__name__}")
-    from pipeline.constraints import from_dict  # a bottom-layer module; imported here to keep this one minimal
+    from pipeline.constraints import from_dict  # imported here: it loads numpy, which importing the registry avoids
 
     return from_dict(cls, values, spec.name)
 
@@ -236,7 +251,7 @@ def build_params(spec: Spec, values: Any = None) -> Any:
 def choices(kind: str) -> Any:
     """A ``click.Choice`` over the names of ``kind`` read when the command runs, so that a component registered
     after import (a plug-in, a test) is accepted."""
-    import click  # only the CLI asks for choices
+    import click  # imported here: only the CLI asks for choices, and importing the registry stays cheap
 
     class _Lazy(click.Choice):
         def __init__(self) -> None:
@@ -268,14 +283,17 @@ register(TrackerSpec("kmeans", "k-means", "pipeline.track.cluster:KMeansParams",
 register(TrackerSpec("gmphd", "GM-PHD", "pipeline.track.gmphd:GMPHDParams", "pipeline.track.cluster:gmphd_tracker",
                      tune=("detection", (0.3, 0.5, 0.7, 0.9, 0.99))))
 
-register(EstimatorSpec("plausible", "plausible set", "pipeline.retrieve.estimators:plausible_estimator",
+register(EstimatorSpec("plausible", "the paper's segment choice, then the best pose of a plausible set fitted to "
+                                    "the target's shape, the contacts and the gripper's free space",
+                       "pipeline.retrieve.estimators:plausible_estimator",
                        params="pipeline.retrieve.plausible:PlausibleParams"))
-register(EstimatorSpec("paper", "paper (ICP)", "pipeline.retrieve.estimators:paper_estimator"))
+register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C)", "pipeline.retrieve.estimators:paper_estimator"))
 
-register(PolicySpec("scripted", "scripted actions", "pipeline.policies:ScriptedPolicy",
+register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))
-register(PolicySpec("greedy-walk", "greedy walk", "pipeline.policies:GreedyWalkPolicy",
-                    needs=(("walk", "[walk] table"),), default_for=("training",)))
+register(PolicySpec("greedy-walk", "a greedy random walk to a random goal (the training set, §V-B)",
+                    "pipeline.policies:GreedyWalkPolicy", needs=(("walk", "[walk] table"),),
+                    default_for=("training",)))
 
 #: The pose estimator used when none is named (the first registered).
 DEFAULT_ESTIMATOR: str = estimator_names()[0]

@@ -51,8 +51,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
 
     sc = _load(scene)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    policy = policy or next((s.name for s in registry.policies() if sc.kind in s.default_for),
-                            registry.policy_names()[0])
+    policy = policy or registry.default_policy(sc.kind)
     for key, what in registry.policy(policy).needs:
         if getattr(sc, key, None) is None:
             usable = [s.name for s in registry.policies() if all(getattr(sc, k, None) is not None for k, _ in s.needs)]

@@ -12,7 +12,8 @@ from pipeline import schema
 from pipeline.schema.results import CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS
 
 __all__ = ["RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "RETRIEVAL", "CANDIDATES", "validate_retrieval",
-           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table", "run_candidates", "CANDIDATE_FIELDS"]
+           "validate_candidates", "read_retrieval", "retrieval_table", "candidates_table", "run_candidates",
+           "CANDIDATE_FIELDS"]
 
 #: The columns an estimator gives for each candidate: every candidates column but ``run`` (the stage adds it).
 CANDIDATE_FIELDS: tuple[str, ...] = tuple(c.name for c in CANDIDATES_COLUMNS if c.name != "run")

@@ -35,9 +35,9 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
                       free_mm: Sequence[float] = (2.5, 5, 10), paper_estimator: bool = True,
                       baselines: Sequence[str] | None = None) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
-    I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's), then the
-    baselines at their defaults (None: :func:`pipeline.registry.baseline_names`). The default STUCCO setting
-    appears once."""
+    I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's),
+    then the baselines at their defaults (None: :func:`pipeline.registry.baseline_names`). The default STUCCO
+    setting appears once."""
     out: list[Setting] = []
     seen: set[tuple] = set()
 

@@ -77,8 +77,8 @@ def collect_training(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES,
         scene = load_scene(sc)
         missing = [s for s in seeds if not output_path(runs_dir, scene.name, s).is_file()]
         if missing:
-            collect(scene, list(missing), runs_dir, policy=registry.default_policy("training"), root_seed=root_seed, jobs=jobs,
-                    progress=progress, max_actions=max_actions, keep_discarded=True)
+            collect(scene, list(missing), runs_dir, policy=registry.default_policy("training"), root_seed=root_seed,
+                    jobs=jobs, progress=progress, max_actions=max_actions, keep_discarded=True)
         for s in seeds:
             path = output_path(runs_dir, scene.name, s)
             meta = schema.read_metadata(path).get("params") or {}

@@ -106,99 +106,132 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
     N = P.shape[0]
     D = P.shape[2]
     K = dx.shape[0]
-    m_new = m_old + K
     zero = np.zeros((1, D))
     disp = np.zeros((K + 1, D))  # row K: "did not move"
     for k in range(K):
         for d in range(D):
             disp[k, d] = dx[k, d]
     for n in prange(N):
-        group = np.empty(m_old, np.int64)
-        for j in range(m_old):
-            best = 0
-            best_d2 = np.inf
-            for k in range(K):
-                d2 = 0.0
-                for d in range(D):
-                    t = P[n, j, d] - prev_points[k, d]
-                    d2 += t * t
-                if d2 < best_d2:
-                    best_d2 = d2
-                    best = k
-            if u[n, j] < math.exp(-best_d2 / length):
-                group[j] = best
-                for d in range(D):
-                    P[n, j, d] += dx[best, d]
-                    C[n, j, d] += dx[best, d]
-            else:
-                group[j] = K
-        for k in range(K):
-            for d in range(D):
-                P[n, m_old + k, d] = p[k, d]
-                C[n, m_old + k, d] = x[d]
+        group = _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length)
+        counts, order, xs = _groups_by_first_coordinate(P, n, group, m_old, K)
+        _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, values, shape, strides, origin,
+                            inv_res, lo, hi, tol)
+        _add_new_pairs(P, C, n, m_old, m_old + K, zero, colpen, npen, values, shape, strides, origin, inv_res, lo,
+                       hi, tol)
 
-        # Points of each displacement group sorted by their first coordinate, so that each config only scans
-        # the window of points that can lie inside the robot's interior box (now or before the motion).
-        counts = np.zeros(K + 2, np.int64)
+
+@njit(cache=True, inline="always")
+def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
+    """Alg. 1's prediction on particle n: each old point joins its nearest new point with probability
+    exp(-d^2 / l) and moves with it; the K new points are appended. Returns each old point's displacement group
+    (m_old,) int64: the new point it moved with, or K (did not move)."""
+    D = P.shape[2]
+    K = dx.shape[0]
+    group = np.empty(m_old, np.int64)
+    for j in range(m_old):
+        best = 0
+        best_d2 = np.inf
+        for k in range(K):
+            d2 = 0.0
+            for d in range(D):
+                t = P[n, j, d] - prev_points[k, d]
+                d2 += t * t
+            if d2 < best_d2:
+                best_d2 = d2
+                best = k
+        if u[n, j] < math.exp(-best_d2 / length):
+            group[j] = best
+            for d in range(D):
+                P[n, j, d] += dx[best, d]
+                C[n, j, d] += dx[best, d]
+        else:
+            group[j] = K
+    for k in range(K):
+        for d in range(D):
+            P[n, m_old + k, d] = p[k, d]
+            C[n, m_old + k, d] = x[d]
+    return group
+
+
+@njit(cache=True, inline="always")
+def _groups_by_first_coordinate(P, n, group, m_old, K):
+    """Particle n's old points by displacement group, each group sorted by its points' first coordinate, so that
+    each config only scans the window of points that can lie inside the robot's interior box. Returns
+    (counts (K + 2,): group a is ``order[counts[a]:counts[a + 1]]``, order (m_old,), xs (m_old,): first
+    coordinates in that order)."""
+    counts = np.zeros(K + 2, np.int64)
+    for j in range(m_old):
+        counts[group[j] + 1] += 1
+    for a in range(K + 1):
+        counts[a + 1] += counts[a]
+    order = np.empty(m_old, np.int64)
+    fill = counts[: K + 1].copy()
+    for j in range(m_old):
+        a = group[j]
+        order[fill[a]] = j
+        fill[a] += 1
+    xs = np.empty(m_old)
+    for a in range(K + 1):
+        seg = order[counts[a]:counts[a + 1]].copy()
+        key = np.empty(seg.size)
+        for t in range(seg.size):
+            key[t] = P[n, seg[t], 0]
+        srt = np.argsort(key)
+        for t in range(seg.size):
+            order[counts[a] + t] = seg[srt[t]]
+            xs[counts[a] + t] = key[srt[t]]
+    return counts, order, xs
+
+
+@njit(cache=True, inline="always")
+def _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, values, shape, strides, origin,
+                        inv_res, lo, hi, tol):
+    """Re-evaluate, on particle n, every (config, point) pair of old points whose groups moved by different
+    displacements (only those within the robot's box window), updating ``colpen``/``npen`` by the change."""
+    K = disp.shape[0] - 1
+    for a in range(K + 1):  # group of the config
+        for b in range(K + 1):  # group of the point
+            if a == b or counts[a] == counts[a + 1] or counts[b] == counts[b + 1]:
+                continue
+            s0 = disp[b, 0] - disp[a, 0]  # how far the points moved relative to the configs (axis 0)
+            win_lo = lo[0] + min(0.0, s0)
+            win_hi = hi[0] + max(0.0, s0)
+            xs_b = xs[counts[b]:counts[b + 1]]
+            for ii in range(counts[a], counts[a + 1]):
+                i = order[ii]
+                c0 = C[n, i, 0]
+                j0 = counts[b] + np.searchsorted(xs_b, c0 + win_lo)
+                j1 = counts[b] + np.searchsorted(xs_b, c0 + win_hi, side="right")
+                for jj in range(j0, j1):
+                    j = order[jj]
+                    new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
+                                        lo, hi, tol)
+                    old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
+                                        lo, hi, tol)
+                    if new != old:
+                        colpen[n, j] += new - old
+                        npen[n, j] += int(new < 0.0) - int(old < 0.0)  # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT)
+                        if npen[n, j] == 0:
+                            colpen[n, j] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _add_new_pairs(P, C, n, m_old, m_new, zero, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
+    """On particle n: the new points against every config, and the new configs against the old points."""
+    for j in range(m_old, m_new):
+        colpen[n, j] = 0.0
+        npen[n, j] = 0
+        for i in range(m_new):
+            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+            if c < 0.0:
+                colpen[n, j] += c
+                npen[n, j] += 1
+    for i in range(m_old, m_new):
         for j in range(m_old):
-            counts[group[j] + 1] += 1
-        for a in range(K + 1):
-            counts[a + 1] += counts[a]
-        order = np.empty(m_old, np.int64)
-        fill = counts[: K + 1].copy()
-        for j in range(m_old):
-            a = group[j]
-            order[fill[a]] = j
-            fill[a] += 1
-        xs = np.empty(m_old)
-        for a in range(K + 1):
-            seg = order[counts[a]:counts[a + 1]].copy()
-            key = np.empty(seg.size)
-            for t in range(seg.size):
-                key[t] = P[n, seg[t], 0]
-            srt = np.argsort(key)
-            for t in range(seg.size):
-                order[counts[a] + t] = seg[srt[t]]
-                xs[counts[a] + t] = key[srt[t]]
-        for a in range(K + 1):  # group of the config
-            for b in range(K + 1):  # group of the point
-                if a == b or counts[a] == counts[a + 1] or counts[b] == counts[b + 1]:
-                    continue
-                s0 = disp[b, 0] - disp[a, 0]  # how far the points moved relative to the configs (axis 0)
-                win_lo = lo[0] + min(0.0, s0)
-                win_hi = hi[0] + max(0.0, s0)
-                xs_b = xs[counts[b]:counts[b + 1]]
-                for ii in range(counts[a], counts[a + 1]):
-                    i = order[ii]
-                    c0 = C[n, i, 0]
-                    j0 = counts[b] + np.searchsorted(xs_b, c0 + win_lo)
-                    j1 = counts[b] + np.searchsorted(xs_b, c0 + win_hi, side="right")
-                    for jj in range(j0, j1):
-                        j = order[jj]
-                        new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
-                                            lo, hi, tol)
-                        old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
-                                            lo, hi, tol)
-                        if new != old:
-                            colpen[n, j] += new - old
-                            npen[n, j] += int(new < 0.0) - int(old < 0.0)  # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT)
-                            if npen[n, j] == 0:
-                                colpen[n, j] = 0.0
-        # The new points against every config, and the new configs against the old points.
-        for j in range(m_old, m_new):
-            colpen[n, j] = 0.0
-            npen[n, j] = 0
-            for i in range(m_new):
-                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
-                if c < 0.0:
-                    colpen[n, j] += c
-                    npen[n, j] += 1
-        for i in range(m_old, m_new):
-            for j in range(m_old):
-                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
-                if c < 0.0:
-                    colpen[n, j] += c
-                    npen[n, j] += 1
+            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+            if c < 0.0:
+                colpen[n, j] += c
+                npen[n, j] += 1
 
 
 @njit(cache=True, parallel=True)
