@@ -210,7 +210,8 @@ def _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, va
                                         lo, hi, tol)
                     if new != old:
                         colpen[n, j] += new - old
-                        npen[n, j] += int(new < 0.0) - int(old < 0.0)  # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT)
+                        # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT=1)
+                        npen[n, j] += int(new < 0.0) - int(old < 0.0)
                         if npen[n, j] == 0:
                             colpen[n, j] = 0.0
 
