@@ -168,25 +168,17 @@ def _dumps(o: Any) -> str:
     return json.dumps(o, sort_keys=True, separators=(",", ":"), allow_nan=False, default=_json_default)
 
 
+#: Columns that tell a table's kind when its provenance does not (checked in this order).
+_KIND_MARKERS: tuple[tuple[str, frozenset[str]], ...] = tuple((k, frozenset(c)) for k, c in (
+    ("diagnostics", ("ess", "n_replaced")), ("segments", ("segment", "tracker_label")),
+    ("tracks", ("tracker_label", "estimate_step")), ("contacts", ("in_contact", "contact_x_m")),
+    ("sim_run", ("win_wrench", "obj_pose")), ("retrieval", ("grasp_outcome", "true_x_m")),
+    ("candidates", ("segment_chosen", "rank")), ("scores", ("contact_error_cm", "wall_s"))))
+
+
 def _infer_kind(names: list[str]) -> str | None:
     s = set(names)
-    if "ess" in s and "n_replaced" in s:
-        return "diagnostics"
-    if "segment" in s and "tracker_label" in s:
-        return "segments"
-    if "tracker_label" in s and "estimate_step" in s:
-        return "tracks"
-    if "in_contact" in s and "contact_x_m" in s:
-        return "contacts"
-    if "win_wrench" in s and "obj_pose" in s:
-        return "sim_run"
-    if "grasp_outcome" in s and "true_x_m" in s:
-        return "retrieval"
-    if "segment_chosen" in s and "rank" in s:
-        return "candidates"
-    if "contact_error_cm" in s and "wall_s" in s:
-        return "scores"
-    return None
+    return next((kind for kind, marker in _KIND_MARKERS if marker <= s), None)
 
 
 def _write_parquet(table: pa.Table, sink) -> None:
