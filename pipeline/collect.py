@@ -240,7 +240,7 @@ def _body_list(a: np.ndarray) -> pa.Array:
     return pa.ListArray.from_arrays(pa.array(np.arange(0, n * nb + 1, nb, dtype=np.int32)), inner)
 
 
-def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
+def _build_table(scene: Scene, seed: int, rows: list[dict], probe_from: int | None = None) -> pa.Table:
     n = len(rows)
     name = run_name(scene.name, seed)
 
@@ -274,12 +274,14 @@ def _build_table(scene: Scene, seed: int, rows: list[dict]) -> pa.Table:
     data["force_rep_y_n"] = pa.array(fr[:, 1])
     data["obj_pose"] = _body_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
     data["obj_distance_m"] = _body_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
-    assert tuple(data) == SIM_RUN.names
+    assert tuple(data) == tuple(c.name for c in SIM_RUN.columns if c.required)
+    if probe_from is not None:
+        data["probe"] = pa.array(np.arange(n) >= probe_from, type=pa.bool_())
     return pa.table(data)
 
 
 def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | None = None,
-                max_actions: int | None = None, det: DetectionParams = DetectionParams()
+                max_actions: int | None = None, det: DetectionParams = DetectionParams(), policy_params=None
                 ) -> tuple[pa.Table, dict, CollectResult]:
     """Simulate one run of a scene.
 
@@ -294,7 +296,9 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         A registered collection policy (:func:`pipeline.registry.policy_names`); None: the one for the scene's kind
         (:func:`pipeline.registry.default_policy`).
     max_actions : int, optional
-        Stop after this many actions (short test runs).
+        Stop after this many actions (short test runs; the scripted ones of ``scripted+probe``).
+    policy_params : dataclass instance, dict or None
+        The policy's own parameters (e.g. :class:`pipeline.probe.policy.ProbeParams`); None: its defaults.
 
     Returns
     -------
@@ -315,7 +319,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     noise_rng = np.random.default_rng(noise_ss)
     policy_rng = np.random.default_rng(policy_ss)
     mover = registry.resolve(spec.factory)(scene, policy_rng, noise_rng, max_actions,
-                                           registry.build_params(spec))
+                                           registry.build_params(spec, policy_params))
     eff = scene.effects
     scale = scene.action_scale
     rows: list[dict] = []
@@ -339,7 +343,12 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
                        cmd_dy_m=float(u[1] * scale), obj_pose=world.object_poses(),
                        obj_distance_m=world.object_distances())
             rows.append(row)
-    table = _build_table(scene, seed, rows)
+        # A policy with a second phase (the active protocol's probes) acts on in the same world; its actions
+        # are appended to the run and marked in the ``probe`` column.
+        after, n_first = getattr(mover, "after", None), len(rows)
+        extra = None if after is None else after(world, rows, partial(summarize_action, det=det),
+                                                 lambda: _build_table(scene, seed, rows), seed, root_seed)
+    table = _build_table(scene, seed, rows, None if extra is None else n_first)
     labels = table.column("object_id").to_numpy()
     fr = np.column_stack([table.column("force_rep_x_n").to_numpy(), table.column("force_rep_y_n").to_numpy()])
     discarded = discard_reason(labels, fr) if mover.discards else None
@@ -355,6 +364,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.retrieve.runs)
         "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),
     }
+    if extra is not None:
+        params["probe"] = extra
     result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),
                        touched=touched, discarded=discarded, wall_s=time.perf_counter() - t0, sim_s=sim_s)
@@ -362,10 +373,11 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
 
 
 def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str | None = None,
-                 max_actions: int | None = None, keep_discarded: bool = True) -> CollectResult:
+                 max_actions: int | None = None, keep_discarded: bool = True, policy_params=None) -> CollectResult:
     """The `collect` stage on a file: simulate one run (:func:`collect_run`) and write its ``sim_run`` table to
     ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``."""
-    table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions)
+    table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions,
+                                        policy_params=policy_params)
     if result.discarded is None or keep_discarded:
         write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
         result.path = Path(path)

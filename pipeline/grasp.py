@@ -32,8 +32,8 @@ import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 
-__all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "judge_box", "judge_can",
-           "restore_world", "FingerContacts", "PLANS"]
+__all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "grasp_with", "judge_box",
+           "judge_can", "restore_world", "FingerContacts", "PLANS"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
 FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
@@ -359,12 +359,24 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
     -------
     GraspResult
     """
+    plan = plan_for(scene)
+    target = primitive_of(next(o for o in scene.objects if o.target))
+    yaw, pre, approach = pregrasp(plan, target, estimate)
+    return grasp_with(scene, poses, ee, yaw, pre, approach, params)
+
+
+def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.ndarray, approach: np.ndarray,
+               params: GraspParams = GraspParams(), approach_steps: int | None = None) -> GraspResult:
+    """The grasp script of :func:`grasp_at` for a given grasp yaw, pre-grasp point (2,) and unit approach
+    direction (2,), advancing ``approach_steps`` actions of the action scale (default ``params.approach_steps``);
+    the success rule is the same."""
     p = _pybullet()
     t0 = time.perf_counter()
-    plan = plan_for(scene)
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     target = primitive_of(scene.objects[tid])
-    yaw, pre, approach = pregrasp(plan, target, estimate)
+    pre = np.asarray(pre, dtype=np.float64)
+    approach = np.asarray(approach, dtype=np.float64)
+    steps = params.approach_steps if approach_steps is None else int(approach_steps)
     scale = scene.action_scale
     world = restore_world(scene, np.asarray(poses, dtype=np.float64), np.asarray(ee, dtype=np.float64),
                           params.settle_steps)
@@ -386,7 +398,7 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
         world.act(0.0, 0.0)
         _set_fingers(world, OPEN)
         world.act(0.0, 0.0)
-        for _ in range(params.approach_steps):
+        for _ in range(steps):
             world.act(float(approach[0] * scale), float(approach[1] * scale))
         _set_fingers(world, 0.0)
         world.act(0.0, 0.0)

@@ -108,6 +108,10 @@ class PolicySpec:
         with the key named.
     default_for : tuple of str
         Scene kinds (``"retrieval"``, ``"training"``) collected with this policy when none is given.
+    retrieval : callable, import path or None
+        How ``retrieve`` ends a run this policy collected: ``retrieval(info, method, root_seed, grasp,
+        grasp_params) -> dict`` of the retrieval row's pose, errors, grasp and notes (the active protocol's own
+        pose and grasp for the whole plausible set). None: the estimator's pose and the paper's grasp script.
     """
 
     name: str
@@ -116,6 +120,7 @@ class PolicySpec:
     params: Ref = None
     needs: tuple[tuple[str, str], ...] = ()
     default_for: tuple[str, ...] = ()
+    retrieval: Ref = None
 
 
 Spec = Union[TrackerSpec, EstimatorSpec, PolicySpec]
@@ -294,6 +299,10 @@ register(PolicySpec("scripted", "the scene's action sequence plus replay noise",
 register(PolicySpec("greedy-walk", "a greedy random walk to a random goal (the training set, §V-B)",
                     "pipeline.policies:GreedyWalkPolicy", needs=(("walk", "[walk] table"),),
                     default_for=("training",)))
+register(PolicySpec("scripted+probe", "the scripted actions, then probes until the target's pose is known, and a "
+                                      "grasp for the whole plausible set (active retrieval)",
+                    "pipeline.probe.mover:ScriptedProbePolicy", params="pipeline.probe.policy:ProbeParams",
+                    needs=(("actions", "action sequence"),), retrieval="pipeline.probe.retrieval:active_row"))
 
 #: The pose estimator used when none is named (the first registered).
 DEFAULT_ESTIMATOR: str = estimator_names()[0]

@@ -188,3 +188,46 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     click.echo(ladder_tables(summary))
     click.echo(summary_markdown(summary), nl=False)
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
+
+
+@bench.command("probe")
+@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--budgets", default="0,1,2,4,8", show_default=True, help="Probe budgets.")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/probe/runs"), show_default=True,
+              help="Run files of `collect --policy scripted+probe` (made here when missing).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/probe"), show_default=True,
+              help="probe_budget.csv, probe_budget_summary.csv, probe_budget.png.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Where the PNG goes instead (e.g. docs/img/probe_budget.png).")
+@pass_settings
+def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
+    """Active retrieval: grasp success against the probe budget per task, with probes used, time per probe
+    decision and how far probing moved the target (docs/retrieval.md, "Active retrieval")."""
+    writable_dir("--out", out_dir)
+    from tqdm import tqdm
+
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes
+    from pipeline.probe.bench import budget_rows, summarise, write_outputs
+
+    scene_list = parsed("--scenes", parse_scenes, scenes)
+    seed_list = parsed("--seeds", parse_seeds, seeds)
+    budget_list = tuple(sorted(set(_ints("--budgets", budgets, lo=0, hi=64))))
+    if not budget_list:
+        raise click.BadParameter("expected at least one budget", param_hint="--budgets")
+    bar = lambda it, total: tqdm(it, total=total, desc="probe", unit="run", disable=settings.progress)  # noqa: E731
+    with user_errors("bench probe"):
+        rows = budget_rows([(sc, s) for sc in scene_list for s in seed_list], runs_dir, budget_list, settings.seed,
+                           jobs=settings.jobs, progress=bar)
+        summary = summarise(rows)
+        paths = write_outputs(rows, summary, out_dir, png)
+    click.echo("| task | budget | runs | GS % | probes | decision s (median / max) | target moved mm / rad | wide |")
+    click.echo("|---|---|---|---|---|---|---|---|")
+    for s in summary:
+        click.echo(f"| {s['scene']} | {s['budget']} | {s['runs']} | {s['gs_pct']:.0f} | {s['probes_mean']:.2f} | "
+                   f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['moved_mm_median']:.1f} / "
+                   f"{s['turned_rad_median']:.3f} | {s['wide']} |")
+    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)

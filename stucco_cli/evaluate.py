@@ -41,11 +41,15 @@ from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, use
               help="loky: -j local processes; dask: joblib's Dask backend on --scheduler (pip install "
                    "'stucco[dask]'; workers must see --out at the same path).")
 @click.option("--scheduler", default=None, help="Dask scheduler address for --backend dask (tcp://HOST:8786).")
+@click.option("--policy", type=registry.choices("policy"), default=None,
+              help="How the retrieval scenes are collected [the retrieval default, scripted: the paper's protocol]; "
+                   "scripted+probe: the active protocol, probes until the target's pose is known, then a grasp for "
+                   "the whole plausible set (docs/retrieval.md, \"Active retrieval\").")
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
              estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str,
-             scheduler: str | None) -> None:
+             scheduler: str | None, policy: str | None) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     for opt, d in (("--out", out_dir), ("--snapshot", snapshot_dir)):
@@ -87,6 +91,8 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     estimator_list = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     if from_runs is not None and scenes is not None and scene_files(scenes):
         raise click.UsageError("--scenes takes scene names with --from-runs (stored runs carry their scenes)")
+    if from_runs is not None and policy is not None:
+        raise click.UsageError("--policy applies to simulated runs, not to --from-runs (stored runs carry theirs)")
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
@@ -94,7 +100,8 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     with user_errors("evaluate"):
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs),
-                         estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes))
+                         estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes),
+                         policy=policy)
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 
@@ -113,6 +120,11 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
         click.echo(to_markdown(rows), nl=False)
         for line in claims(rows):
             click.echo(line)
+        if cfg.policy is not None and registry.policy(cfg.policy).retrieval is not None:
+            from pipeline.probe.report import probe_lines  # imported here: only the active protocol has probes
+
+            for line in probe_lines(out_dir, ev.jobs):
+                click.echo(line)
         ran = len(ev.results) - ev.skipped
         click.echo(f"{len(ev.jobs)} job(s): {ran} run, {ev.skipped} already done; {ev.wall_s:.1f} s wall "
                    f"(-j {jobs}) -> {out_dir}/report.md, report.csv" + (", figures/, summary.png" if figures else ""),

@@ -151,7 +151,9 @@ def test_each_stage_table_is_written_by_its_stage_file_function_only():
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("cli", ("stucco_cli",)),
     ("studies", ("pipeline.study", "pipeline.bench", "pipeline.anchors", "pipeline.sim.bench")),
-    ("evaluate", ("pipeline.evaluate", "pipeline.report", "pipeline.figures")),
+    # The active protocol's probing policy runs the stages (isolate, track, segment, the estimators) between probes;
+    # collect and retrieve reach it through the registry by import path, never by an import.
+    ("evaluate", ("pipeline.evaluate", "pipeline.report", "pipeline.figures", "pipeline.probe")),
     # The retrieval ladder (`stucco bench retrieval`) lives in the retrieve package, so it keeps to the stages'
     # layer: it reads an evaluation's files through pipeline.layout, not through the evaluate driver.
     ("stages", ("pipeline.collect", "pipeline.isolate", "pipeline.track.stage", "pipeline.segment",

@@ -27,7 +27,7 @@ def test_builtin_names_in_report_order_with_the_default_first():
     assert registry.tracker_names() == ("stucco", "birch", "dbscan", "kmeans", "gmphd")
     assert registry.baseline_names() == ("birch", "dbscan", "kmeans", "gmphd")
     assert registry.estimator_names() == ("plausible", "paper") and registry.DEFAULT_ESTIMATOR == "plausible"
-    assert registry.policy_names() == ("scripted", "greedy-walk")
+    assert registry.policy_names() == ("scripted", "greedy-walk", "scripted+probe")
     assert registry.default_policy("retrieval") == "scripted" and registry.default_policy("training") == "greedy-walk"
     assert registry.method_title("stucco") == "ours (STUCCO)"
     assert registry.method_title("unregistered") == "unregistered"

@@ -54,6 +54,11 @@ class EvalConfig:
         Scenes given as files whose content is not the shipped scene of their name (:func:`scene_files`):
         collected from that file, checked against its digest; empty for shipped scenes (and then left out of
         ``evaluation.json``, which older folders lack).
+    policy : str or None
+        Collection policy of the retrieval scenes (:func:`pipeline.registry.policy_names`); None: the default for
+        retrieval scenes (``scripted``, the paper's protocol). ``scripted+probe`` is the active protocol (probes,
+        then the grasp for the plausible set; docs/retrieval.md, "Active retrieval"). Left out of
+        ``evaluation.json`` when None, so folders made before it still resume.
     """
 
     root_seed: int = 0
@@ -64,8 +69,11 @@ class EvalConfig:
     source: str | None = None
     estimators: tuple[str, ...] = registry.estimator_names()
     scene_files: tuple[tuple[str, str, str], ...] = ()
+    policy: str | None = None
 
     def __post_init__(self) -> None:
+        if self.policy is not None:
+            registry.policy(self.policy)  # ValueError naming the registered policies
         object.__setattr__(self, "estimators", tuple(self.estimators))
         object.__setattr__(self, "scene_files", tuple(tuple(f) for f in self.scene_files))
         known = registry.estimator_names()
@@ -84,7 +92,14 @@ class EvalConfig:
         out = dict(asdict(self), estimators=list(self.estimators), scene_files=[list(f) for f in self.scene_files])
         if not self.scene_files:
             del out["scene_files"]
+        if self.policy is None:
+            del out["policy"]
         return out
+
+    @property
+    def collect_policy(self) -> str:
+        """The policy the retrieval scenes are collected with."""
+        return self.policy or registry.default_policy("retrieval")
 
     def scene(self, name: str) -> Scene:
         """The scene ``name`` to collect: its file of ``scene_files`` (ValueError if it changed since the

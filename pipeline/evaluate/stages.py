@@ -67,7 +67,7 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
         wall = None
     else:
         collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed,
-                     policy=registry.default_policy("retrieval"),
+                     policy=cfg.collect_policy,
                      max_actions=cfg.max_actions, keep_discarded=True)
         wall = time.perf_counter() - t0
     if wall is None:

@@ -39,6 +39,9 @@ class RunInfo:
         Every body's inertial-frame (x, y, yaw) after the last action, in ``scene.body_names`` order.
     target_id : int
     target : Primitive
+    policy : str
+        The collection policy that made the run (``params.policy``; ``scripted`` when not recorded): a policy of
+        the active protocol has its own retrieval (:attr:`pipeline.registry.PolicySpec.retrieval`).
     """
 
     run: str
@@ -50,6 +53,7 @@ class RunInfo:
     final_poses: np.ndarray
     target_id: int
     target: Primitive
+    policy: str = "scripted"
 
     @property
     def final_ee(self) -> np.ndarray:
@@ -81,7 +85,7 @@ def load_run(path: str | Path) -> RunInfo:
     tid, prim = target_primitive(scene)
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=final, target_id=tid, target=prim)
+                   final_poses=final, target_id=tid, target=prim, policy=str(params.get("policy") or "scripted"))
 
 
 def run_scene(path: Path, params: dict) -> Scene:

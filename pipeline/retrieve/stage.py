@@ -103,7 +103,12 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, ro
                true_x_m=float(truth[0]), true_y_m=float(truth[1]), true_yaw_rad=float(truth[2]),
                position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
                icp_s=est.icp_s, grasp_s=None)
-    if config.grasp:
+    own = registry.policy(info.policy).retrieval if info.policy in registry.policy_names() else None
+    if own is not None:
+        # A run of the active protocol ends with its own pose and its grasp for the whole plausible set, whatever
+        # the estimator (docs/retrieval.md, "Active retrieval"); the estimator's candidates are kept.
+        row.update(registry.resolve(own)(info, method, root_seed, config.grasp, config.grasp_params))
+    elif config.grasp:
         g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params)
         row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
     cand = dict(est.candidates)

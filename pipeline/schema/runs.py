@@ -77,6 +77,10 @@ SIM_RUN_COLUMNS: tuple[Column, ...] = (
     Column("obj_distance_m", _F, "m", False, "Every body's minimum distance to the gripper after the action "
                                              "(negative: penetration); NaN for bodies not built.",
            shape=(None,), nan_means_missing=True, **_POS),
+    Column("probe", pa.bool_(), "", False, "The action is the probing policy's (`stucco collect --policy "
+                                           "scripted+probe`, docs/retrieval.md, \"Active retrieval\"), not the "
+                                           "scripted part's; absent from runs of the other policies.",
+           required=False),
 )
 
 

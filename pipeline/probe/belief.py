@@ -1,0 +1,294 @@
+"""What the robot knows during a run, computed by the pipeline itself on what has been sensed so far.
+
+:class:`Sensing` feeds every recorded action through the stages the run file will later go through, in the same
+order and with the same random streams: isolation (:func:`pipeline.isolate.isolate_run`, the action's own row),
+the tracker (:func:`pipeline.track.stage.make_tracker`, stream :func:`pipeline.seeds.run_rng`) updated once per
+action as ``stucco track`` replays the contacts table, and the segmentation of ``stucco segment`` (Alg. 3 for
+STUCCO, the tracker's own labels for the baselines). :func:`choose_target` is the paper's segment choice on the scripted part and :func:`pose_set`
+the plausible estimator's fit (docs/retrieval.md, "The plausible estimator") on that segment plus the probes'
+contacts, returning the whole set with each pose's likelihood. The belief depends only on the run's data and the
+probe contacts' attribution (recorded in the run's metadata), so the active protocol's grasp recomputes exactly
+the policy's last belief from the run file (docs/retrieval.md, "Active retrieval").
+
+Nothing here reads the simulation's ground truth: only the contact wrench (through isolation), the gripper's
+positions and the target's known shape.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.isolate import IsolationParams, isolate_run
+from pipeline.labels import canonical_labels
+from pipeline.retrieve.estimators import Segment
+from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
+from pipeline.retrieve.paper import estimate_run
+from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
+from pipeline.robot import load_robot, surface_points
+from pipeline.seeds import run_rng
+from pipeline.track.stage import TrackConfig, make_tracker, warm_up
+
+__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains", "prior_set"]
+
+
+_LATTICES: dict[tuple[str, float], np.ndarray] = {}
+
+
+def _lattice(sdf, resolution: float) -> np.ndarray:
+    # The gripper lattice depends only on the grid and the spacing: built once per process.
+    key = (sdf.digest, float(resolution))
+    if key not in _LATTICES:
+        _LATTICES[key] = gripper_lattice(sdf, resolution)
+    return _LATTICES[key]
+
+
+class Sensing:
+    """The tracker's view of one run's scripted actions, and the raw contacts of the probes after them.
+
+    The scripted actions (the first ``n_scripted``) go through isolation and the tracker as ``stucco track``
+    replays them. The probes' contacts are kept as isolated, at their own positions: they are the freshest data
+    and nothing has moved since but by the probes' few millimetres, whereas the tracker's resampling would
+    replace a fresh point that contradicts its drifted old ones by a copy of one of them (Alg. 2).
+
+    Parameters
+    ----------
+    run : str
+        Run name (``<scene>/<seed>``): keys the tracker's random stream as ``stucco track`` does.
+    root_seed : int
+        Root seed of the track stage.
+    start : ndarray, shape (2,), metres
+        Gripper position before the first action.
+    n_scripted : int
+        Actions of the scripted part.
+    method : str
+        Tracking method (``stucco`` or a baseline of :mod:`pipeline.methods`).
+    """
+
+    def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
+                 robot: str = "panda") -> None:
+        self.sdf = load_robot(robot)
+        config = TrackConfig(method=method, robot=robot)
+        warm_up(config, self.sdf)
+        self.method = method
+        self.n_scripted = int(n_scripted)
+        self.tracker = make_tracker(config, self.sdf, run_rng(root_seed, run))
+        iso = IsolationParams(robot=robot)
+        self.surface = surface_points(self.sdf, n_query=iso.n_query, radius=iso.radius,
+                                      min_separation=iso.min_separation)
+        self.ee = [np.asarray(start, dtype=np.float64)[:2].copy()]
+        self.touching = [False]  # per visited position: reached in contact by a probe
+        self.steps: list[int] = []
+        self.point_steps: list[int] = []
+        self.probe_points: list[np.ndarray] = []
+        self.probe_steps: list[int] = []
+
+    def observe(self, table: pa.Table) -> None:
+        """Feed new actions (rows of a ``sim_run`` table, in order)."""
+        cols, _, _ = isolate_run(table, *self.surface)
+        for i, step in enumerate(cols["step"]):
+            x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
+            scripted = len(self.steps) < self.n_scripted
+            self.ee.append(x)
+            self.steps.append(int(step))
+            inc = bool(cols["in_contact"][i])
+            # Only a probe's contact leaves its object where it was, against that position; the scripted part's
+            # pushes moved theirs on, and its positions are the transit's only links.
+            self.touching.append(inc and not scripted)
+            p = np.array([cols["contact_x_m"][i], cols["contact_y_m"][i]], dtype=np.float64) if inc else None
+            if not scripted:
+                if inc:
+                    self.probe_points.append(p)
+                    self.probe_steps.append(int(step))
+            elif inc:
+                self.tracker.update(x, np.array([[cols["dx_m"][i], cols["dy_m"][i]]]), p[None, :])
+                self.point_steps.append(int(step))
+            else:
+                self.tracker.update(x, None, None)
+
+    @property
+    def visited(self) -> np.ndarray:
+        """Gripper positions (K + 1, 2), metres: the start, then the end of every action."""
+        return np.array(self.ee)
+
+    def segments(self) -> list[Segment]:
+        """The segmentation ``stucco segment`` makes of the tracker's points (segment -1 left out)."""
+        if not self.point_steps:
+            return []
+        pts = np.asarray(self.tracker.points_, dtype=np.float64)
+        labels = canonical_labels(np.asarray(self.tracker.labels()))
+        steps = np.asarray(self.point_steps, dtype=np.int64)
+        return [Segment(int(s), pts[labels == s], steps[labels == s]) for s in np.unique(labels) if s >= 0]
+
+
+@dataclass
+class PoseSet:
+    """The plausible set of target poses.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (H, 3)
+        COM poses (x, y, yaw) of the plausible hypotheses.
+    weights : ndarray, shape (H,)
+        Likelihood of each relative to the best, exp(-(cost - best)), normalised to sum 1.
+    best : int
+        Index of the estimator's pose (the one ``stucco retrieve`` reports).
+    segment : int
+        Segment the set was fitted to (-1: none; the set is then :func:`prior_set`).
+    notes : list of str
+        Why the set is not a fit to the target's own segment (``no_segment``).
+    """
+
+    poses: np.ndarray
+    weights: np.ndarray
+    best: int
+    segment: int
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class TargetChoice:
+    """The target's segment of the scripted part, chosen once (the paper's choice, §V-C, as ``stucco retrieve``).
+
+    Attributes
+    ----------
+    segment : int
+        Chosen segment (-1: none).
+    points : ndarray, shape (M, 2); steps : ndarray, shape (M,)
+        Its tracked points and their observation steps.
+    others : ndarray, shape (Q, 2)
+        The other segments' points.
+    seeds : ndarray, shape (S, 3)
+        The paper's valid ICP poses on the segment (COM), extra starts of the fit.
+    """
+
+    segment: int
+    points: np.ndarray
+    steps: np.ndarray
+    others: np.ndarray
+    seeds: np.ndarray
+
+
+def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray, sdf,
+                  rngs: Sequence[np.random.Generator], params: RetrievalParams = RetrievalParams()
+                  ) -> list[TargetChoice]:
+    """The scripted part's segments ranked as the target's: the paper's choice first (ICP restarts, lowest
+    position variance, §V-C), then the other segments whose best ICP error passes the fit gate by position
+    variance, then the rest by the same. Empty without segments."""
+    paper = estimate_run([(s.id, s.points) for s in segments], target, np.asarray(ee).reshape(-1, 2), sdf, params,
+                         rngs[0], rngs[1])
+    none = np.zeros((0, 2))
+    if paper.segment < 0:
+        return []
+    icp = paper.candidates
+    ranked = []
+    for seg in segments:
+        m = icp["segment"] == seg.id
+        if not m.any():
+            continue
+        var = np.nan_to_num(np.nanmin(np.r_[icp["position_var_m2"][m], np.inf]), nan=np.inf)
+        gate = np.min(np.where(icp["valid"][m], icp["icp_rmse_m"][m], np.inf)) > params.segment_fit_gate
+        ranked.append((seg.id != paper.segment, bool(gate), float(var), seg.id, seg, m & icp["valid"]))
+    ranked.sort(key=lambda r: r[:4])
+    return [TargetChoice(seg.id, np.asarray(seg.points, dtype=np.float64).reshape(-1, 2), np.asarray(seg.steps),
+                         np.vstack([s.points for s in segments if s.id != seg.id] or [none]),
+                         np.column_stack([icp["x_m"][mine], icp["y_m"][mine], icp["yaw_rad"][mine]]))
+            for *_, seg, mine in ranked]
+
+
+NO_TARGET = TargetChoice(-1, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
+
+
+def misfit(target: Primitive, belief: PoseSet, points: np.ndarray) -> float:
+    """Median distance (m) of points (P, 2) to the surface of the set's estimate (0 without points)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(points) == 0:
+        return 0.0
+    pp = primitive_pose(target, belief.poses[belief.best])
+    sd, _ = primitive_sdf(target, rotate(points - pp[:2], pp[2], inverse=True))
+    return float(np.median(np.abs(sd)))
+
+
+def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf,
+             rng: np.random.Generator, probe_points: np.ndarray, probe_steps: np.ndarray, probe_others: np.ndarray,
+             plausible: PlausibleParams = PlausibleParams(n_hypotheses=16, iterations=20), probe_growth: float = 1.25,
+             max_seeds: int = 8) -> PoseSet:
+    """The plausible set from the scripted part's target segment plus the probes' contacts on the target.
+
+    The plausible estimator's fit (:func:`pipeline.retrieve.plausible.fit_segment`): the segment's tracked points
+    with their recency sigma (every probe contact is a later contact, so they fade), the probes' contacts with
+    ``contact_sigma`` x ``probe_growth`` per later probe contact (a probe pushes by millimetres, not centimetres),
+    the gripper's free space from the segment's last scripted contact on (every probe's sweep included), and the
+    other segments' points and the probes' contacts on something else outside the target.
+
+    Parameters
+    ----------
+    ee : ndarray, shape (K + 1, 2); steps : ndarray, shape (K,)
+        Gripper positions (start, then every action's end) and action indices.
+    probe_points : ndarray, shape (P, 2); probe_steps : ndarray, shape (P,)
+        Probe contacts attributed to the target.
+    probe_others : ndarray, shape (R, 2)
+        Probe contacts attributed to other objects.
+    """
+    ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
+    probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
+    probe_steps = np.asarray(probe_steps, dtype=np.int64).reshape(-1)
+    if choice.segment < 0 and len(probe_points) == 0:
+        return prior_set(target, ee, steps, sdf, plausible, rng)
+    all_steps = np.concatenate([choice.steps, probe_steps]).astype(np.int64)
+    sigma_old = recency_sigma(all_steps, plausible)[:len(choice.steps)]
+    later = len(probe_steps) - 1 - np.arange(len(probe_steps))
+    sigma = np.concatenate([sigma_old, plausible.contact_sigma * probe_growth ** later])
+    pts = np.vstack([choice.points, probe_points])
+    centre = pts.mean(axis=0)
+    radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
+        + float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    after = int(np.max(choice.steps)) if len(choice.steps) else int(np.min(probe_steps)) - 1
+    free = free_space_points(_lattice(sdf, plausible.free_resolution), ee[:-1], ee[1:], steps, after, plausible,
+                             centre, radius)
+    others = np.vstack([choice.others, np.asarray(probe_others, dtype=np.float64).reshape(-1, 2)])
+    others = others[np.linalg.norm(others - centre, axis=1) <= radius]
+    # At most max_seeds ICP starts besides the random ones: a decision must take well under half a second.
+    seeds = choice.seeds[:max_seeds] if len(choice.seeds) else None
+    fit = fit_segment(target, pts, sigma, free, others, plausible, rng, seeds)
+    cost = fit.terms.total
+    keep = np.flatnonzero(fit.plausible)
+    w = np.exp(-(cost[keep] - cost[keep].min()))
+    return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
+                   segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"])
+
+
+def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float) -> bool:
+    """Whether some hypothesis (COM poses (H, 3)) puts its surface within ``tolerance`` (m) of ``point`` (2,)."""
+    pp = primitive_pose(target, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+    local = rotate(np.asarray(point, dtype=np.float64)[None, None, :] - pp[:, None, :2], pp[:, None, 2],
+                   inverse=True)
+    sd, _ = primitive_sdf(target, local)
+    return bool(np.min(np.abs(sd)) <= tolerance)
+
+
+def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,
+              rng: np.random.Generator, n: int = 48, reach: float = 0.25) -> PoseSet:
+    """A set when no segment fits the target (no contact yet, or none the estimator accepts): poses spread
+    uniformly (position within ``reach`` of the centroid of the gripper's visited positions, any yaw), kept where
+    they do not overlap the gripper's free space, equally likely (``notes`` = ``no_segment``)."""
+    ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
+    centre = ee.mean(axis=0)
+    cand = np.column_stack([centre + rng.uniform(-reach, reach, (4 * n, 2)), rng.uniform(-np.pi, np.pi, 4 * n)])
+    free = free_space_points(_lattice(sdf, 2 * plausible.free_resolution), ee[:-1], ee[1:], np.asarray(steps),
+                             -1, plausible, centre, reach + 0.2)
+    if len(free):
+        local = rotate(free[None, :, :] - target.centre_world(cand)[:, None, :], (cand[:, 2] + target.yaw)[:, None],
+                       inverse=True)
+        sd, _ = primitive_sdf(target, local)
+        clear = sd.min(axis=1) > -plausible.free_tolerance
+        if clear.sum() >= 4:
+            cand = cand[clear]
+    cand = cand[:n]
+    return PoseSet(poses=cand, weights=np.full(len(cand), 1.0 / len(cand)), best=0, segment=-1,
+                   notes=["no_segment"])

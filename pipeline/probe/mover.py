@@ -1,0 +1,32 @@
+"""The ``scripted+probe`` collection policy: the scene's scripted actions, then the probing loop in the same world.
+
+:func:`pipeline.collect.collect_run` drives it like every policy of :mod:`pipeline.policies` (the scripted part is
+:class:`~pipeline.policies.ScriptedPolicy`'s), then calls :meth:`ScriptedProbePolicy.after`, which runs
+:func:`pipeline.probe.policy.run_policy` on what was sensed so far and appends its probe actions to the run
+(docs/retrieval.md, "Active retrieval"). Registered in :mod:`pipeline.registry`.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from pipeline.policies import ScriptedPolicy
+from pipeline.probe.policy import ProbeParams, run_policy
+
+__all__ = ["ScriptedProbePolicy"]
+
+
+class ScriptedProbePolicy(ScriptedPolicy):
+    """The scripted actions with their replay noise, then probes (:class:`~pipeline.probe.policy.ProbeParams`)."""
+
+    def __init__(self, scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
+                 max_actions: int | None = None, params: ProbeParams | None = None) -> None:
+        super().__init__(scene, policy_rng, noise_rng, max_actions, params)
+        self.probe = params if params is not None else ProbeParams()
+
+    def after(self, world, rows: list, summarize: Callable, table: Callable, seed: int, root_seed: int
+              ) -> dict[str, Any]:
+        """Probe in ``world`` after the scripted ``rows`` (appending the probe actions to them); what the run's
+        metadata records under ``probe``."""
+        return run_policy(world, self.scene, seed, root_seed, rows, summarize, table, self.probe)

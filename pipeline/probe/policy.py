@@ -1,0 +1,406 @@
+"""The probing policy of the active protocol: after the scripted rummage, probe with guarded moves until the
+plausible set agrees on the target's pose or the budget is spent (docs/retrieval.md, "Active retrieval").
+
+Between probes the policy runs the pipeline on everything sensed so far (:mod:`pipeline.probe.belief`: isolation,
+tracking, segmentation, the plausible estimator), plans the next guarded move (:mod:`pipeline.probe.planning`) and
+executes it through the ``act`` callback of the collect stage, which simulates and records each action, so the
+probe's contacts are real and in the run file. It never reads the simulation's ground truth: only each action's
+detector verdict (``in_contact``, from the contact wrench as in the run's data) and the recorded rows.
+
+A probe is one guarded move: retrace visited positions to the line's start, then advance along the line in steps
+of ``coarse_step`` until ``slow_zone`` before the earliest predicted contact and of ``fine_step`` after, stop at
+the first action detected in contact (or ``max_travel`` past the start, or ``overshoot`` past the latest predicted
+contact) and back off by ``backoff``. A contact during the transit ends the probe the same way.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable, ClassVar
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.constraints import Constraint, check, integer, number, rule
+from pipeline.geometry import Primitive, primitive_of
+from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explains, misfit,
+                                   pose_set)
+from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline, path_to, transit_graph
+from pipeline.retrieve.runs import retrieval_rng
+
+__all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "guarded_move", "retrace"]
+
+
+@dataclass(frozen=True)
+class ProbeParams:
+    """Parameters of the probing policy; serialised into the run file's metadata.
+
+    Attributes
+    ----------
+    budget : int
+        Most probes per run (8).
+    min_probes : int
+        Probes made even if the set agrees from the start (0): a confident set can be confidently wrong.
+    coarse_step, fine_step : float, metres
+        Step of the guarded move far from and near the predicted contacts (0.02, 0.004).
+    slow_zone : float, metres
+        Fine steps from this far before the earliest predicted contact (0.03).
+    overshoot : float, metres
+        Give up this far past the latest predicted contact (0.04).
+    backoff : float, metres
+        Retreat after a contact (0.015).
+    transit_step : float, metres
+        Longest action of a transit (0.03, the scripted actions' scale).
+    attribute_tolerance : float, metres
+        A probe contact is the target's if some hypothesis's surface passes this close (0.025).
+    misfit_tolerance : float, metres
+        When the probe contacts attributed to the target lie farther than this (median) from the set's estimate,
+        the segment is not the target's: the next-ranked one is taken (0.006).
+    stall : int
+        Probes after which a segment whose set still does not agree gives way to the next-ranked one (99: never;
+        4 switched right segments away on the training seeds, docs/retrieval.md).
+    min_span : float
+        For a box, the set is trusted only once the target's probe contacts span this share of its long side
+        (0.6); until then the next probe goes where the estimate predicts contact farthest from them.
+    min_target_contacts : int
+        The set agrees only once this many probe contacts are the target's (3 for a box, one fewer for a can):
+        the scripted part's points have drifted, so a set resting on them alone is not trusted.
+    method : str
+        Tracking method of the policy's belief (``stucco``).
+    plan : PlanParams
+    """
+
+    budget: int = 8
+    min_probes: int = 0
+    coarse_step: float = 0.02
+    fine_step: float = 0.004
+    slow_zone: float = 0.03
+    overshoot: float = 0.04
+    backoff: float = 0.015
+    transit_step: float = 0.03
+    attribute_tolerance: float = 0.025
+    misfit_tolerance: float = 0.006
+    stall: int = 99
+    min_span: float = 0.6
+    min_target_contacts: int = 3
+    method: str = "stucco"
+    plan: PlanParams = field(default_factory=PlanParams)
+
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "budget": integer(0, 64), "min_probes": integer(0, 64),
+        **{name: number(0, 0.03, lo_open=True) for name in ("coarse_step", "fine_step", "backoff", "transit_step")},
+        **{name: number(0) for name in ("slow_zone", "overshoot")},
+        **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
+        "stall": integer(0), "min_span": number(0, 1), "min_target_contacts": integer(0),
+        "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
+        "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ProbeLog:
+    """What the policy did in one run (recorded in the run file's metadata under ``probe``).
+
+    Attributes
+    ----------
+    probes : int
+        Guarded moves made.
+    actions : int
+        Actions recorded by the policy (transits, steps, back-offs).
+    decision_s : list of float, seconds
+        Wall time of each decision (belief update + planning), the last one deciding to stop.
+    contacts : list of bool
+        Whether each probe ended in a detected contact.
+    share : float
+        Likelihood share of the final set agreeing with its estimate (:func:`planning.agreement`).
+    agreed : bool
+        The set agrees (share >= ``agree_share``).
+    flagged : str
+        Why the grasp goes ahead on a set that does not agree (``budget_spent``, ``no_reachable_probe``), or "".
+    segment : int
+        Segment of the final set (-1: none fitted).
+    target_steps, other_steps : list of int
+        Actions whose isolated contact the policy attributed to the target / to something else.
+    history : list of dict
+        At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``) and
+        the probe contacts attributed to it, so the set of any decision can be recomputed (the budget curve of ``stucco bench probe``).
+    switches : int
+        Times the probes showed the chosen segment was not the target's and the next one was taken.
+    lines : list of list
+        Each probe's start (x, y), direction (x, y), the weighted 10, 50 and 90 % quantiles of the travel its
+        set predicted (metres; None: no contact predicted), and whether it was a spread probe.
+    """
+
+    probes: int = 0
+    actions: int = 0
+    decision_s: list = field(default_factory=list)
+    contacts: list = field(default_factory=list)
+    share: float = 0.0
+    agreed: bool = False
+    flagged: str = ""
+    segment: int = -1
+    lines: list = field(default_factory=list)
+    target_steps: list = field(default_factory=list)
+    other_steps: list = field(default_factory=list)
+    switches: int = 0
+    history: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+Act = Callable[[float, float], dict]
+
+
+def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: float
+            ) -> tuple[np.ndarray, int, bool]:
+    """Move through the waypoints ``path`` (P, 2) in actions no longer than ``step`` per axis; at the first action
+    detected in contact, back off by ``backoff`` and stop. Returns (position, actions, contact)."""
+    pts = np.vstack([here[None, :], np.asarray(path, dtype=np.float64).reshape(-1, 2)])
+    n = 0
+    for a, b in zip(pts[:-1], pts[1:]):
+        d = b - a
+        k = int(np.ceil(np.max(np.abs(d)) / step - 1e-9))
+        for _ in range(max(k, 0)):
+            row = act(float(d[0] / k), float(d[1] / k))
+            n += 1
+            here = np.array([row["ee_x_m"], row["ee_y_m"]])
+            if row["in_contact"]:
+                u = -d / np.linalg.norm(d) * backoff
+                row = act(float(u[0]), float(u[1]))
+                return np.array([row["ee_x_m"], row["ee_y_m"]]), n + 1, True
+    return here, n, False
+
+
+def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: np.ndarray, params: ProbeParams
+                 ) -> tuple[np.ndarray, int, bool]:
+    """Advance along ``direction`` until contact, then back off. Returns (position, actions, contact).
+
+    ``predicted`` (H,): each hypothesis's travel to contact (inf: none); the move is fast until ``slow_zone``
+    before the earliest and gives up ``overshoot`` past the latest finite one (or at ``plan.max_travel``).
+    """
+    fin = predicted[np.isfinite(predicted)]
+    slow = max(0.0, float(fin.min()) - params.slow_zone) if len(fin) else 0.0
+    limit = min(params.plan.max_travel, float(fin.max()) + params.overshoot) if len(fin) else params.plan.max_travel
+    t, n = 0.0, 0
+    d = np.asarray(direction, dtype=np.float64)
+    contact = False
+    while t < limit:
+        step = params.coarse_step if t + params.coarse_step <= slow else params.fine_step
+        row = act(float(d[0] * step), float(d[1] * step))
+        n += 1
+        t += step
+        here = np.array([row["ee_x_m"], row["ee_y_m"]])
+        if row["in_contact"]:
+            contact = True
+            break
+    if contact:
+        row = act(float(-d[0] * params.backoff), float(-d[1] * params.backoff))
+        n += 1
+        here = np.array([row["ee_x_m"], row["ee_y_m"]])
+    return here, n, contact
+
+
+def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
+              start: np.ndarray, params: ProbeParams = ProbeParams()) -> ProbeLog:
+    """Probe until the plausible set agrees or the budget is spent.
+
+    Parameters
+    ----------
+    act : callable (dx, dy) -> dict
+        Simulates and records one action of the gripper (metres); returns its row of the ``sim_run`` table
+        (``ee_x_m``, ``ee_y_m``, ``in_contact`` are read).
+    table : callable () -> pyarrow.Table
+        The run's ``sim_run`` table so far (scripted actions and the probes' own).
+    run : str
+        Run name; ``root_seed`` the root seed of the later stages (tracker and estimator streams).
+    target : Primitive
+        The target's known shape.
+    start : ndarray, shape (2,)
+        Gripper position before the run's first action.
+
+    Returns
+    -------
+    ProbeLog
+    """
+    rows = table()
+    sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method)
+    sensing.observe(rows)
+    seen = rows.num_rows
+    import open3d  # noqa: F401  (the segment choice's ICP imports it; a second's import is no decision time)
+
+    t0 = time.perf_counter()  # the first decision includes the segment choice
+    choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run))
+    rank = since = 0
+    choice = choices[0] if choices else NO_TARGET
+    outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
+    need = required_contacts(target, params)
+    log = ProbeLog()
+    belief = None
+    while True:
+        if log.probes:
+            t0 = time.perf_counter()
+            rows = table()
+            sensing.observe(rows.slice(seen))
+            seen = rows.num_rows
+        belief = current_set(choice, target, sensing, root_seed, run, log, belief, params)
+        mine = mine_now(sensing, log)
+        stalled = log.probes - since >= params.stall and agreement(
+            target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
+            params.plan.position_tolerance) < params.plan.agree_share and rank + 1 < len(choices)
+        if choice.segment >= 0 and (stalled or len(mine) >= 2 and misfit(target, belief, mine) >
+                                    params.misfit_tolerance):
+            # The probes' contacts do not lie on this segment's object, or they leave its set wide: take the
+            # next-ranked segment (or none) and attribute every probe contact afresh against its set.
+            since = log.probes
+            rank += 1
+            choice = choices[rank] if rank < len(choices) else NO_TARGET
+            log.switches += 1
+            log.target_steps, log.other_steps = [], []
+            belief = current_set(choice, target, sensing, root_seed, run, log,
+                                 set_from_steps(choice, target, sensing, root_seed, run, []), params)
+        share = agreement(target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
+                          params.plan.position_tolerance)
+        log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
+                            "target_steps": list(log.target_steps)})
+        settled = share >= params.plan.agree_share and log.probes >= params.min_probes and \
+            len(log.target_steps) >= min(need, params.budget)
+        # Contacts bunched on a short stretch may all be on another, smaller object: probe across the length.
+        short = len(log.target_steps) >= 2 and _span(mine_now(sensing, log)) < \
+            params.min_span * (2 * max(target.half[:2]) if target.kind == "box" else 0.0)
+        done = settled and not short
+        obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
+                                                          if st in log.other_steps]).reshape(-1, 2)])
+        plan = None if done or log.probes >= params.budget else choose_probe(
+            target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan, obstacles,
+            np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4),
+            mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None,
+            np.asarray(sensing.touching))
+        log.decision_s.append(time.perf_counter() - t0)
+        log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
+        if plan is None:
+            if not log.agreed:
+                log.flagged = "budget_spent" if log.probes >= params.budget else "no_reachable_probe"
+            if log.probes:
+                # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
+                # point is a straight line, which from the far side of the target would sweep it away.
+                log.actions += _return(act, sensing, params)
+            return log
+        here = sensing.visited[-1]
+        here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
+        log.actions += n
+        if not contact:  # a contact during the transit is this probe's outcome (the policy goes on)
+            here, n, contact = guarded_move(act, here, plan.direction, plan.predicted, params)
+            log.actions += n
+        log.probes += 1
+        log.contacts.append(bool(contact))
+        log.lines.append([*map(float, plan.start), *map(float, plan.direction), *_quantiles(plan.predicted,
+                                                                                           belief.weights),
+                          plan.mode == "spread"])
+
+
+def mine_now(sensing: Sensing, log: ProbeLog) -> np.ndarray:
+    """The probe contacts (P, 2) attributed to the target so far."""
+    return np.asarray(sensing.probe_points).reshape(-1, 2)[np.isin(sensing.probe_steps, log.target_steps)]
+
+
+def _span(points: np.ndarray) -> float:
+    """Largest distance (m) between two of the points (0 for fewer than two)."""
+    if len(points) < 2:
+        return 0.0
+    return float(np.max(np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)))
+
+
+def required_contacts(target: Primitive, params: ProbeParams) -> int:
+    """Probe contacts on the target the set must rest on before it is trusted: ``min_target_contacts`` for a box,
+    one fewer for a can (no yaw to pin)."""
+    return params.min_target_contacts if target.kind == "box" else max(params.min_target_contacts - 1, 0)
+
+
+def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
+                log: ProbeLog, previous: PoseSet | None, params: ProbeParams) -> PoseSet:
+    """The plausible set now. Probe contacts not yet attributed are attributed with the previous set (the one
+    the probe was planned with): to the target if some of its hypotheses explains them within
+    ``attribute_tolerance``, to another object otherwise; every contact is the target's while no set exists or
+    the set is the no-segment prior. The target's contacts' steps go to ``log.target_steps``."""
+    for q, step in zip(sensing.probe_points[len(log.target_steps) + len(log.other_steps):],
+                       sensing.probe_steps[len(log.target_steps) + len(log.other_steps):]):
+        mine = previous is None or previous.segment < 0 or explains(target, previous.poses, q,
+                                                                    params.attribute_tolerance)
+        (log.target_steps if mine else log.other_steps).append(int(step))
+    return set_from_steps(choice, target, sensing, root_seed, run, log.target_steps)
+
+
+def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
+                   target_steps) -> PoseSet:
+    """:func:`pipeline.probe.belief.pose_set` with the probe contacts of ``target_steps`` on the target and the
+    others elsewhere (the stream of the fit's random starts: the estimator's, :func:`retrieval_rng`)."""
+    steps = np.asarray(sensing.probe_steps, dtype=np.int64)
+    pts = np.asarray(sensing.probe_points, dtype=np.float64).reshape(-1, 2)
+    on = np.isin(steps, np.asarray(list(target_steps), dtype=np.int64))
+    return pose_set(choice, target, sensing.visited, np.asarray(sensing.steps), sensing.sdf,
+                    retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on])
+
+
+def _return(act: Act, sensing: Sensing, params: ProbeParams, attempts: int = 4) -> int:
+    """Retrace visited positions (not those reached in contact) from the current one to the scripted part's last
+    position not reached in contact; a contact on the way (an object now lies where the gripper once passed)
+    backs off and the visited positions within 3 cm of it are left out of the next try. Returns the actions made
+    (none if the position cannot be reached)."""
+    visited = sensing.visited.copy()
+    touching = np.asarray(sensing.touching, dtype=bool).copy()
+    here, n = visited[-1], 0
+    for _ in range(attempts):
+        visited = np.vstack([visited, here])
+        touching = np.r_[touching, False]
+        dist, pred = transit_graph(visited, params.plan.link_radius, touching)
+        free = np.flatnonzero(~touching[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
+        if len(free) == 0:
+            break
+        here, k, contact = retrace(act, here, path_to(pred, visited, int(free[-1])), params.transit_step,
+                                   params.backoff)
+        n += k
+        if not contact:
+            break
+        touching |= np.linalg.norm(visited - here, axis=1) < 0.03
+    return n
+
+
+def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:
+    """Weighted 10, 50 and 90 % quantiles of predicted travels (None: no contact)."""
+    order = np.argsort(t)
+    c = np.cumsum(w[order]) / np.sum(w)
+    q = [t[order][min(np.searchsorted(c, x), len(t) - 1)] for x in (0.1, 0.5, 0.9)]
+    return [float(v) if np.isfinite(v) else None for v in q]
+
+
+
+def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: Callable, table: Callable,
+               params: ProbeParams | None = None) -> dict:
+    """The collect stage's hook: probe in ``world`` after the scripted actions of ``rows``.
+
+    Each probe action is simulated by ``world.act`` (no replay noise), summarised by ``summarize`` (the collect
+    stage's :func:`pipeline.collect.summarize_action`) and appended to ``rows`` with the columns the scripted
+    actions have; ``table()`` builds the run's table from ``rows``. Returns what the run file's metadata records
+    under ``probe``: the parameters and the :class:`ProbeLog`.
+    """
+    params = params if params is not None else ProbeParams()
+    scale = scene.action_scale
+
+    def act(dx: float, dy: float) -> dict:
+        row = summarize(world.act(dx, dy))
+        # object poses and distances are recorded for scoring only; the policy never reads them
+        row.update(cmd_ux=dx / scale, cmd_uy=dy / scale, cmd_dx_m=dx, cmd_dy_m=dy, obj_pose=world.object_poses(),
+                   obj_distance_m=world.object_distances())
+        rows.append(row)
+        return row
+
+    tid = next(i for i, o in enumerate(scene.objects) if o.target)
+    start = np.array([rows[0]["ee_start_x_m"], rows[0]["ee_start_y_m"]])
+    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, primitive_of(scene.objects[tid]), start, params)
+    return {"params": params.to_dict(), **log.to_dict()}

@@ -1,0 +1,61 @@
+"""What the probing policy did, read back from run files: probes, decision times, how far probing moved the
+target (the run's recorded poses; ground truth, read for reporting only), for ``stucco evaluate --policy
+scripted+probe`` and ``stucco bench probe``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import schema
+from pipeline.layout import partition
+
+__all__ = ["run_stats", "probe_lines"]
+
+
+def run_stats(path: str | Path, rows: int | None = None) -> dict:
+    """Probing figures of one run file (``scripted+probe``), up to its first ``rows`` rows (default: all).
+
+    Returns
+    -------
+    dict
+        ``probes`` (made), ``decision_s`` (list, seconds), ``flagged``, ``moved_m`` (target's centre of mass moved
+        between the end of the scripted part and ``rows``), ``turned_rad`` (|yaw change| over the same).
+    """
+    t = schema.read_run(path)
+    meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
+    tid = (schema.read_metadata(path).get("params") or {}).get("bodies", []).index(
+        (schema.read_metadata(path).get("params") or {}).get("target"))
+    flags = np.asarray(t.column("probe").to_numpy(zero_copy_only=False), dtype=bool) \
+        if "probe" in t.column_names else np.zeros(t.num_rows, dtype=bool)
+    n0 = int(np.argmax(flags)) if flags.any() else t.num_rows
+    end = t.num_rows if rows is None else int(rows)
+    poses = t.column("obj_pose")
+    before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
+    after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
+    turn = abs((after[2] - before[2] + np.pi) % (2 * np.pi) - np.pi)
+    return {"probes": int(meta.get("probes", 0)), "decision_s": list(meta.get("decision_s", [])),
+            "flagged": meta.get("flagged", ""), "moved_m": float(np.linalg.norm(after[:2] - before[:2])),
+            "turned_rad": float(turn)}
+
+
+def probe_lines(out: str | Path, jobs) -> list[str]:
+    """One line per scene of an evaluation directory made with ``--policy scripted+probe``: runs, mean probes,
+    decision time (median and largest), runs whose set was still wide, median displacement of the target by the
+    probes."""
+    by_scene: dict[str, list[dict]] = {}
+    for sc, seed in dict.fromkeys((j.scene, j.seed) for j in jobs):
+        path = partition(out, "runs", sc, seed)
+        if path.is_file():
+            by_scene.setdefault(sc, []).append(run_stats(path))
+    lines = []
+    for sc, st in by_scene.items():
+        dec = np.concatenate([s["decision_s"] for s in st]) if st else np.zeros(0)
+        lines.append(
+            f"active protocol {sc}: {len(st)} runs, probes per run {np.mean([s['probes'] for s in st]):.2f}, "
+            f"decision {np.median(dec) if dec.size else float('nan'):.3f} s median "
+            f"({np.max(dec) if dec.size else float('nan'):.3f} s max), "
+            f"set still wide in {sum(bool(s['flagged']) for s in st)}, target moved by probing "
+            f"{1000 * np.median([s['moved_m'] for s in st]):.1f} mm / "
+            f"{np.median([s['turned_rad'] for s in st]):.3f} rad (median)")
+    return lines

@@ -1,0 +1,105 @@
+"""The active protocol's retrieval of one run file: the policy's last belief recomputed from the file, the grasp
+for the set, simulated (docs/retrieval.md, "Active retrieval").
+
+The belief depends only on the run's recorded actions and on which probe contacts the policy attributed to the
+target (the run's metadata, ``probe.target_steps``), so this is the set the policy stopped on.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline import schema
+from pipeline.grasp import GraspParams, GraspResult
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
+from pipeline.probe.planning import PlanParams, agreement
+from pipeline.probe.policy import set_from_steps
+from pipeline.probe.set_grasp import SetGrasp, choose_grasp, simulate_set_grasp
+from pipeline.retrieve.model import pose_error
+from pipeline.retrieve.runs import RunInfo, retrieval_rng
+
+__all__ = ["ActiveResult", "active_set", "active_grasp", "active_row"]
+
+
+@dataclass
+class ActiveResult:
+    """The active protocol's outcome for one run.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (3,)
+        The set's estimate (COM pose, canonical under the target's symmetry).
+    belief : PoseSet
+    grasp : SetGrasp
+    result : GraspResult or None
+        The simulated grasp (None when not simulated).
+    probes : int
+        Probes the policy made (0 for a run without probes).
+    notes : list of str
+        ``wide_set`` when the set does not agree (the grasp went ahead anyway), ``no_segment``.
+    """
+
+    pose: np.ndarray
+    belief: PoseSet
+    grasp: SetGrasp
+    result: GraspResult | None
+    probes: int
+    notes: list
+
+
+def _probe_meta(info: RunInfo) -> dict:
+    return (schema.read_metadata(info.path).get("params") or {}).get("probe") or {}
+
+
+def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None
+               ) -> tuple[PoseSet, dict]:
+    """The policy's last plausible set for a run file, or the one of its ``decision``-th decision (0: after the
+    scripted part, before any probe), and the run's ``probe`` metadata ({} if it has none).
+
+    With a tracking method other than the policy's, the segments are that method's and the probes' contacts
+    are attributed as the policy attributed them, to the best-ranked segment."""
+    table = schema.read_run(info.path)
+    meta = _probe_meta(info)
+    n_scripted = table.num_rows
+    if "probe" in table.column_names:
+        flags = np.asarray(table.column("probe").to_numpy(zero_copy_only=False), dtype=bool)
+        n_scripted = int(np.argmax(flags)) if flags.any() else table.num_rows
+    history = meta.get("history") or []
+    state = history[min(decision, len(history) - 1)] if decision is not None and history else \
+        {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
+    sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method)
+    sensing.observe(table.slice(0, int(state["rows"])))
+    choices = choose_target(sensing.segments(), info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
+                            retrieval_rng(root_seed, info.run))
+    same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
+    segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
+    choice = next((c for c in choices if c.segment == segment), NO_TARGET)
+    return set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"]), meta
+
+
+def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: GraspParams = GraspParams(),
+                 method: str = "stucco", plan: PlanParams = PlanParams()) -> ActiveResult:
+    """The set of :func:`active_set`, the grasp chosen for it (:func:`choose_grasp`) and, with ``grasp``, its
+    simulation in the run's final state."""
+    belief, meta = active_set(info, root_seed, method)
+    g = choose_grasp(info.scene, info.target, belief.poses, belief.weights, belief.best, params)
+    res = simulate_set_grasp(info.scene, info.final_poses, info.final_ee, g, params) if grasp else None
+    share = agreement(info.target, belief.poses, belief.weights, belief.best, plan.yaw_tolerance,
+                      plan.position_tolerance)
+    notes = list(belief.notes) + (["wide_set"] if share < plan.agree_share else [])
+    return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g, result=res,
+                        probes=int(meta.get("probes", 0)), notes=notes)
+
+
+def active_row(info: RunInfo, method: str, root_seed: int, grasp: bool, params: GraspParams) -> dict:
+    """The retrieval-table fields the active protocol sets for one run (the ``active`` hook of
+    :func:`pipeline.retrieve.stage.retrieve`): the set's estimate and its errors, the set grasp's outcome, and in
+    ``notes`` ``probes=N`` plus ``wide_set`` / ``no_segment`` (then ``low_confidence``)."""
+    r = active_grasp(info, root_seed, grasp, params, method)
+    pos_err, yaw_err = pose_error(info.target, r.pose, info.true_pose)
+    row = dict(x_m=float(r.pose[0]), y_m=float(r.pose[1]), yaw_rad=float(r.pose[2]), position_error_m=pos_err,
+               yaw_error_rad=yaw_err, notes=",".join([f"probes={r.probes}", *r.notes]), low_confidence=bool(r.notes))
+    if r.result is not None:
+        row.update(grasp_success=r.result.success, grasp_outcome=r.result.outcome, grasp_s=r.result.wall_s)
+    return row
