@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 import pyarrow as pa
 
+from pipeline.portable import exp
 from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, isolate_run
 from pipeline.labels import canonical_labels
@@ -258,7 +259,7 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     fit = fit_segment(target, pts, sigma, free, others, plausible, rng, seeds)
     cost = fit.terms.total
     keep = np.flatnonzero(fit.plausible)
-    w = np.exp(-(cost[keep] - cost[keep].min()))
+    w = exp(-(cost[keep] - cost[keep].min()))
     return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
                    segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"])
 

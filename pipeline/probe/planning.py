@@ -12,12 +12,15 @@ Everything is vectorised over (lines, hypotheses, outline points); nothing here 
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from pipeline.portable import log
 from pipeline.geometry import Primitive, rotate
 from pipeline.retrieve.evidence import gripper_lattice
 from pipeline.retrieve.plausible import com_pose, primitive_pose
@@ -185,7 +188,7 @@ def obstacle_travel(obstacles: np.ndarray, origins: np.ndarray, directions: np.n
     if len(obstacles) == 0:
         return np.full(len(directions), np.inf)
     rel = obstacles[None, None, :, :] - origins[:, :, None, :]  # (L, G, Q, 2)
-    b = np.einsum("lgqk,lk->lgq", rel, directions)
+    b = np.sum(rel * directions[:, None, None, :], axis=-1)
     c = np.sum(rel * rel, axis=-1) - radius * radius
     disc = b * b - c
     near = b - np.sqrt(np.maximum(disc, 0.0))
@@ -255,7 +258,7 @@ def outcome_entropy(travel: np.ndarray, weights: np.ndarray, bin_width: float) -
     group = np.cumsum(new, axis=1) - 1 + (np.arange(L) * H)[:, None]
     mass = np.bincount(group.ravel(), weights=ws.ravel(), minlength=L * H).reshape(L, H)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ent = -np.where(mass > 0, mass * np.log2(mass), 0.0)
+        ent = -np.where(mass > 0, mass * log(np.where(mass > 0, mass, 1.0)) / math.log(2.0), 0.0)
     return ent.sum(axis=1)
 
 
@@ -316,7 +319,7 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     dirs = np.column_stack([np.cos(ang), np.sin(ang)])
     to_c = centre - visited[ok]
     to_c /= np.maximum(np.linalg.norm(to_c, axis=1, keepdims=True), 1e-9)
-    s_idx, d_idx = np.nonzero(to_c @ dirs.T >= np.cos(params.aim_cone))
+    s_idx, d_idx = np.nonzero(np.sum(to_c[:, None, :] * dirs[None, :, :], axis=-1) >= np.cos(params.aim_cone))
     if len(s_idx) == 0:
         return None
     starts = visited[ok[s_idx]]
@@ -331,15 +334,15 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
         travel = np.minimum(travel, obs[:, None])
     gain = outcome_entropy(travel, all_w, params.outcome_bin)
     # A start already inside much of the set is not free any more (the target may have been pushed there).
-    blocked = (travel[:, :len(poses)] < 0.005) @ w > 0.2
+    blocked = np.sum((travel[:, :len(poses)] < 0.005) * w[None, :], axis=1) > 0.2
     fin = np.isfinite(travel)
-    expect = np.where(fin, travel, params.max_travel) @ all_w
+    expect = np.sum(np.where(fin, travel, params.max_travel) * all_w[None, :], axis=1)
     score = gain - params.path_cost * (dist[ok[s_idx]] + expect)
     score[blocked | ~fin.any(axis=1)] = -np.inf
     if done is not None and len(done):
         done = np.asarray(done, dtype=np.float64).reshape(-1, 4)
         same = (np.linalg.norm(starts[:, None, :] - done[None, :, :2], axis=-1) < 0.02) & \
-            (directions @ done[:, 2:].T > np.cos(0.3))
+            (np.sum(directions[:, None, :] * done[None, :, 2:], axis=-1) > np.cos(0.3))
         score[same.any(axis=1)] = -np.inf
     if spread_from is not None and len(spread_from):
         hits = hit_points(prim, poses[best], origins, directions)

@@ -14,6 +14,8 @@ contact) and back off by ``backoff``. A contact during the transit ends the prob
 """
 from __future__ import annotations
 
+import math
+
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable, ClassVar
@@ -171,7 +173,7 @@ def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: 
             n += 1
             here = np.array([row["ee_x_m"], row["ee_y_m"]])
             if row["in_contact"]:
-                u = -d / np.linalg.norm(d) * backoff
+                u = -d / math.hypot(*d) * backoff
                 row = act(float(u[0]), float(u[1]))
                 return np.array([row["ee_x_m"], row["ee_y_m"]]), n + 1, True
     return here, n, False
@@ -232,8 +234,6 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method)
     sensing.observe(rows)
     seen = rows.num_rows
-    import open3d  # noqa: F401  (the segment choice's ICP imports it; a second's import is no decision time)
-
     t0 = time.perf_counter()  # the first decision includes the segment choice
     choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run))
     rank = since = 0

@@ -3,6 +3,8 @@ target (the run's recorded poses; ground truth, read for reporting only), for ``
 scripted+probe`` and ``stucco bench probe``."""
 from __future__ import annotations
 
+import math
+
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +37,7 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     turn = abs((after[2] - before[2] + np.pi) % (2 * np.pi) - np.pi)
     return {"probes": int(meta.get("probes", 0)), "decision_s": list(meta.get("decision_s", [])),
-            "flagged": meta.get("flagged", ""), "moved_m": float(np.linalg.norm(after[:2] - before[:2])),
+            "flagged": meta.get("flagged", ""), "moved_m": math.hypot(*(after[:2] - before[:2])),
             "turned_rad": float(turn)}
 
 

@@ -79,8 +79,8 @@ def box_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.
     local = outline_point((np.arange(n_outline) + 0.5) * (4 * (hx + hy) / n_outline), hx, hy)  # (K, 2)
     world = pp[:, None, :2] + rotate(local[None, :, :], pp[:, 2, None])  # (H, K, 2)
     rel = world[None, :, :, :] - base[:, None, None, :]  # (G, H, K, 2)
-    depth = np.einsum("ghkd,gd->ghk", rel, approach)
-    lateral = np.einsum("ghkd,gd->ghk", rel, closing)
+    depth = np.sum(rel * approach[:, None, None, :], axis=-1)
+    lateral = np.sum(rel * closing[:, None, None, :], axis=-1)
     # The palm stops at the object: shift the object's depth so that its nearest point is at the finger bases.
     depth = depth + np.maximum(PAD_FROM_BASE[0] - depth.min(axis=2, keepdims=True), 0.0)
     band = (depth >= PAD_FROM_BASE[0]) & (depth <= PAD_FROM_BASE[1])
@@ -109,8 +109,8 @@ def can_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.
     approach, closing, base = _frames(yaw, centre, advance, plan, scale)
     c = prim.centre_world(np.asarray(poses, dtype=np.float64).reshape(-1, 3))  # (H, 2)
     rel = c[None, :, :] - base[:, None, :]
-    depth = np.maximum(np.einsum("ghd,gd->gh", rel, approach), PAD_FROM_BASE[0] + r)
-    lateral = np.abs(np.einsum("ghd,gd->gh", rel, closing))
+    depth = np.maximum(np.sum(rel * approach[:, None, :], axis=-1), PAD_FROM_BASE[0] + r)
+    lateral = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
     return (depth >= PAD_FROM_BASE[0]) & (depth <= PAD_FROM_BASE[1]) & (lateral <= OPEN - r - 0.003)
 
 
@@ -140,7 +140,8 @@ def choose_grasp(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray,
     centres = prim.centre_world(poses)
     dy = (yaws[:, None] - yaws[None, :] + np.pi / 2) % np.pi - np.pi / 2
     near = np.abs(dy) < 0.05
-    pooled = (near * w[None, :]) @ centres / np.maximum(near @ w, 1e-12)[:, None]
+    nw = near * w[None, :]
+    pooled = np.sum(nw[:, :, None] * centres[None, :, :], axis=1) / np.maximum(np.sum(nw, axis=1), 1e-12)[:, None]
     order = np.r_[best, np.delete(np.arange(len(poses)), best)]
     cy = np.r_[yaws[order], yaws[order]]
     cc = np.vstack([centres[order], pooled[order]])
@@ -153,7 +154,7 @@ def choose_grasp(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray,
         ok = can_success(prim, poses, g_yaw, g_centre, g_adv, plan, scale)
     else:
         ok = box_success(prim, poses, g_yaw, g_centre, g_adv, plan, scale, params)
-    share = ok.astype(np.float64) @ w
+    share = np.sum(ok * w[None, :], axis=1)
     j = int(np.argmax(share))  # the first maximum: the estimate's grasp at the plan's advance wins ties
     approach = rot2(g_yaw[j])[:, 1]
     return SetGrasp(yaw=float(g_yaw[j]), centre=g_centre[j], advance=int(g_adv[j]), share=float(share[j]),
