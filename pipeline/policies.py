@@ -11,7 +11,10 @@
 
 A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
 :func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
-the gripper, :meth:`Policy.plan` fixes the number of actions, :meth:`Policy.action` gives each (None stops).
+the gripper, :meth:`Policy.plan` fixes the number of actions, :meth:`Policy.action` gives each (None stops). A
+policy with a second phase in the same world (the active protocol's probes, :mod:`pipeline.probe.mover`) also has
+``after(world, rows, summarize, table, seed, root_seed) -> dict``: it appends its own actions to ``rows`` (marked in
+the run's ``probe`` column) and returns what the run's metadata records of them.
 """
 from __future__ import annotations
 
