@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 ANCHORS ?= data/anchors
 
-.PHONY: setup syslibs lock quick reproduce test bench clean
+.PHONY: setup syslibs lock quick reproduce reproduce-active test bench clean
 
 setup: syslibs $(STAMP)
 
@@ -43,6 +43,14 @@ quick: setup
 # The paper's Table II: 4 tasks x 20 seeds x 5 methods into out/reproduce (resumes if interrupted).
 reproduce: setup
 	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC --seeds 0-19 --methods all --jobs 2 --out out/reproduce
+
+# The active protocol (docs/retrieval.md, "Active retrieval"): STUCCO's Table II with probing and the set grasp, then
+# grasp success against the probe budget.
+reproduce-active: setup
+	$(BIN)/stucco --seed 0 evaluate --policy scripted+probe --scenes FB,BC,IB,TC --seeds 0-19 --methods stucco \
+	  --jobs 2 --out out/reproduce-active
+	$(BIN)/stucco --seed 0 -j 2 bench probe --scenes FB,BC,IB,TC --seeds 0-19 --runs out/reproduce-active/runs \
+	  --out out/bench/probe --png docs/img/probe_budget.png
 
 test: setup
 	$(BIN)/python -m pytest -q

@@ -120,11 +120,10 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
         click.echo(to_markdown(rows), nl=False)
         for line in claims(rows):
             click.echo(line)
-        if cfg.policy is not None and registry.policy(cfg.policy).retrieval is not None:
-            from pipeline.probe.report import probe_lines  # imported here: only the active protocol has probes
+        from pipeline.probe.report import probe_lines  # runs of the active protocol: their probes
 
-            for line in probe_lines(out_dir, ev.jobs):
-                click.echo(line)
+        for line in probe_lines(out_dir, ev.jobs):
+            click.echo(line)
         ran = len(ev.results) - ev.skipped
         click.echo(f"{len(ev.jobs)} job(s): {ran} run, {ev.skipped} already done; {ev.wall_s:.1f} s wall "
                    f"(-j {jobs}) -> {out_dir}/report.md, report.csv" + (", figures/, summary.png" if figures else ""),

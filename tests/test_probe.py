@@ -186,7 +186,8 @@ class FakeArm:
 def test_guarded_move_slows_near_the_prediction_stops_at_contact_and_backs_off():
     arm = FakeArm(wall=0.1)
     p = ProbeParams()
-    here, n, contact = guarded_move(arm, np.zeros(2), np.array([1.0, 0.0]), np.array([0.1, 0.12]), p)
+    here, n, contact, travel = guarded_move(arm, np.zeros(2), np.array([1.0, 0.0]), np.array([0.1, 0.12]), p)
+    assert 0.1 <= travel <= 0.1 + p.fine_step + 1e-9
     assert contact
     steps = [m[0] for m in arm.moves]
     assert steps[0] == pytest.approx(p.coarse_step) and steps[-2] == pytest.approx(p.fine_step)
@@ -197,7 +198,8 @@ def test_guarded_move_slows_near_the_prediction_stops_at_contact_and_backs_off()
 def test_guarded_move_gives_up_past_the_latest_prediction():
     arm = FakeArm(wall=10.0)
     p = ProbeParams()
-    here, n, contact = guarded_move(arm, np.zeros(2), np.array([0.0, 1.0]), np.array([0.05, np.inf]), p)
+    here, n, contact, travel = guarded_move(arm, np.zeros(2), np.array([0.0, 1.0]), np.array([0.05, np.inf]), p)
+    assert np.isinf(travel)
     assert not contact and here[1] == pytest.approx(0.05 + p.overshoot, abs=p.fine_step)
 
 
@@ -265,7 +267,21 @@ def test_collect_scripted_plus_probe_marks_probe_actions_and_records_the_log():
     assert not flags[:20].any() and flags[20:].all() and table.num_rows > 20
     log = params["probe"]
     assert log["probes"] <= 1 and log["actions"] == table.num_rows - 20
-    assert len(log["decision_s"]) == log["probes"] + 1 and log["params"]["budget"] == 1
+    assert len(res.probe_s) == log["probes"] + 1 and log["params"]["budget"] == 1
+    assert "decision_s" not in log  # wall times stay out of the file
+    again, params2, _ = collect_run(sc, 104, policy="scripted+probe", max_actions=20,
+                                    policy_params=dataclasses.replace(ProbeParams(), budget=1))
+    assert _parquet_bytes(again) == _parquet_bytes(table) and params2 == params  # the same run, byte for byte
+
+
+def _parquet_bytes(table) -> bytes:
+    import io
+
+    import pyarrow.parquet as pq
+
+    buf = io.BytesIO()
+    pq.write_table(table, buf)
+    return buf.getvalue()
     from pipeline.schema.validate import validate_spec
 
     validate_spec(table, schema.SIM_RUN)  # the probe column is the run table's optional column
@@ -276,3 +292,24 @@ def test_bench_probe_refuses_a_bad_budget(tmp_path):
 
     r = CliRunner().invoke(cli, ["bench", "probe", "--budgets", "1,x", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "--budgets" in r.output
+
+
+def test_evaluate_config_keeps_old_directories_and_refuses_an_unknown_policy():
+    from pipeline.evaluate import EvalConfig
+
+    assert "policy" not in EvalConfig().to_dict()  # evaluation.json of the paper's protocol is unchanged
+    assert EvalConfig(policy="scripted+probe").to_dict()["policy"] == "scripted+probe"
+    with pytest.raises(ValueError, match="unknown policy 'wander'"):
+        EvalConfig(policy="wander")
+
+
+def test_set_grasp_with_a_margin_keeps_the_estimates_grasp_against_a_cluster_barely_heavier():
+    # With a margin, a quarter-turned cluster a little heavier does not win; without one it does.
+    sc = load_scene("BC")
+    _, prim = target_primitive(sc)
+    base = np.array([0.25, 0.05, 0.3])
+    poses = np.array([base, base + [0, 0, np.pi / 2], base + [0, 0, np.pi / 2]])
+    g = choose_grasp(sc, prim, poses, np.array([0.45, 0.275, 0.275]), 0, margin=0.25)
+    assert g.share == pytest.approx(0.45)
+    assert math.isclose(math.cos(2 * (g.yaw - primitive_pose(prim, base)[2])), 1.0, abs_tol=1e-9)
+    assert choose_grasp(sc, prim, poses, np.array([0.45, 0.275, 0.275]), 0).share == pytest.approx(0.55)

@@ -73,12 +73,12 @@ def gather_scores(out: str | Path, job_list: Sequence[Job], estimators: Sequence
     return pa.concat_tables(tables, promote_options="permissive")
 
 
-def write_report(out: str | Path, scores: pa.Table) -> tuple[Path, Path]:
-    """``out/report.md`` (Table II with the paper's claims checked below it) and ``out/report.csv``, atomically,
-    from a scores table."""
+def write_report(out: str | Path, scores: pa.Table, extra: tuple[str, ...] = ()) -> tuple[Path, Path]:
+    """``out/report.md`` (Table II with the paper's claims checked below it, then the ``extra`` lines, e.g. the
+    active protocol's probes) and ``out/report.csv``, atomically, from a scores table."""
     rows = table_ii(scores)
     md = to_markdown(rows)
-    notes = claims(rows)
+    notes = claims(rows) + list(extra)
     if notes:
         md += "\n" + "\n".join(f"- {n}" for n in notes) + "\n"
     md += f"\nComputed with {environment_line()} (requirements.lock).\n"

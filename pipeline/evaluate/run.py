@@ -126,7 +126,10 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
             results = done + map_jobs(run_job, todo, jobs, bar)
         results.sort(key=lambda r: r.job)
         scores = gather_scores(out, job_list, cfg.estimators)
-        write_report(out, scores)
+        # Runs of the active protocol add its probes to the report (docs/retrieval.md, "Active retrieval").
+        from pipeline.probe.report import probe_lines  # imported here: it reads the run files only when writing
+
+        write_report(out, scores, tuple(probe_lines(out, job_list)))
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
             stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs

@@ -64,11 +64,19 @@ def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None
             raise FileNotFoundError(f"{src}: no stored run for {scene_name} seed {seed}")
         with atomic_path(dest) as tmp:
             shutil.copyfile(src, tmp)
+        from pipeline.probe.report import times_path  # imported here: only probing runs have a times file
+
+        if times_path(src).is_file():  # the probing policy's decision times, kept beside the run
+            with atomic_path(times_path(dest)) as tmp:
+                shutil.copyfile(times_path(src), tmp)
         wall = None
     else:
-        collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed,
-                     policy=cfg.collect_policy,
-                     max_actions=cfg.max_actions, keep_discarded=True)
+        res = collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
+                           max_actions=cfg.max_actions, keep_discarded=True)
+        if res.probe_s is not None:
+            from pipeline.probe.report import save_times  # imported here: only the probing policy times decisions
+
+            save_times(dest, res.probe_s)
         wall = time.perf_counter() - t0
     if wall is None:
         wall_path(dest).unlink(missing_ok=True)

@@ -1,14 +1,15 @@
 """What the robot knows during a run, computed by the pipeline itself on what has been sensed so far.
 
-:class:`Sensing` feeds every recorded action through the stages the run file will later go through, in the same
+:class:`Sensing` feeds the scripted actions through the stages the run file will later go through, in the same
 order and with the same random streams: isolation (:func:`pipeline.isolate.isolate_run`, the action's own row),
 the tracker (:func:`pipeline.track.stage.make_tracker`, stream :func:`pipeline.seeds.run_rng`) updated once per
 action as ``stucco track`` replays the contacts table, and the segmentation of ``stucco segment`` (Alg. 3 for
-STUCCO, the tracker's own labels for the baselines). :func:`choose_target` is the paper's segment choice on the scripted part and :func:`pose_set`
-the plausible estimator's fit (docs/retrieval.md, "The plausible estimator") on that segment plus the probes'
-contacts, returning the whole set with each pose's likelihood. The belief depends only on the run's data and the
-probe contacts' attribution (recorded in the run's metadata), so the active protocol's grasp recomputes exactly
-the policy's last belief from the run file (docs/retrieval.md, "Active retrieval").
+STUCCO, the tracker's own labels for the baselines); the probes' contacts are kept as isolated.
+:func:`choose_target` is the paper's segment choice on the scripted part and :func:`pose_set` the plausible
+estimator's fit (docs/retrieval.md, "The plausible estimator") on that segment plus the probes' contacts,
+returning the whole set with each pose's likelihood. The belief depends only on the run's data and the probe
+contacts' attribution (recorded in the run's metadata), so the active protocol's grasp recomputes exactly the
+policy's last belief from the run file (docs/retrieval.md, "Active retrieval").
 
 Nothing here reads the simulation's ground truth: only the contact wrench (through isolation), the gripper's
 positions and the target's known shape.
@@ -35,7 +36,8 @@ from pipeline.robot import load_robot, surface_points
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
-__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains", "prior_set"]
+__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains",
+           "prior_set"]
 
 
 _LATTICES: dict[tuple[str, float], np.ndarray] = {}

@@ -21,7 +21,7 @@ from pipeline.atomic import atomic_path
 from pipeline.collect import collect_file, output_path
 from pipeline.parallel import run_calls
 from pipeline.probe.policy import ProbeParams, required_contacts
-from pipeline.probe.report import run_stats
+from pipeline.probe.report import run_stats, save_times
 from pipeline.probe.retrieval import active_set
 from pipeline.probe.set_grasp import choose_grasp, simulate_set_grasp
 from pipeline.retrieve.model import pose_error
@@ -50,7 +50,8 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     scene = load_scene(scene_name)
     path = output_path(runs, scene.name, seed)
     if not path.is_file():
-        collect_file(scene, seed, path, root_seed=root_seed, policy="scripted+probe", policy_params=params)
+        save_times(path, collect_file(scene, seed, path, root_seed=root_seed, policy="scripted+probe",
+                                      policy_params=params).probe_s)
     info = load_run(path)
     meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
     history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]

@@ -24,9 +24,12 @@ class ScriptedProbePolicy(ScriptedPolicy):
                  max_actions: int | None = None, params: ProbeParams | None = None) -> None:
         super().__init__(scene, policy_rng, noise_rng, max_actions, params)
         self.probe = params if params is not None else ProbeParams()
+        #: Wall time (s) of each probe decision of the run, kept out of the run file (CollectResult.probe_s).
+        self.decision_s: list[float] | None = None
 
     def after(self, world, rows: list, summarize: Callable, table: Callable, seed: int, root_seed: int
               ) -> dict[str, Any]:
         """Probe in ``world`` after the scripted ``rows`` (appending the probe actions to them); what the run's
-        metadata records under ``probe``."""
-        return run_policy(world, self.scene, seed, root_seed, rows, summarize, table, self.probe)
+        metadata records under ``probe`` (no wall time: the same command writes the same file)."""
+        meta, self.decision_s = run_policy(world, self.scene, seed, root_seed, rows, summarize, table, self.probe)
+        return meta

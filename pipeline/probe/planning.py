@@ -21,12 +21,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.portable import log
-from pipeline.geometry import Primitive, rotate
+from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.retrieve.evidence import gripper_lattice
 from pipeline.retrieve.plausible import com_pose, primitive_pose
 
 __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "transit_graph",
-           "outcome_entropy", "obstacle_travel", "hit_points", "choose_probe", "path_to"]
+           "outcome_entropy", "obstacle_travel", "near_target", "hit_points", "choose_probe", "path_to"]
 
 
 @dataclass(frozen=True)
@@ -178,6 +178,17 @@ def hit_points(prim: Primitive, pose: np.ndarray, origins: np.ndarray, direction
     return hit
 
 
+def near_target(prim: Primitive, pose: np.ndarray, positions: np.ndarray, outline: np.ndarray,
+                margin: float) -> np.ndarray:
+    """Whether the gripper (outline points (G, 2)) at each position (K, 2) would come within ``margin`` (m) of the
+    primitive at a COM pose (3,): bool (K,). Transit avoids them: the target has moved since the gripper was
+    there."""
+    pp = primitive_pose(prim, np.asarray(pose, dtype=np.float64).reshape(3))
+    pts = np.asarray(positions, dtype=np.float64)[:, None, :] + outline[None, :, :]
+    sd, _ = primitive_sdf(prim, rotate(pts - pp[:2], pp[2], inverse=True))
+    return sd.min(axis=1) < margin
+
+
 def obstacle_travel(obstacles: np.ndarray, origins: np.ndarray, directions: np.ndarray, radius: float,
                     max_travel: float) -> np.ndarray:
     """Travel (L,), metres, along each line until the outline comes within ``radius`` of a known point of
@@ -292,7 +303,7 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     done : ndarray, shape (D, 4), optional
         Lines already probed (start x, y, direction x, y): not repeated (within 2 cm and 0.3 rad).
     touching : ndarray, shape (K,), bool, optional
-        Visited positions reached in contact: not used for transit nor as starts.
+        Visited positions transit must avoid (reached in contact by a probe, or too near the target now).
     spread_from : ndarray, shape (P, 2), optional
         Instead of the most informative line, the one whose contact the estimate predicts farthest from these
         points (the target's probe contacts): a set that agrees on a few close contacts may rest on another,

@@ -14,7 +14,6 @@ contact) and back off by ``backoff``. A contact during the transit ends the prob
 """
 from __future__ import annotations
 
-import math
 
 import time
 from dataclasses import asdict, dataclass, field
@@ -27,7 +26,8 @@ from pipeline.constraints import Constraint, check, integer, number, rule
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explains, misfit,
                                    pose_set)
-from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline, path_to, transit_graph
+from pipeline.probe.moves import Act, blocked_positions, guarded_move, retrace, return_to_start
+from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
 from pipeline.retrieve.runs import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "guarded_move", "retrace"]
@@ -130,7 +130,8 @@ class ProbeLog:
         Actions whose isolated contact the policy attributed to the target / to something else.
     history : list of dict
         At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``) and
-        the probe contacts attributed to it, so the set of any decision can be recomputed (the budget curve of ``stucco bench probe``).
+        the probe contacts attributed to it, so the set of any decision can be recomputed (the budget curve of
+        ``stucco bench probe``).
     switches : int
         Times the probes showed the chosen segment was not the target's and the next one was taken.
     lines : list of list
@@ -154,58 +155,6 @@ class ProbeLog:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-Act = Callable[[float, float], dict]
-
-
-def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: float
-            ) -> tuple[np.ndarray, int, bool]:
-    """Move through the waypoints ``path`` (P, 2) in actions no longer than ``step`` per axis; at the first action
-    detected in contact, back off by ``backoff`` and stop. Returns (position, actions, contact)."""
-    pts = np.vstack([here[None, :], np.asarray(path, dtype=np.float64).reshape(-1, 2)])
-    n = 0
-    for a, b in zip(pts[:-1], pts[1:]):
-        d = b - a
-        k = int(np.ceil(np.max(np.abs(d)) / step - 1e-9))
-        for _ in range(max(k, 0)):
-            row = act(float(d[0] / k), float(d[1] / k))
-            n += 1
-            here = np.array([row["ee_x_m"], row["ee_y_m"]])
-            if row["in_contact"]:
-                u = -d / math.hypot(*d) * backoff
-                row = act(float(u[0]), float(u[1]))
-                return np.array([row["ee_x_m"], row["ee_y_m"]]), n + 1, True
-    return here, n, False
-
-
-def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: np.ndarray, params: ProbeParams
-                 ) -> tuple[np.ndarray, int, bool]:
-    """Advance along ``direction`` until contact, then back off. Returns (position, actions, contact).
-
-    ``predicted`` (H,): each hypothesis's travel to contact (inf: none); the move is fast until ``slow_zone``
-    before the earliest and gives up ``overshoot`` past the latest finite one (or at ``plan.max_travel``).
-    """
-    fin = predicted[np.isfinite(predicted)]
-    slow = max(0.0, float(fin.min()) - params.slow_zone) if len(fin) else 0.0
-    limit = min(params.plan.max_travel, float(fin.max()) + params.overshoot) if len(fin) else params.plan.max_travel
-    t, n = 0.0, 0
-    d = np.asarray(direction, dtype=np.float64)
-    contact = False
-    while t < limit:
-        step = params.coarse_step if t + params.coarse_step <= slow else params.fine_step
-        row = act(float(d[0] * step), float(d[1] * step))
-        n += 1
-        t += step
-        here = np.array([row["ee_x_m"], row["ee_y_m"]])
-        if row["in_contact"]:
-            contact = True
-            break
-    if contact:
-        row = act(float(-d[0] * params.backoff), float(-d[1] * params.backoff))
-        n += 1
-        here = np.array([row["ee_x_m"], row["ee_y_m"]])
-    return here, n, contact
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
@@ -280,7 +229,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan, obstacles,
             np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4),
             mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None,
-            np.asarray(sensing.touching))
+            blocked_positions(sensing, target, belief, outline, params.plan.link_radius))
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
@@ -289,19 +238,19 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             if log.probes:
                 # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
                 # point is a straight line, which from the far side of the target would sweep it away.
-                log.actions += _return(act, sensing, params)
+                log.actions += return_to_start(
+                    act, sensing, params, blocked_positions(sensing, target, belief, outline, params.plan.link_radius))
             return log
         here = sensing.visited[-1]
         here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
         log.actions += n
         if not contact:  # a contact during the transit is this probe's outcome (the policy goes on)
-            here, n, contact = guarded_move(act, here, plan.direction, plan.predicted, params)
+            here, n, contact, _ = guarded_move(act, here, plan.direction, plan.predicted, params)
             log.actions += n
         log.probes += 1
         log.contacts.append(bool(contact))
-        log.lines.append([*map(float, plan.start), *map(float, plan.direction), *_quantiles(plan.predicted,
-                                                                                           belief.weights),
-                          plan.mode == "spread"])
+        log.lines.append([*map(float, plan.start), *map(float, plan.direction),
+                          *_quantiles(plan.predicted, belief.weights), plan.mode == "spread"])
 
 
 def mine_now(sensing: Sensing, log: ProbeLog) -> np.ndarray:
@@ -347,30 +296,6 @@ def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, ro
                     retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on])
 
 
-def _return(act: Act, sensing: Sensing, params: ProbeParams, attempts: int = 4) -> int:
-    """Retrace visited positions (not those reached in contact) from the current one to the scripted part's last
-    position not reached in contact; a contact on the way (an object now lies where the gripper once passed)
-    backs off and the visited positions within 3 cm of it are left out of the next try. Returns the actions made
-    (none if the position cannot be reached)."""
-    visited = sensing.visited.copy()
-    touching = np.asarray(sensing.touching, dtype=bool).copy()
-    here, n = visited[-1], 0
-    for _ in range(attempts):
-        visited = np.vstack([visited, here])
-        touching = np.r_[touching, False]
-        dist, pred = transit_graph(visited, params.plan.link_radius, touching)
-        free = np.flatnonzero(~touching[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
-        if len(free) == 0:
-            break
-        here, k, contact = retrace(act, here, path_to(pred, visited, int(free[-1])), params.transit_step,
-                                   params.backoff)
-        n += k
-        if not contact:
-            break
-        touching |= np.linalg.norm(visited - here, axis=1) < 0.03
-    return n
-
-
 def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:
     """Weighted 10, 50 and 90 % quantiles of predicted travels (None: no contact)."""
     order = np.argsort(t)
@@ -381,13 +306,13 @@ def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:
 
 
 def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: Callable, table: Callable,
-               params: ProbeParams | None = None) -> dict:
+               params: ProbeParams | None = None) -> tuple[dict, list]:
     """The collect stage's hook: probe in ``world`` after the scripted actions of ``rows``.
 
     Each probe action is simulated by ``world.act`` (no replay noise), summarised by ``summarize`` (the collect
     stage's :func:`pipeline.collect.summarize_action`) and appended to ``rows`` with the columns the scripted
     actions have; ``table()`` builds the run's table from ``rows``. Returns what the run file's metadata records
-    under ``probe``: the parameters and the :class:`ProbeLog`.
+    under ``probe`` (the parameters and the :class:`ProbeLog` but its wall times) and the decision times (s).
     """
     params = params if params is not None else ProbeParams()
     scale = scene.action_scale
@@ -403,4 +328,6 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     start = np.array([rows[0]["ee_start_x_m"], rows[0]["ee_start_y_m"]])
     log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, primitive_of(scene.objects[tid]), start, params)
-    return {"params": params.to_dict(), **log.to_dict()}
+    meta = {"params": params.to_dict(), **log.to_dict()}
+    meta.pop("decision_s")  # wall times would make the run file differ between identical runs
+    return meta, log.decision_s

@@ -5,14 +5,29 @@ from __future__ import annotations
 
 import math
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from pipeline import schema
+from pipeline.atomic import write_text
 from pipeline.layout import partition
 
-__all__ = ["run_stats", "probe_lines"]
+__all__ = ["run_stats", "probe_lines", "times_path", "save_times"]
+
+
+def times_path(path: str | Path) -> Path:
+    """The side file of a run file holding the policy's decision times (``<run>.probe_s.json``): wall times are
+    kept out of the Parquet file, which the same command must write byte for byte again."""
+    path = Path(path)
+    return path.with_name(path.stem + ".probe_s.json")
+
+
+def save_times(path: str | Path, seconds) -> None:
+    """Write the decision times (s) of the run file ``path`` beside it (atomically); nothing for ``None``."""
+    if seconds is not None:
+        write_text(times_path(path), json.dumps([round(float(v), 6) for v in seconds]))
 
 
 def run_stats(path: str | Path, rows: int | None = None) -> dict:
@@ -21,8 +36,9 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     Returns
     -------
     dict
-        ``probes`` (made), ``decision_s`` (list, seconds), ``flagged``, ``moved_m`` (target's centre of mass moved
-        between the end of the scripted part and ``rows``), ``turned_rad`` (|yaw change| over the same).
+        ``probes`` (made), ``decision_s`` (list, seconds, from :func:`times_path`; empty without it), ``flagged``,
+        ``moved_m`` (target's centre of mass moved between the end of the scripted part and ``rows``),
+        ``turned_rad`` (|yaw change| over the same).
     """
     t = schema.read_run(path)
     meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
@@ -36,7 +52,11 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     turn = abs((after[2] - before[2] + np.pi) % (2 * np.pi) - np.pi)
-    return {"probes": int(meta.get("probes", 0)), "decision_s": list(meta.get("decision_s", [])),
+    try:
+        times = json.loads(times_path(path).read_text())
+    except (OSError, ValueError):
+        times = []  # e.g. a run copied by evaluate --from-runs without its side file
+    return {"probes": int(meta.get("probes", 0)), "decision_s": [float(v) for v in times],
             "flagged": meta.get("flagged", ""), "moved_m": math.hypot(*(after[:2] - before[:2])),
             "turned_rad": float(turn)}
 
@@ -48,7 +68,7 @@ def probe_lines(out: str | Path, jobs) -> list[str]:
     by_scene: dict[str, list[dict]] = {}
     for sc, seed in dict.fromkeys((j.scene, j.seed) for j in jobs):
         path = partition(out, "runs", sc, seed)
-        if path.is_file():
+        if path.is_file() and "probe" in (schema.read_metadata(path).get("params") or {}):
             by_scene.setdefault(sc, []).append(run_stats(path))
     lines = []
     for sc, st in by_scene.items():

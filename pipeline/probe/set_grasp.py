@@ -30,6 +30,9 @@ __all__ = ["SetGrasp", "box_success", "can_success", "choose_grasp", "simulate_s
 CONTACT_BAND = 0.0015
 #: Advances (actions of the action scale) tried besides the plan's own.
 ADVANCES = (3, 4, 5)
+#: Share of the set another grasp must hold beyond the estimate's own to replace it: 0 (0.25 was tried on the
+#: training seeds and grasped one run fewer; docs/retrieval.md).
+MARGIN = 0.0
 
 
 @dataclass
@@ -126,12 +129,13 @@ def _grasp_yaw(plan: GraspPlan, prim: Primitive, poses: np.ndarray) -> np.ndarra
 
 
 def choose_grasp(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int,
-                 params: GraspParams = GraspParams()) -> SetGrasp:
+                 params: GraspParams = GraspParams(), margin: float = MARGIN) -> SetGrasp:
     """The grasp that holds the largest weighted share of the set.
 
     Candidates: each hypothesis's own grasp (its yaw, its centre) and, for each, the weighted mean centre of the
-    hypotheses agreeing with its yaw within 0.05 rad, at each advance of :data:`ADVANCES`. Ties go to the
-    estimate's own grasp at the plan's advance, then to the earlier candidate.
+    hypotheses agreeing with its yaw within 0.05 rad, at each advance of :data:`ADVANCES`. The estimate's own
+    grasp at the plan's advance is kept unless another holds a share larger by ``margin`` (default 0: the largest
+    share wins, the estimate's grasp first among equals).
     """
     plan = plan_for(scene)
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -155,7 +159,11 @@ def choose_grasp(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray,
     else:
         ok = box_success(prim, poses, g_yaw, g_centre, g_adv, plan, scale, params)
     share = np.sum(ok * w[None, :], axis=1)
-    j = int(np.argmax(share))  # the first maximum: the estimate's grasp at the plan's advance wins ties
+    j = int(np.argmax(share))
+    if share[j] < share[0] + margin:
+        # With a margin, the estimate's own grasp unless another holds clearly more of the set (a wide set's
+        # likelihoods are not calibrated).
+        j = 0
     approach = rot2(g_yaw[j])[:, 1]
     return SetGrasp(yaw=float(g_yaw[j]), centre=g_centre[j], advance=int(g_adv[j]), share=float(share[j]),
                     pregrasp=g_centre[j] - plan.offset * approach, approach=approach)
