@@ -28,7 +28,7 @@ from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, isolate_run
 from pipeline.labels import canonical_labels
 from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
@@ -38,17 +38,6 @@ from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
 __all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains",
            "prior_set"]
-
-
-_LATTICES: dict[tuple[str, float], np.ndarray] = {}
-
-
-def _lattice(sdf, resolution: float) -> np.ndarray:
-    # The gripper lattice depends only on the grid and the spacing: built once per process.
-    key = (sdf.digest, float(resolution))
-    if key not in _LATTICES:
-        _LATTICES[key] = gripper_lattice(sdf, resolution)
-    return _LATTICES[key]
 
 
 class Sensing:
@@ -252,8 +241,8 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
         + float(np.max(np.linalg.norm(pts - centre, axis=1)))
     after = int(np.max(choice.steps)) if len(choice.steps) else int(np.min(probe_steps)) - 1
-    free = free_space_points(_lattice(sdf, plausible.free_resolution), ee[:-1], ee[1:], steps, after, plausible,
-                             centre, radius)
+    lattice = cached_gripper_lattice(sdf, plausible.free_resolution)
+    free = free_space_points(lattice, ee[:-1], ee[1:], steps, after, plausible, centre, radius)
     others = np.vstack([choice.others, np.asarray(probe_others, dtype=np.float64).reshape(-1, 2)])
     others = others[np.linalg.norm(others - centre, axis=1) <= radius]
     # At most max_seeds ICP starts besides the random ones: a decision must take well under half a second.
@@ -283,8 +272,8 @@ def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausib
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     centre = ee.mean(axis=0)
     cand = np.column_stack([centre + rng.uniform(-reach, reach, (4 * n, 2)), rng.uniform(-np.pi, np.pi, 4 * n)])
-    free = free_space_points(_lattice(sdf, 2 * plausible.free_resolution), ee[:-1], ee[1:], np.asarray(steps),
-                             -1, plausible, centre, reach + 0.2)
+    lattice = cached_gripper_lattice(sdf, 2 * plausible.free_resolution)
+    free = free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, reach + 0.2)
     if len(free):
         local = rotate(free[None, :, :] - target.centre_world(cand)[:, None, :], (cand[:, 2] + target.yaw)[:, None],
                        inverse=True)

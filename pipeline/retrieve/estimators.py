@@ -22,7 +22,7 @@ from pipeline import registry
 from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma
 from pipeline.portable import tie_key
 from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
@@ -134,17 +134,6 @@ def plausible_notes(points: np.ndarray, fit: SegmentFit, n_free: int, target: Pr
     return notes
 
 
-_LATTICES: dict[tuple[str, float], np.ndarray] = {}
-
-
-def _lattice(sdf, resolution: float) -> np.ndarray:
-    # The gripper lattice depends only on the grid and the spacing: built once per process.
-    key = (sdf.digest, float(resolution))
-    if key not in _LATTICES:
-        _LATTICES[key] = gripper_lattice(sdf, resolution)
-    return _LATTICES[key]
-
-
 def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
                        plausible: PlausibleParams, rngs: Sequence[np.random.Generator]) -> Estimate:
     """The plausible-set estimate of one run: the paper's segment choice, then the best pose of the plausible set
@@ -167,8 +156,9 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     # The target touches its contacts, so every part of it lies within its diameter of their centroid.
     radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
         + float(np.max(np.linalg.norm(pts - centre, axis=1)))
-    free = free_space_points(_lattice(sdf, plausible.free_resolution), info.ee[:-1], info.ee[1:], info.steps,
-                             int(np.max(seg.steps)), plausible, centre, radius)
+    lattice = cached_gripper_lattice(sdf, plausible.free_resolution)
+    free = free_space_points(lattice, info.ee[:-1], info.ee[1:], info.steps, int(np.max(seg.steps)), plausible, centre,
+                             radius)
     others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
     others = others[np.linalg.norm(others - centre, axis=1) <= radius]
     icp = paper.candidates

@@ -15,7 +15,7 @@ import numpy as np
 from pipeline.portable import exp
 from pipeline.retrieve.plausible import PlausibleParams
 
-__all__ = ["recency_sigma", "gripper_lattice", "free_space_points"]
+__all__ = ["recency_sigma", "gripper_lattice", "cached_gripper_lattice", "free_space_points"]
 
 
 def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
@@ -36,6 +36,17 @@ def gripper_lattice(sdf, resolution: float) -> np.ndarray:
     axes = [np.arange(lo[k], hi[k] + 0.5 * resolution, resolution) for k in range(2)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
     return grid[sdf.query(grid) < 0.0]
+
+
+_LATTICES: dict[tuple[str, float], np.ndarray] = {}
+
+
+def cached_gripper_lattice(sdf, resolution: float) -> np.ndarray:
+    """:func:`gripper_lattice`, built once per process for each (grid, spacing): it depends on nothing else."""
+    key = (sdf.digest, float(resolution))
+    if key not in _LATTICES:
+        _LATTICES[key] = gripper_lattice(sdf, resolution)
+    return _LATTICES[key]
 
 
 def free_space_points(lattice: np.ndarray, ee_start: np.ndarray, ee_end: np.ndarray, steps: np.ndarray,
