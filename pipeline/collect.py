@@ -275,7 +275,7 @@ def _build_table(scene: Scene, seed: int, rows: list[dict], probe_from: int | No
     data["force_rep_y_n"] = pa.array(fr[:, 1])
     data["obj_pose"] = _body_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
     data["obj_distance_m"] = _body_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
-    assert tuple(data) == tuple(c.name for c in SIM_RUN.columns if c.required)
+    assert tuple(data) == SIM_RUN.required_names
     if probe_from is not None:
         data["probe"] = pa.array(np.arange(n) >= probe_from, type=pa.bool_())
     return pa.table(data)

@@ -92,7 +92,7 @@ def test_short_scripted_run_touches_expected_objects(name, touched):
 
 def test_run_table_columns_and_shapes(fb):
     table, params, res = fb
-    assert tuple(table.column_names) == tuple(c.name for c in schema.SIM_RUN.columns if c.required)  # no probe column
+    assert tuple(table.column_names) == schema.SIM_RUN.required_names  # no probe column
     assert table.num_rows == N == res.n_actions
     assert table.column("step").to_pylist() == list(range(N))
     assert table.schema.field("win_wrench").type.list_size == 8

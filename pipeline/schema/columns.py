@@ -115,6 +115,11 @@ class TableSpec:
     def names(self) -> tuple[str, ...]:
         return tuple(c.name for c in self.columns)
 
+    @property
+    def required_names(self) -> tuple[str, ...]:
+        """The columns every table of this kind has (the optional ones, e.g. ``sim_run``'s ``probe``, left out)."""
+        return tuple(c.name for c in self.columns if c.required)
+
 
 @dataclass
 class _Columns:
