@@ -129,7 +129,7 @@ def from_dict(cls: type, values: dict[str, Any], method: str) -> Any:
             ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
             kind = "an integer"
         elif isinstance(default, float):
-            ok = isinstance(value, (int, float, np.number)) and not isinstance(value, bool) and math.isfinite(value)
+            ok = _is_number(value) and math.isfinite(value)
             kind = "a finite number"
         else:
             continue

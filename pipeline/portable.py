@@ -27,7 +27,8 @@ def exp(x):
 
 
 @vectorize(["float64(float64)"], cache=True)
-def _log(x):
+def log(x):
+    """Natural logarithm, element-wise: -inf at 0 and nan below, like numpy (without its warnings)."""
     if x < 0.0:
         return math.nan
     if x == 0.0:
@@ -36,7 +37,8 @@ def _log(x):
 
 
 @vectorize(["float64(float64)"], cache=True)
-def _log1p(x):
+def log1p(x):
+    """log(1 + x), element-wise: -inf at -1 and nan below."""
     if x < -1.0:
         return math.nan
     if x == -1.0:
@@ -48,16 +50,6 @@ def _log1p(x):
 def atan2(y, x):
     """The angle (radians, in [-pi, pi]) of (x, y), element-wise (float64 ufunc, numpy's ``arctan2`` order)."""
     return math.atan2(y, x)
-
-
-def log(x):
-    """Natural logarithm, element-wise: -inf at 0 and nan below, like numpy (without its warnings)."""
-    return _log(x)
-
-
-def log1p(x):
-    """log(1 + x), element-wise: -inf at -1 and nan below."""
-    return _log1p(x)
 
 
 def logsumexp(a, axis=None):
