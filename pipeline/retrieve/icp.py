@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import rotate, wrap_angle
+from pipeline.geometry import apply_pose, rotate, wrap_angle
 from pipeline.portable import atan2
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.spd import solve_spd
@@ -74,7 +74,7 @@ def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
     ICP minimises), but at least the distance to that point minus half the largest gap between neighbouring
     model points, so that a point slid past the end of a face (which the normal does not see) still counts.
     """
-    moved = rotate(points[None, :, :], world_to_model[:, 2, None]) + world_to_model[:, None, :2]
+    moved = apply_pose(world_to_model, points)  # (B, M, 2): the transform applied like a pose
     diff = moved[:, :, None, :] - model[None, None, :, :]  # (B, M, N, 2)
     nearest = np.argmin(np.sum(diff ** 2, axis=-1), axis=2)  # (B, M)
     d = np.take_along_axis(diff, nearest[..., None, None], axis=2)[:, :, 0, :]  # (B, M, 2)
@@ -145,7 +145,7 @@ def _icp(points: np.ndarray, model: np.ndarray, tree: cKDTree, inits: np.ndarray
     radius = params.max_correspondence_distance
 
     def state(tf):
-        moved = rotate(points[None], tf[:, 2, None]) + tf[:, None, :2]
+        moved = apply_pose(tf, points)
         idx, matched = _correspond(tree, moved, radius)
         return moved, idx, matched, _fit_stats(moved, model[idx], matched)
 
@@ -209,7 +209,7 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
         few points slide along the tangent planes past the model's end (three points on a can slid hundreds
         of metres in a TC run): such a result fits no part of the model. (The median, so that one stray
         tracked point does not invalidate a segment.)"""
-        moved = rotate(points[None], tf[:, 2, None]) + tf[:, None, :2]
+        moved = apply_pose(tf, points)
         d, _ = tree.query(moved.reshape(-1, 2), k=1)
         return np.all(np.isfinite(tf), axis=1) & (np.median(d.reshape(moved.shape[:2]), axis=1)
                                                   <= params.max_point_distance)
