@@ -47,16 +47,16 @@ def single_threaded():
 
     Parallelism is over jobs. The tracker's numba kernels and scikit-learn's k-means parallelise problems of a
     few hundred points, where OpenMP threads only spin (docs/evaluation.md, "Parallelism", has the times).
-    ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. Open3D's ICP (which
-    ships its own TBB, beyond these limits) still gives poses that vary in the last bits from one run to the
-    next, whatever ``jobs`` is (tests/test_regression.py states the tolerance).
+    ``threadpool_limits`` only reaches libraries already loaded, hence the imports first. k-means' OpenMP reduction
+    order depends on the thread count, so one thread also keeps its labels the same whatever ``jobs`` is
+    (docs/evaluation.md, "Same numbers on every machine"). No stage runs Open3D inside a job any more (the ICP is
+    the project's own), so it is not imported here.
     """
     import numba
 
-    # numba's threading layer first: started after Open3D has loaded its older TBB, numba warns that it cannot
-    # use TBB (and falls back to OpenMP anyway).
+    # numba's threading layer first: started after Open3D has loaded its older TBB (a Panda grid built on a cache
+    # miss), numba warns that it cannot use TBB (and falls back to OpenMP anyway).
     prev = numba.get_num_threads()
-    import open3d  # noqa: F401  (any OpenMP runtime it brings)
     import sklearn.cluster  # noqa: F401  (scikit-learn's OpenMP runtime)
     from threadpoolctl import threadpool_limits
 
