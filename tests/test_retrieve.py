@@ -547,12 +547,13 @@ def test_docs_describe_every_column():
 
 
 def _emitted_notes() -> set[str]:
-    """Every note string the estimators emit: literals appended to a notes list, returned as one, or filtered in."""
+    """Every note string the estimators and the active protocol's retrieval emit: literals appended to a notes
+    list, returned as one, or filtered in."""
     import ast
 
     found: set[str] = set()
-    for mod in ("paper", "estimators"):
-        tree = ast.parse((Path(__file__).resolve().parents[1] / "pipeline" / "retrieve" / f"{mod}.py").read_text())
+    for mod in ("retrieve/paper", "retrieve/estimators", "probe/belief", "probe/retrieval"):
+        tree = ast.parse((Path(__file__).resolve().parents[1] / "pipeline" / f"{mod}.py").read_text())
         for node in ast.walk(tree):
             if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "append" and \
                     getattr(node.func.value, "id", "") == "notes":

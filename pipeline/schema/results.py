@@ -17,9 +17,10 @@ __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS",
 
 #: Low-confidence reasons of a pose estimate: the paper's estimator (``no_points`` ... ``no_valid_icp``,
 #: :func:`pipeline.retrieve.paper.confidence_notes`) and the plausible-set estimator's own (``no_free_space``,
-#: ``ambiguous_yaw``, ``wide_set``, :func:`pipeline.retrieve.estimators.plausible_notes`).
+#: ``ambiguous_yaw``, ``wide_set``, :func:`pipeline.retrieve.estimators.plausible_notes`), and the active
+#: protocol's (``no_segment``, ``wide_set``, :mod:`pipeline.probe.retrieval`, which also writes ``probes=N``).
 NOTES: tuple[str, ...] = ("no_points", "few_points", "collinear", "poor_fit", "penetrating", "no_valid_icp",
-                          "no_free_space", "ambiguous_yaw", "wide_set")
+                          "no_free_space", "ambiguous_yaw", "wide_set", "no_segment")
 
 _C = Column
 _RUN = _C("run", pa.string(), "", False, "Run id '<scene>/<seed>' (as in the contacts, tracks, segments tables).")
@@ -48,7 +49,8 @@ RETRIEVAL_COLUMNS: tuple[Column, ...] = (
        "Deepest penetration of the chosen pose into a visited gripper pose (0: none).", finite=True, minimum=0.0),
     _C("low_confidence", pa.bool_(), "", False, "The estimate has a reason not to be trusted (see notes)."),
     _C("notes", pa.string(), "", False, f"Comma-separated low-confidence reasons ({', '.join(NOTES)}; "
-       "docs/retrieval.md); empty when confident."),
+       "docs/retrieval.md); empty when confident. Runs of the active protocol start with probes=N, the probes "
+       "made."),
     _C("true_x_m", pa.float64(), "m", False, "True target COM x after the last action.", finite=True),
     _C("true_y_m", pa.float64(), "m", False, "True target COM y after the last action.", finite=True),
     _C("true_yaw_rad", pa.float64(), "rad", False, "True target yaw after the last action.", finite=True),
