@@ -8,7 +8,8 @@ from sklearn.metrics import fowlkes_mallows_score
 
 from pipeline.track.base import ContactTracker
 from pipeline.track.kernels import free_space_penetration, penetration_bruteforce
-from pipeline.track.soft import SoftTracker, SoftTrackingParams, StepDiagnostics
+from pipeline.track.base import StepResult
+from pipeline.track.soft import SoftTracker, SoftTrackingParams
 
 RADIUS = 0.05  # disc robot, m
 HALF = 0.05  # half side of the boxes, m
@@ -99,7 +100,7 @@ def test_implements_the_tracker_interface(disc):
     tracker = make(disc, n_particles=4)
     assert isinstance(tracker, ContactTracker)
     info = tracker.update(FREE)
-    assert isinstance(info, StepDiagnostics) and tracker.points_.shape == (0, 2) and tracker.labels().shape == (0,)
+    assert isinstance(info, StepResult) and tracker.points_.shape == (0, 2) and tracker.labels().shape == (0,)
 
 
 @pytest.mark.parametrize("weighting", ["reference", "paper"])
@@ -351,7 +352,7 @@ def test_weights_finite_and_normalised_after_every_update(disc, weighting, repla
 def test_free_space_before_any_contact_and_empty_contact_arrays(disc):
     tracker = make(disc, n_particles=4)
     info = tracker.update(FREE)
-    assert info == StepDiagnostics(ess=1.0, resampled=False, n_replaced=0)
+    assert info == StepResult(ess=1.0, resampled=False, n_replaced=0)
     tracker.update(FREE, np.zeros((0, 2)), np.zeros((0, 2)))  # K = 0 is free space
     assert tracker.n_points_ == 0
     np.testing.assert_array_equal(tracker.log_weights_, np.full(4, -np.log(4)))

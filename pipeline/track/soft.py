@@ -80,7 +80,8 @@ class SoftTrackingParams:
     replace: str = "after-resample"
     weight_floor: float = 1e-15
     constraints: ClassVar[dict[str, Constraint]] = {
-        "length": number(0, lo_open=True), "penetration_length": number(0, lo_open=True), "alpha": number(0, 1, lo_open=True, hi_open=True),
+        "length": number(0, lo_open=True), "penetration_length": number(0, lo_open=True),
+        "alpha": number(0, 1, lo_open=True, hi_open=True),  # exp(-d^2/l) > alpha: 0 and 1 are degenerate (Alg. 3)
         # MAX_PARTICLES: (particles, points) arrays of a long run stay within the machine's memory.
         "n_particles": integer(1, MAX_PARTICLES), "tolerance": number(0), "ess_threshold": number(0, 1),
         "weight_floor": number(0, hi_of=lambda p: 1.0 / p.n_particles, hi_open=True, text="in [0, 1/N)"),
@@ -99,8 +100,6 @@ class SoftTrackingParams:
         return params_from_dict(cls, values, "stucco")
 
 
-#: What one update did (ESS / N after weighting, whether it resampled, points replaced over all particles).
-StepDiagnostics = StepResult
 
 
 class SoftTracker:
@@ -121,7 +120,7 @@ class SoftTracker:
     log_weights_ : ndarray, shape (N,)
         Normalised log-weights.
     n_points_ : int
-    last_step_ : StepDiagnostics or None
+    last_step_ : StepResult or None
     """
 
     def __init__(self, robot, params: SoftTrackingParams | None = None, *, rng: np.random.Generator) -> None:
@@ -147,7 +146,7 @@ class SoftTracker:
         self._npen = np.zeros((n, 0), np.int32)
         self.log_weights_ = np.full(n, -math.log(n))
         self._map_points = np.zeros((0, self.dim))
-        self.last_step_: StepDiagnostics | None = None
+        self.last_step_: StepResult | None = None
 
     # ------------------------------------------------------------------ public state
     @property
@@ -177,7 +176,7 @@ class SoftTracker:
         return segment_points(self.points_, self.params.length, self.params.alpha)
 
     # ------------------------------------------------------------------ the filter
-    def update(self, x, dx=None, p=None) -> StepDiagnostics:
+    def update(self, x, dx=None, p=None) -> StepResult:
         """One control step; see the module docstring.
 
         Parameters
@@ -203,7 +202,7 @@ class SoftTracker:
                 raise ValueError("dx and p must be finite")
         if dx is None or len(dx) == 0:
             if self._m == 0:
-                self.last_step_ = StepDiagnostics(ess=1.0, resampled=False, n_replaced=0)
+                self.last_step_ = StepResult(ess=1.0, resampled=False, n_replaced=0)
                 return self.last_step_
             eps = kernels.free_space_penetration(self._P, self._m, x, *self._grid, self._lo, self._hi,
                                                  self.params.tolerance)
@@ -245,7 +244,7 @@ class SoftTracker:
         # never more accurate (README.md, STUCCO soft tracking).
         self._map_points = self._P[index, : self._m].copy()
 
-    def _reweight_and_resample(self, eps: np.ndarray) -> StepDiagnostics:
+    def _reweight_and_resample(self, eps: np.ndarray) -> StepResult:
         prm = self.params
         if np.ptp(eps) == 0.0 and prm.replace != "every-step" and self.last_step_ is not None:
             # Every particle explains the step equally well (typically free space with no point near the robot):
@@ -253,7 +252,7 @@ class SoftTracker:
             # previous step, so there is nothing to resample or replace. The estimate is still refreshed: a
             # contact step has moved and added points.
             self._snapshot_map(int(np.argmax(self.log_weights_)))
-            self.last_step_ = StepDiagnostics(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
+            self.last_step_ = StepResult(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
                                               resampled=False, n_replaced=0)
             return self.last_step_
         if prm.weighting == "reference":
@@ -285,7 +284,7 @@ class SoftTracker:
             n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._m, self._colpen, self._npen,
                                                           *self._grid, self._lo, self._hi, prm.tolerance).sum())
         self.log_weights_ = log_w
-        self.last_step_ = StepDiagnostics(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
+        self.last_step_ = StepResult(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_
 
 
