@@ -207,8 +207,6 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
     """Active retrieval: grasp success against the probe budget per task, with probes used, time per probe
     decision and how far probing moved the target (docs/retrieval.md, "Active retrieval")."""
     writable_dir("--out", out_dir)
-    from tqdm import tqdm
-
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
     from pipeline.probe.bench import budget_rows, summarise, write_outputs
@@ -218,10 +216,9 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
     budget_list = tuple(sorted(set(_ints("--budgets", budgets, lo=0, hi=64))))
     if not budget_list:
         raise click.BadParameter("expected at least one budget", param_hint="--budgets")
-    bar = lambda it, total: tqdm(it, total=total, desc="probe", unit="run", disable=settings.progress)  # noqa: E731
     with user_errors("bench probe"):
         rows = budget_rows([(sc, s) for sc in scene_list for s in seed_list], runs_dir, budget_list, settings.seed,
-                           jobs=settings.jobs, progress=bar)
+                           jobs=settings.jobs, progress=run_bar(settings, "probe"))
         summary = summarise(rows)
         paths = write_outputs(rows, summary, out_dir, png)
     click.echo("| task | budget | runs | GS % | probes | decision s (median / max) | target moved mm / rad | wide |")
