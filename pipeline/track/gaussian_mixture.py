@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.portable import exp, log, logsumexp
 from pipeline.spd import (cho_solve_matrix, cholesky, largest_eigenvalue_bound, matmul, solve_lower,
-                                symmetrise)
+                          symmetrise)
 
 __all__ = ["predict", "update", "prune", "extract_targets"]
 
@@ -77,7 +77,8 @@ def update(log_w: np.ndarray, means: np.ndarray, covs: np.ndarray, z: np.ndarray
     gain = np.swapaxes(cho_solve_matrix(chol_s, covs), -1, -2)  # (J, D, D)
     ikh = eye - gain
     # Joseph form keeps the updated covariance symmetric positive definite under round-off.
-    cov_upd = symmetrise(matmul(matmul(ikh, covs), np.swapaxes(ikh, -1, -2)) + r * matmul(gain, np.swapaxes(gain, -1, -2)))
+    cov_upd = symmetrise(matmul(matmul(ikh, covs), np.swapaxes(ikh, -1, -2))
+                         + r * matmul(gain, np.swapaxes(gain, -1, -2)))
 
     innov = z[None, :, :] - means[:, None, :]  # (J, K, D)
     white = solve_lower(chol_s[:, None], innov)  # (J, K, D)
