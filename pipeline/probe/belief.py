@@ -16,7 +16,6 @@ positions and the target's known shape.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -28,7 +27,7 @@ from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, isolate_run
 from pipeline.labels import canonical_labels
 from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
@@ -237,9 +236,7 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     later = len(probe_steps) - 1 - np.arange(len(probe_steps))
     sigma = np.concatenate([sigma_old, plausible.contact_sigma * probe_growth ** later])
     pts = np.vstack([choice.points, probe_points])
-    centre = pts.mean(axis=0)
-    radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
-        + float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    centre, radius = target_reach(target, pts)
     after = int(np.max(choice.steps)) if len(choice.steps) else int(np.min(probe_steps)) - 1
     lattice = cached_gripper_lattice(sdf, plausible.free_resolution)
     free = free_space_points(lattice, ee[:-1], ee[1:], steps, after, plausible, centre, radius)

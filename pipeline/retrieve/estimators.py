@@ -11,7 +11,6 @@ the contact points weighted by recency and the gripper's free space (:mod:`pipel
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 from typing import Sequence
@@ -22,7 +21,7 @@ from pipeline import registry
 from pipeline.geometry import Primitive
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.portable import tie_key
 from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, fit_segment
 from pipeline.retrieve.runs import RunInfo
@@ -152,10 +151,7 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     seg = next(s for s in segments if s.id == paper.segment)
     target = info.target
     pts = np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
-    centre = pts.mean(axis=0)
-    # The target touches its contacts, so every part of it lies within its diameter of their centroid.
-    radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
-        + float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    centre, radius = target_reach(target, pts)
     lattice = cached_gripper_lattice(sdf, plausible.free_resolution)
     free = free_space_points(lattice, info.ee[:-1], info.ee[1:], info.steps, int(np.max(seg.steps)), plausible, centre,
                              radius)

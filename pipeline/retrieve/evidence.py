@@ -15,7 +15,7 @@ import numpy as np
 from pipeline.portable import exp
 from pipeline.retrieve.plausible import PlausibleParams
 
-__all__ = ["recency_sigma", "gripper_lattice", "cached_gripper_lattice", "free_space_points"]
+__all__ = ["recency_sigma", "target_reach", "gripper_lattice", "cached_gripper_lattice", "free_space_points"]
 
 
 def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
@@ -26,6 +26,16 @@ def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
     # log-space power, so a long history overflows to the cap, never to inf * 0.
     log_sigma = math.log(params.contact_sigma) + later * math.log(params.recency_growth)
     return exp(np.minimum(log_sigma, math.log(params.max_sigma)))
+
+
+def target_reach(target, points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (2,), radius m) of the disc the target (a :class:`~pipeline.geometry.Primitive`) must lie in when it
+    touches ``points`` (M, 2), M >= 1: their centroid, and the target's diameter plus the points' largest distance
+    from it (every part of the target lies within its diameter of a contact)."""
+    centre = points.mean(axis=0)
+    radius = 2.0 * (math.hypot(*target.half[:2]) if target.kind == "box" else target.half[0]) \
+        + float(np.max(np.linalg.norm(points - centre, axis=1)))
+    return centre, radius
 
 
 def gripper_lattice(sdf, resolution: float) -> np.ndarray:
