@@ -82,6 +82,10 @@ class EstimatorSpec:
         The estimator's own parameter dataclass, recorded in the metadata under :attr:`meta_key`.
     meta_key : str or None
         Metadata key of the own parameters (default: :attr:`name`).
+    needs : tuple of str
+        ``"every_step"``: the estimator also reads the segments of every in-contact step (tracks written with
+        ``stucco track --every-step``), passed as the keyword ``history`` (:func:`pipeline.retrieve.estimate`);
+        ``stucco evaluate`` then tracks every step.
     """
 
     name: str
@@ -89,6 +93,7 @@ class EstimatorSpec:
     factory: Ref
     params: Ref = None
     meta_key: str | None = None
+    needs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -292,7 +297,11 @@ register(EstimatorSpec("plausible", "the paper's segment choice, then the best p
                                     "the target's shape, the contacts and the gripper's free space",
                        "pipeline.retrieve.estimators:plausible_estimator",
                        params="pipeline.retrieve.plausible:PlausibleParams"))
-register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C)", "pipeline.retrieve.estimators:paper_estimator"))
+register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
+                                "warm-started, the grasp at the last in-contact step's estimate",
+                       "pipeline.retrieve.estimators:paper_estimator", needs=("every_step",)))
+register(EstimatorSpec("paper-final", "the paper's ICP procedure (§V-C) once, on the final tracked points",
+                       "pipeline.retrieve.estimators:paper_final_estimator"))
 
 register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))

@@ -171,7 +171,9 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
                   schema.recorded_number(in_path, tparams, "alpha", DEFAULT_ALPHA, above=0.0, below=1.0))
     method = str(tparams.get("method", "stucco"))
     segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
+    # every_step: the tracks hold an estimate after every step, which the online estimator needs (docs/tables.md)
     schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,
-                                                                        method=method),
+                                                                        method=method,
+                                                                        every_step=bool(tparams.get("every_step"))),
                        seed=seed, inputs={"tracks": str(in_path)}, kind="segments")
     return segments

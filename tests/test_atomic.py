@@ -108,7 +108,7 @@ def test_a_stage_whose_second_output_fails_keeps_its_previous_outputs(tmp_path, 
     args = {"track": ["track", "--in", str(contacts), "--out", str(tmp_path / "t.parquet"), "--robot", "disc:0.05",
                       "--particles", "10"],
             "retrieve": ["retrieve", "--segments", str(tmp_path / "s.parquet"), "--runs", str(runs), "--out",
-                         str(tmp_path / "r.parquet"), "--estimator", "paper", "--no-grasp"]}
+                         str(tmp_path / "r.parquet"), "--estimator", "paper-final", "--no-grasp"]}
     runner = CliRunner()
     for prep in (["-q", *args["track"]], ["-q", "segment", "--in", str(tmp_path / "t.parquet"), "--out",
                                           str(tmp_path / "s.parquet")], ["-q", *args["retrieve"]]):

@@ -438,13 +438,13 @@ def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
     tmp, seg, runs = stage_inputs
     out = tmp / "retrieval.parquet"
     r = _invoke(["-q", "--seed", "0", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out),
-                 "--no-grasp", "--print", "--estimator", "paper"])
+                 "--no-grasp", "--print", "--estimator", "paper-final"])
     assert r.exit_code == 0, r.output
     t = read_retrieval(out)
     assert t.column_names[:len(RETRIEVAL_COLUMNS)] == [c.name for c in RETRIEVAL_COLUMNS]
     row = t.to_pylist()[0]
     assert row["run"] == "FB/0" and row["scene"] == "FB" and row["seed"] == 0 and row["method"] == "stucco"
-    assert row["estimator"] == "paper"
+    assert row["estimator"] == "paper-final"
     assert row["position_error_m"] < 0.01 and row["yaw_error_rad"] < 0.1
     assert row["grasp_success"] is None and row["grasp_s"] is None
     assert "FB/0" in r.output  # --print goes to stdout
@@ -453,12 +453,12 @@ def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
     assert cand.num_rows == 30 and sum(cand.column("chosen").to_pylist()) == 1
     meta = read_metadata(out)
     assert meta["stage"] == "retrieve" and meta["schema"] == "retrieval" and meta["params"]["n_restarts"] == 30
-    assert meta["params"]["estimator"] == "paper" and "plausible" not in meta["params"]
+    assert meta["params"]["estimator"] == "paper-final" and "plausible" not in meta["params"]
     assert meta["inputs"]["segments"]["file"] == "segments.parquet"
     # Same seed, same estimate (timings aside).
     out2 = tmp / "again.parquet"
     assert _invoke(["-q", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out2),
-                    "--no-grasp", "--estimator", "paper"]).exit_code == 0
+                    "--no-grasp", "--estimator", "paper-final"]).exit_code == 0
     a, b = read_retrieval(out).drop(["icp_s"]), read_retrieval(out2).drop(["icp_s"])
     assert a.equals(b)
 

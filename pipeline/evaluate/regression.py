@@ -13,6 +13,7 @@ from pipeline import registry, schema
 from pipeline.evaluate.config import EvalConfig, Job
 from pipeline.evaluate.results import gather_scores
 from pipeline.layout import partition
+from pipeline.segment import final_estimates
 
 __all__ = ["SNAPSHOT_SCORE_COLUMNS", "snapshot", "write_snapshot"]
 
@@ -26,7 +27,8 @@ def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str]
     """What the regression test compares, as one table per kind, rows in grid order.
 
     ``contacts``: the isolate output of every (scene, seed); ``segments``: the track + segment output of every
-    job, with a leading ``method`` column; ``scores``: :data:`SNAPSHOT_SCORE_COLUMNS` (no wall times).
+    job (its final estimate: the estimates after every step, written for the online estimator, are checked
+    through its scores), with a leading ``method`` column; ``scores``: :data:`SNAPSHOT_SCORE_COLUMNS` (no wall times).
     """
     out = Path(out)
     jobs_ = sorted(job_list)
@@ -34,7 +36,7 @@ def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str]
     contacts = pa.concat_tables([schema.read_contacts(partition(out, "contacts", sc, s)) for sc, s in pairs])
     segs = []
     for j in jobs_:
-        t = schema.read_segments(partition(out, "segments", j.scene, j.seed, j.method))
+        t = final_estimates(schema.read_segments(partition(out, "segments", j.scene, j.seed, j.method)))
         segs.append(t.add_column(0, "method", pa.array([j.method] * t.num_rows, pa.string())))
     segments = pa.concat_tables(segs)
     scores = gather_scores(out, jobs_, registry.estimator_names() if estimators is None else estimators).select(

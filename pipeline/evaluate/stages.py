@@ -28,6 +28,7 @@ from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
+from pipeline.retrieve.estimators import needs_every_step
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
@@ -92,13 +93,15 @@ def run_isolate(runs: Path, dest: Path, cfg: EvalConfig) -> None:
 
 
 def run_track(p: dict[str, Path], method: str, cfg: EvalConfig) -> None:
-    """Track the contacts with ``method`` (default parameters) into the tracks and diagnostics partitions."""
+    """Track the contacts with ``method`` (default parameters) into the tracks and diagnostics partitions; the
+    estimate after every step too when one of ``cfg.estimators`` needs it (the final estimate is the same)."""
     # Imported here: the trackers load numba's kernels (about a quarter of a second), which only the processes
     # that track need.
     from pipeline.track.stage import TrackConfig, track_file
 
     t0 = time.perf_counter()
-    config = TrackConfig(method=method, robot=cfg.robot, params={}, every_step=False)
+    # An estimator that runs at every in-contact step (the paper's, online) reads the estimate after every step.
+    config = TrackConfig(method=method, robot=cfg.robot, params={}, every_step=needs_every_step(cfg.estimators))
     track_file(p["contacts"], p["tracks"], config, seed=cfg.root_seed, jobs=1, diagnostics_path=p["diagnostics"])
     write_wall(p["tracks"], time.perf_counter() - t0)
 

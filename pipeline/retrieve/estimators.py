@@ -1,13 +1,17 @@
-"""Pose estimators of the retrieve stage: the paper's ICP procedure and the plausible-set estimator, one call.
+"""Pose estimators of the retrieve stage: the paper's ICP procedure (online and end-only) and the plausible-set
+estimator, one call.
 
-Both are registered in :mod:`pipeline.registry` (``paper_estimator``, ``plausible_estimator``: the registry's
-factory signature); :func:`estimate` calls any registered estimator by name.
+They are registered in :mod:`pipeline.registry` (``paper_estimator``, ``paper_final_estimator``,
+``plausible_estimator``: the registry's factory signature); :func:`estimate` calls any registered estimator by name.
 
-``paper`` is the procedure of the paper's §V-C as :mod:`pipeline.retrieve.paper` implements it (ICP from 30
-restarts on every segment, lowest position variance chooses the segment, least penetration then lowest ICP error
-chooses the pose). ``plausible`` keeps the paper's segment choice (how often it picks the target's segment:
-docs/retrieval.md) and replaces the pose by the best of a plausible set fitted to the known shape,
-the contact points weighted by recency and the gripper's free space (:mod:`pipeline.retrieve.plausible`).
+``paper`` is the procedure of the paper's §V-C as the authors ran it (:mod:`pipeline.retrieve.online`): at every
+in-contact step, ICP from 30 restarts on every segment of the tracker's estimate after that step (restart 0 from the
+best estimate so far), lowest position variance chooses the segment, least penetration then lowest ICP error chooses
+the pose; the grasp goes to the last in-contact step's estimate. ``paper-final`` runs the same choice once, on the
+final tracked points (:func:`pipeline.retrieve.paper.estimate_run`). ``plausible`` keeps the paper's segment choice
+(how often it picks the target's segment: docs/retrieval.md) and replaces the pose by the best of a plausible set
+fitted to the known shape, the contact points weighted by recency and the gripper's free space
+(:mod:`pipeline.retrieve.plausible`).
 """
 from __future__ import annotations
 
@@ -19,6 +23,7 @@ import numpy as np
 
 from pipeline import registry
 from pipeline.geometry import Primitive
+from pipeline.retrieve.online import estimate_online
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
@@ -27,8 +32,9 @@ from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, f
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "paper_estimator",
-           "plausible_estimator", "retrieval_metadata", "plausible_notes", "parse_estimators"]
+__all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator",
+           "paper_final_estimator", "plausible_estimator", "needs_every_step", "history_from_final",
+           "retrieval_metadata", "plausible_notes", "parse_estimators"]
 
 DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
 
@@ -64,6 +70,28 @@ class Segment:
     steps: np.ndarray
 
 
+#: The segments of every in-contact step of one run, in step order: (step, segments of the tracker's estimate after
+#: that step). An in-contact step is one with a contact point observed at it (docs/tables.md, tracks).
+History = Sequence[tuple[int, Sequence[Segment]]]
+
+
+def needs_every_step(names: Sequence[str]) -> bool:
+    """Whether any of the estimators ``names`` reads the segments of every in-contact step (registry ``needs``)."""
+    return any("every_step" in registry.estimator(n).needs for n in names)
+
+
+def history_from_final(segments: Sequence[Segment]) -> list[tuple[int, list[Segment]]]:
+    """A :data:`History` made from final segments alone, for points that do not move (ideal contact points, carried
+    to the final pose): at every step at which a point was observed, each segment's points observed up to it.
+    Segments without such a point yet are left out."""
+    steps = np.unique(np.concatenate([np.asarray(s.steps, dtype=np.int64) for s in segments] or [np.zeros(0, int)]))
+    out = []
+    for k in steps:
+        segs = [Segment(s.id, s.points[s.steps <= k], s.steps[s.steps <= k]) for s in segments]
+        out.append((int(k), [s for s in segs if len(s.steps)]))
+    return out
+
+
 def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extra) -> dict:
     """What the retrieval and candidates tables record of their parameters: every field of the parameters the
     estimator used (the paper's ICP parameters for every estimator; the estimator's own parameters ``own``, e.g.
@@ -79,14 +107,23 @@ def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extr
 
 
 def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-             params: RetrievalParams = RetrievalParams(), own=None) -> Estimate:
+             params: RetrievalParams = RetrievalParams(), own=None, history: History | None = None) -> Estimate:
     """The target pose of one run by the registered estimator ``name`` (:func:`pipeline.registry.estimator`).
 
     ``rngs``: (model points, ICP restarts, hypotheses) generators (:func:`pipeline.retrieve.runs.retrieval_rng`);
-    ``own``: the estimator's own parameters (an instance, a dict of overrides, or None for its defaults).
+    ``own``: the estimator's own parameters (an instance, a dict of overrides, or None for its defaults);
+    ``history``: the segments of every in-contact step (:data:`History`), passed to an estimator that needs them
+    (registry ``needs=("every_step",)``; ValueError if it is None for one).
     """
     spec = registry.estimator(name)
-    result = registry.resolve(spec.factory)(segments, info, sdf, rngs, params, registry.build_params(spec, own))
+    extra = {}
+    if "every_step" in spec.needs:
+        if history is None:
+            raise ValueError(f"estimator {name!r} needs the segments of every in-contact step (tracks written with "
+                             "`stucco track --every-step`)")
+        extra["history"] = history
+    result = registry.resolve(spec.factory)(segments, info, sdf, rngs, params, registry.build_params(spec, own),
+                                            **extra)
     if not isinstance(result, Estimate):
         raise TypeError(f"estimator {name!r} must return an Estimate (pipeline.retrieve.paper), got "
                         f"{type(result).__name__}")
@@ -95,8 +132,18 @@ def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
 
 
 def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-                    params: RetrievalParams, own: None = None) -> Estimate:
-    """The paper's procedure (§V-C, :func:`pipeline.retrieve.paper.estimate_run`), the registry's factory."""
+                    params: RetrievalParams, own: None = None, *, history: History) -> Estimate:
+    """The paper's procedure as the authors ran it, at every in-contact step of ``history``
+    (:func:`pipeline.retrieve.online.estimate_online`), the registry's factory; ``segments`` (the final ones) are
+    not used: the grasp goes to the last in-contact step's estimate."""
+    return estimate_online([(k, [(s.id, s.points) for s in segs]) for k, segs in history], info.target, info.ee,
+                           info.steps, sdf, params, rngs[0], rngs[1])
+
+
+def paper_final_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                          params: RetrievalParams, own: None = None) -> Estimate:
+    """The paper's procedure once, on the final segments (§V-C, :func:`pipeline.retrieve.paper.estimate_run`), the
+    registry's factory."""
     return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
 
 

@@ -152,19 +152,21 @@ def _icp(points: np.ndarray, model: np.ndarray, tree: cKDTree, inits: np.ndarray
     moved, idx, matched, (fit, rmse) = state(tf)
     active = np.ones(len(tf), dtype=bool)
     for _ in range(params.max_iteration):
-        if not active.any():
+        a = np.flatnonzero(active)
+        if not len(a):
             break
+        # Only the restarts still moving are computed (every quantity is per restart, so the bits are those of
+        # computing all of them); a converged restart keeps its transform.
         if normals is None:
-            new = _point_to_point(points, model[idx], matched)
+            new = _point_to_point(points, model[idx[a]], matched[a])
         else:
-            new = _compose(_point_to_plane_step(moved, model[idx], normals[idx], matched), tf)
+            new = _compose(_point_to_plane_step(moved[a], model[idx[a]], normals[idx[a]], matched[a]), tf[a])
         # A restart without any correspondence does not move (Open3D's update is then the identity).
-        new = np.where((active & matched.any(axis=1))[:, None], new, tf)
+        new = np.where(matched[a].any(axis=1)[:, None], new, tf[a])
         moved2, idx2, matched2, (fit2, rmse2) = state(new)
-        done = (np.abs(fit2 - fit) < 1e-9) & (np.abs(rmse2 - rmse) < 1e-9)
-        tf = new
-        moved, idx, matched, fit, rmse = moved2, idx2, matched2, fit2, rmse2
-        active &= ~done
+        done = (np.abs(fit2 - fit[a]) < 1e-9) & (np.abs(rmse2 - rmse[a]) < 1e-9)
+        tf[a], moved[a], idx[a], matched[a], fit[a], rmse[a] = new, moved2, idx2, matched2, fit2, rmse2
+        active[a[done]] = False
     return tf
 
 

@@ -12,6 +12,10 @@ unchanged) is tried at poses that lose one piece of knowledge per rung:
 4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
 5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it.
 
+An estimator that runs at every in-contact step (``paper``) gets the tracker's segments after each in-contact step
+on the last rung, and on the ideal rungs the ideal points observed up to each step at their final positions
+(:func:`~pipeline.retrieve.estimators.history_from_final`: the ideal points do not move).
+
 Ideal contact points are the run's recorded true contact of every action with a known body, carried with that
 body from its pose after the action to its final pose: exactly where each contact lies now. The point is the
 last one of the action's 8-step window that touches the action's body (``win_true_object``); an action whose
@@ -36,9 +40,10 @@ from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.retrieve.estimators import Segment, estimate
+from pipeline.retrieve.estimators import Segment, estimate, history_from_final, needs_every_step
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, load_run, retrieval_rng
+from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
@@ -139,8 +144,8 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
     return out
 
 
-def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndarray]]:
-    """The tracker's final segments of one run.
+def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndarray], list | None]:
+    """The tracker's final segments of one run, and those of every in-contact step.
 
     Parameters
     ----------
@@ -153,14 +158,20 @@ def tracker_segments(path: str | Path) -> tuple[list[Segment], dict[int, np.ndar
         The final estimate's segments (unassigned points, segment -1, left out): points (M, 2) m, steps (M,).
     labels : dict of int to ndarray
         Each segment's ground-truth object ids (M,), -1 unknown.
+    history : list or None
+        The segments of every in-contact step (:func:`~pipeline.retrieve.stage.contact_step_segments`); None if
+        the table holds only the final estimate (tracked without ``--every-step``).
     """
-    final = final_estimates(schema.read_segments(path))
+    table = schema.read_segments(path)
+    every = bool((schema.read_metadata(path).get("params") or {}).get("every_step"))
+    history = next(iter(contact_step_segments(table).values()), []) if every else None
+    final = final_estimates(table)
     seg = final.column("segment").to_numpy()
     xy = np.column_stack([final.column("x_m").to_numpy(), final.column("y_m").to_numpy()])
     step = final.column("step").to_numpy()
     oid = final.column("object_id").to_numpy() if "object_id" in final.column_names else np.full(len(seg), -1)
     segs = [Segment(int(s), xy[seg == s], step[seg == s]) for s in np.unique(seg) if s >= 0]
-    return segs, {int(s): oid[seg == s] for s in np.unique(seg) if s >= 0}
+    return segs, {int(s): oid[seg == s] for s in np.unique(seg) if s >= 0}, history
 
 
 def perturbed(target, pose: np.ndarray, dyaw: float, along: float, across: float) -> np.ndarray:
@@ -230,7 +241,8 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
     run_path : Path
         The collected run file.
     segments_path : Path or None
-        The tracker's segments of the run; None skips ``tracker_our_choice``.
+        The tracker's segments of the run; None skips ``tracker_our_choice`` (so does, for an estimator that runs
+        at every in-contact step, a table holding only the final estimate).
     estimators : sequence of str
         Pose estimators (:func:`pipeline.registry.estimator_names`).
     root_seed : int
@@ -256,16 +268,18 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
     for name, dyaw, along, across in PERTURBATIONS:
         grasp("", name, perturbed(target, truth, dyaw, along, across))
     ideal = ideal_segments(run_path, info)
-    tracked, labels = tracker_segments(segments_path) if segments_path is not None else ([], {})
+    tracked, labels, tracked_history = tracker_segments(segments_path) if segments_path is not None else ([], {}, None)
     for est in estimators:
         for rung, segs, purity_of in (
                 ("ideal_true_segment", [s for s in ideal if s.id == info.target_id], lambda s: 1.0),
                 ("ideal_our_choice", ideal, lambda s: float(s == info.target_id)),
                 ("tracker_our_choice", tracked,
                  lambda s: _purity(labels.get(s), info.target_id))):
-            if rung == "tracker_our_choice" and segments_path is None:
+            if rung == "tracker_our_choice" and (segments_path is None or (
+                    tracked_history is None and needs_every_step([est]))):
                 continue
-            e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run))
+            history = tracked_history if rung == "tracker_our_choice" else history_from_final(segs)
+            e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run), history=history)
             grasp(est, rung, e.pose, purity_of(e.segment) if e.segment >= 0 else 0.0)
     return rows
 

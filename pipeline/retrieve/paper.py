@@ -11,13 +11,13 @@ import numpy as np
 
 from pipeline.geometry import Primitive, apply_pose
 from pipeline.portable import tie_key
-from pipeline.retrieve.icp import icp_restarts, initial_transforms
+from pipeline.retrieve.icp import IcpResult, icp_restarts, initial_transforms
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.tables import CANDIDATE_FIELDS, run_candidates
 
 __all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "smallest_principal_std", "Estimate",
-           "estimate_run"]
+           "estimate_run", "nonempty", "icp_segment", "assemble"]
 
 
 def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> np.ndarray:
@@ -39,13 +39,28 @@ def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> 
     ndarray, shape (B,), metres
         min over (k, n) of sdf(pose(model_n) - ee_k); negative = the pose penetrates the gripper somewhere it
         has been; ``sdf.outside_value`` when no model point comes near any gripper position.
+
+    Only the (pose, gripper position) pairs whose boxes overlap the grid are queried: a pair whose posed model
+    points all fall outside the grid around that gripper position gives ``outside_value`` anyway, so the result
+    is exactly that of querying every pair (the online estimator calls this at every in-contact step).
     """
     world = apply_pose(np.asarray(poses, dtype=np.float64), np.asarray(model, dtype=np.float64))  # (B, N, 2)
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
-    if len(ee) == 0 or world.shape[0] == 0:
-        return np.full(world.shape[0], float(sdf.outside_value))
-    vals = sdf.query(world[:, :, None, :] - ee[None, None, :, :])  # (B, N, K)
-    return vals.reshape(len(world), -1).min(axis=1)
+    out = np.full(world.shape[0], float(sdf.outside_value))
+    if len(ee) == 0 or world.shape[0] == 0 or world.shape[1] == 0:
+        return out
+    # The grid's cells span [origin - res/2, origin + (n - 1/2) res]; one more cell of margin on each side keeps
+    # every pair the nearest-cell rounding could put inside (a superset, so the minimum is unchanged).
+    lo = np.asarray(sdf.origin, dtype=np.float64) - 1.5 * sdf.resolution
+    hi = lo + sdf.resolution * (np.asarray(sdf.values.shape, dtype=np.float64) + 2.0)
+    # pose b can reach the grid around ee_k only if its box [wmin, wmax] overlaps [ee_k + lo, ee_k + hi]
+    wmin, wmax = world.min(axis=1), world.max(axis=1)  # (B, 2)
+    near = np.all((wmax[:, None, :] >= ee[None] + lo) & (wmin[:, None, :] <= ee[None] + hi), axis=2)  # (B, K)
+    b, k = np.nonzero(near)
+    if len(b):
+        vals = sdf.query(world[b] - ee[k][:, None, :]).min(axis=1)  # (P,)
+        np.minimum.at(out, b, vals)
+    return out
 
 
 @dataclass(frozen=True)
@@ -232,21 +247,39 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
     model = model_points(target, params, rng_model)
     normals = model_normals(target, model)
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
+    segs = nonempty(segments)
+    results = [icp_segment(pts, model, normals, params, rng_restarts) for _, pts in segs]
+    pens = [np.maximum(-min_clearance(sdf, model, res.poses, ee), 0.0) for res in results]
+    choice = choose_segment([target.centre_world(r.poses) for r in results], pens, [r.rmse for r in results],
+                            [r.valid for r in results], params.penetration_tolerance, params.segment_fit_gate,
+                            params.agreement_tolerance)
+    return assemble(segs, results, pens, choice, target, ee, params, t0)
+
+
+def nonempty(segments: Sequence[tuple[int, np.ndarray]]) -> list[tuple[int, np.ndarray]]:
+    """(segment id, points (M, 2) float64) of the segments with at least one point, in the given order."""
     segs = [(int(s), np.asarray(p, dtype=np.float64).reshape(-1, 2)) for s, p in segments]
-    segs = [(s, p) for s, p in segs if len(p) > 0]
+    return [(s, p) for s, p in segs if len(p) > 0]
+
+
+def icp_segment(points: np.ndarray, model: np.ndarray, normals: np.ndarray, params: RetrievalParams,
+                rng: np.random.Generator, warm: np.ndarray | None = None) -> IcpResult:
+    """ICP of one segment's points (M, 2) from ``params.n_restarts`` random initial transforms drawn from
+    ``rng`` (:func:`~pipeline.retrieve.icp.initial_transforms`); with ``warm`` (a world -> model transform (3,),
+    the authors' ``best_tsf_guess``) restart 0 starts from it instead (all restarts are still drawn, so the
+    stream does not depend on it)."""
+    inits = initial_transforms(points, model, params.n_restarts, rng)
+    if warm is not None:
+        inits[0] = warm
+    return icp_restarts(points, model, inits, params, normals)
+
+
+def assemble(segs: Sequence[tuple[int, np.ndarray]], results: Sequence[IcpResult], pens: Sequence[np.ndarray],
+             choice: Choice, target: Primitive, ee: np.ndarray, params: RetrievalParams, t0: float) -> Estimate:
+    """The :class:`Estimate` of a choice among the ICP results of ``segs`` (one :class:`IcpResult` and one
+    penetration array (B,) per segment): its candidates table, pose, notes; ``icp_s`` counted from ``t0``
+    (``time.perf_counter``). Without a segment: the last gripper position, yaw 0, flagged ``no_points``."""
     B = params.n_restarts
-    results, centres, pens, rmses, valids = [], [], [], [], []
-    for _, pts in segs:
-        inits = initial_transforms(pts, model, B, rng_restarts)
-        res = icp_restarts(pts, model, inits, params, normals)
-        clear = min_clearance(sdf, model, res.poses, ee)
-        results.append(res)
-        centres.append(target.centre_world(res.poses))
-        pens.append(np.maximum(-clear, 0.0))
-        rmses.append(res.rmse)
-        valids.append(res.valid)
-    choice = choose_segment(centres, pens, rmses, valids, params.penetration_tolerance, params.segment_fit_gate,
-                    params.agreement_tolerance)
     cand: dict[str, list] = {k: [] for k in CANDIDATE_FIELDS}
     for i, ((sid, pts), res) in enumerate(zip(segs, results)):
         cand["segment"].append(np.full(B, sid))
@@ -272,7 +305,7 @@ def estimate_run(segments: Sequence[tuple[int, np.ndarray]], target: Primitive, 
     i, b = choice.segment_index, choice.restart
     pts = segs[i][1]
     pose = target.canonical(results[i].poses[b])
-    rmse = float(rmses[i][b])
+    rmse = float(results[i].rmse[b])
     pen = float(pens[i][b])
     var = float(choice.position_var[i])
     notes = confidence_notes(pts, rmse, pen, params)

@@ -13,7 +13,8 @@ from pipeline import registry, schema
 from pipeline.atomic import all_or_none
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
-from pipeline.retrieve.estimators import DEFAULT_ESTIMATOR, Segment, estimate, retrieval_metadata
+from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
+                                          retrieval_metadata)
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
@@ -21,7 +22,7 @@ from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
-__all__ = ["RetrieveConfig", "final_segments_by_run", "retrieve", "retrieve_file"]
+__all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file"]
 
 
 @dataclass(frozen=True)
@@ -81,16 +82,43 @@ def final_segments_by_run(segments: pa.Table) -> dict[str, list[Segment]]:
     return out
 
 
+def contact_step_segments(segments: pa.Table) -> dict[str, History]:
+    """Run -> the segments of every in-contact step, in step order: (step, its segments), the estimate made after
+    a step at which a contact point was observed (a row with ``step == estimate_step``). A table written without
+    ``--every-step`` holds only the final estimate, which is such a step only if the run's last step touched.
+    Unassigned points (segment -1) are left out; a run without any contact is absent."""
+    out: dict[str, History] = {}
+    if segments.num_rows == 0:
+        return out
+    run = np.asarray(segments.column("run").to_pylist(), dtype=object)
+    est = segments.column("estimate_step").to_numpy()
+    step = segments.column("step").to_numpy()
+    seg = segments.column("segment").to_numpy()
+    xy = np.column_stack([segments.column("x_m").to_numpy(), segments.column("y_m").to_numpy()])
+    for r in dict.fromkeys(run):
+        mine = np.flatnonzero(run == r)
+        contact = np.unique(est[mine][step[mine] == est[mine]])
+        hist = []
+        for k in contact:
+            rows = mine[est[mine] == k]
+            ids = np.unique(seg[rows])
+            hist.append((int(k), [Segment(int(s), xy[rows[seg[rows] == s]], step[rows[seg[rows] == s]])
+                                  for s in ids if s >= 0]))
+        out[r] = hist
+    return out
+
+
 @dataclass
 class RunOutput:
     row: dict[str, Any]
     candidates: dict[str, np.ndarray]
 
 
-def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int) -> RunOutput:
+def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int,
+                  history: History | None = None) -> RunOutput:
     method, estimator = config.method, config.estimator
     est = estimate(estimator, segs, info, load_robot(config.params.robot), retrieval_rng(root_seed, info.run),
-                   config.params, config.estimator_params)
+                   config.params, config.estimator_params, history=history)
     truth = info.true_pose
     pos_err, yaw_err = pose_error(info.target, est.pose, truth)
     row = dict(run=info.run, scene=info.scene.name, seed=info.seed, method=method, estimator=estimator,
@@ -128,7 +156,8 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
     Parameters
     ----------
     segments : pyarrow.Table
-        A validated segments table (its final estimate per run is used).
+        A validated segments table: its final estimate per run, and for an estimator that needs them (``paper``)
+        its estimates after every in-contact step (:func:`contact_step_segments`).
     run_dir : path
         Directory of ``stucco collect`` files, or one of them.
     config : RetrieveConfig
@@ -155,7 +184,9 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
         raise ValueError(f"{segments_path}: run {missing[0]!r} has no collected run file in {run_dir} "
                          f"({len(files)} run file(s) there)")
     infos = [load_run(files[r]) for r in files]
-    args = [(info, by_run.get(info.run, []), config, root_seed) for info in infos]
+    steps = contact_step_segments(segments) if needs_every_step([config.estimator]) else None
+    args = [(info, by_run.get(info.run, []), config, root_seed, None if steps is None else steps.get(info.run, []))
+            for info in infos]
     results = run_calls(_retrieve_one, args, jobs)
     if progress is not None:
         results = progress(results, total=len(args))
@@ -182,6 +213,11 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
         except ValueError as e:
             raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
     check_runs(segments_path, segments, run_files_by_name(run_dir))
+    if needs_every_step([config.estimator]) and not (schema.read_metadata(segments_path).get("params") or {}).get(
+            "every_step"):
+        raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
+                         f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "
+                         f"then segment (or use --estimator paper-final)")
     table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
                                  segments_path=str(segments_path))
     meta = config.metadata()

@@ -120,6 +120,11 @@ TRACKS = TableSpec(
         "`estimate_step` ≥ `step`: a contact is estimated only after it was observed.",
         "For each (`run`, `estimate_step`, `step`) the `contact_index` values are 0..K-1, each once.",
         "Other columns of the contact row (e.g. `object_id`) are carried through unchanged.",
+        "Written with `--every-step` (metadata `every_step`; `stucco evaluate` does so when an estimator reads "
+        "it, `--estimator paper`), a run holds one estimate after every step from its first contact on; the "
+        "estimate after an in-contact step is the one with rows observed at that step (`step` = "
+        "`estimate_step`). Without it, only the final estimate; readers of the final points take the rows with "
+        "the run's largest `estimate_step`.",
     ),
     check=_check_tracks,
 )

@@ -22,6 +22,7 @@ from pipeline.evaluate import EvalConfig, map_jobs, prepare_run, single_threaded
 from pipeline.grasp import GraspParams
 from pipeline.layout import partition
 from pipeline.retrieve import PlausibleParams, RetrievalParams, RetrieveConfig, retrieve
+from pipeline.retrieve.estimators import needs_every_step
 from pipeline.robot import load_robot
 from pipeline.score import score
 from pipeline.segment import segment_table, segmentation_params
@@ -37,7 +38,9 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> 
     # Imported here: the trackers load numba's kernels, which only the processes that track need.
     from pipeline.track.stage import TrackConfig, track_table
 
-    config = TrackConfig(method=s.method, robot=s.robot, params=dict(s.params), every_step=False)
+    # The online paper estimator reads the estimate after every in-contact step (docs/retrieval.md).
+    config = TrackConfig(method=s.method, robot=s.robot, params=dict(s.params),
+                         every_step=needs_every_step([s.estimator]))
     t0 = time.perf_counter()
     tracks, diagnostics = track_table(contacts, config, seed=root_seed, jobs=1)
     t1 = time.perf_counter()
