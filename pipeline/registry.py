@@ -300,8 +300,6 @@ register(EstimatorSpec("plausible", "the paper's segment choice, then the best p
 register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
                                 "warm-started, the grasp at the last in-contact step's estimate",
                        "pipeline.retrieve.estimators:paper_estimator", needs=("every_step",)))
-register(EstimatorSpec("paper-final", "the paper's ICP procedure (§V-C) once, on the final tracked points",
-                       "pipeline.retrieve.estimators:paper_final_estimator"))
 
 register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))

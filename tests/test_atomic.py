@@ -106,9 +106,9 @@ def test_a_stage_whose_second_output_fails_keeps_its_previous_outputs(tmp_path, 
     runs.mkdir()
     shutil.copyfile(data / "regression" / "FB-000.parquet", runs / "FB-000.parquet")
     args = {"track": ["track", "--in", str(contacts), "--out", str(tmp_path / "t.parquet"), "--robot", "disc:0.05",
-                      "--particles", "10"],
+                      "--particles", "10", "--every-step"],
             "retrieve": ["retrieve", "--segments", str(tmp_path / "s.parquet"), "--runs", str(runs), "--out",
-                         str(tmp_path / "r.parquet"), "--estimator", "paper-final", "--no-grasp"]}
+                         str(tmp_path / "r.parquet"), "--estimator", "paper", "--no-grasp"]}
     runner = CliRunner()
     for prep in (["-q", *args["track"]], ["-q", "segment", "--in", str(tmp_path / "t.parquet"), "--out",
                                           str(tmp_path / "s.parquet")], ["-q", *args["retrieve"]]):

@@ -76,7 +76,7 @@ def test_visited_positions_end_with_the_steps_action():
 
 def test_only_the_estimators_that_read_every_step_ask_for_it():
     assert needs_every_step(["paper"]) and needs_every_step(["plausible", "paper"])
-    assert not needs_every_step(["plausible", "paper-final"])
+    assert not needs_every_step(["plausible"]) and not needs_every_step([])
 
 
 # ------------------------------------------------------------------------------------------------ hard cases

@@ -26,7 +26,7 @@ REGRESSION = ROOT / "data" / "regression"
 def test_builtin_names_in_report_order_with_the_default_first():
     assert registry.tracker_names() == ("stucco", "birch", "dbscan", "kmeans", "gmphd")
     assert registry.baseline_names() == ("birch", "dbscan", "kmeans", "gmphd")
-    assert registry.estimator_names() == ("plausible", "paper", "paper-final")
+    assert registry.estimator_names() == ("plausible", "paper")
     assert registry.DEFAULT_ESTIMATOR == "plausible" and registry.estimator("paper").needs == ("every_step",)
     assert registry.policy_names() == ("scripted", "greedy-walk", "scripted+probe")
     assert registry.default_policy("retrieval") == "scripted" and registry.default_policy("training") == "greedy-walk"

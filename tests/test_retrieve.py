@@ -435,16 +435,24 @@ def _invoke(args):
 
 
 def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
-    tmp, seg, runs = stage_inputs
+    tmp, _, runs = stage_inputs
+    # The paper's estimator runs at every in-contact step: here one, the last (step 53), holding every point.
+    pts = _true_contacts_in_final_pose(fb_run)
+    table = _segments_table(fb_run.run, pts, np.zeros(len(pts)))
+    steps = np.arange(len(pts))
+    steps[-1] = 53
+    seg = tmp / "every.parquet"
+    write_table(table.set_column(1, "step", pa.array(steps, pa.int64())), seg, stage="segment",
+                params={"method": "stucco", "every_step": True}, seed=0, kind="segments")
     out = tmp / "retrieval.parquet"
     r = _invoke(["-q", "--seed", "0", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out),
-                 "--no-grasp", "--print", "--estimator", "paper-final"])
+                 "--no-grasp", "--print", "--estimator", "paper"])
     assert r.exit_code == 0, r.output
     t = read_retrieval(out)
     assert t.column_names[:len(RETRIEVAL_COLUMNS)] == [c.name for c in RETRIEVAL_COLUMNS]
     row = t.to_pylist()[0]
     assert row["run"] == "FB/0" and row["scene"] == "FB" and row["seed"] == 0 and row["method"] == "stucco"
-    assert row["estimator"] == "paper-final"
+    assert row["estimator"] == "paper"
     assert row["position_error_m"] < 0.01 and row["yaw_error_rad"] < 0.1
     assert row["grasp_success"] is None and row["grasp_s"] is None
     assert "FB/0" in r.output  # --print goes to stdout
@@ -453,12 +461,12 @@ def test_cli_retrieve_writes_both_tables(stage_inputs, fb_run):
     assert cand.num_rows == 30 and sum(cand.column("chosen").to_pylist()) == 1
     meta = read_metadata(out)
     assert meta["stage"] == "retrieve" and meta["schema"] == "retrieval" and meta["params"]["n_restarts"] == 30
-    assert meta["params"]["estimator"] == "paper-final" and "plausible" not in meta["params"]
-    assert meta["inputs"]["segments"]["file"] == "segments.parquet"
+    assert meta["params"]["estimator"] == "paper" and "plausible" not in meta["params"]
+    assert meta["inputs"]["segments"]["file"] == "every.parquet"
     # Same seed, same estimate (timings aside).
     out2 = tmp / "again.parquet"
     assert _invoke(["-q", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out2),
-                    "--no-grasp", "--estimator", "paper-final"]).exit_code == 0
+                    "--no-grasp", "--estimator", "paper"]).exit_code == 0
     a, b = read_retrieval(out).drop(["icp_s"]), read_retrieval(out2).drop(["icp_s"])
     assert a.equals(b)
 

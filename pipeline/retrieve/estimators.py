@@ -1,15 +1,15 @@
-"""Pose estimators of the retrieve stage: the paper's ICP procedure (online and end-only) and the plausible-set
-estimator, one call.
+"""Pose estimators of the retrieve stage: the paper's ICP procedure, run online as the authors did, and the
+plausible-set estimator, one call.
 
-They are registered in :mod:`pipeline.registry` (``paper_estimator``, ``paper_final_estimator``,
-``plausible_estimator``: the registry's factory signature); :func:`estimate` calls any registered estimator by name.
+Both are registered in :mod:`pipeline.registry` (``paper_estimator``, ``plausible_estimator``: the registry's
+factory signature); :func:`estimate` calls any registered estimator by name.
 
 ``paper`` is the procedure of the paper's §V-C as the authors ran it (:mod:`pipeline.retrieve.online`): at every
 in-contact step, ICP from 30 restarts on every segment of the tracker's estimate after that step (restart 0 from the
 best estimate so far), lowest position variance chooses the segment, least penetration then lowest ICP error chooses
-the pose; the grasp goes to the last in-contact step's estimate. ``paper-final`` runs the same choice once, on the
-final tracked points (:func:`pipeline.retrieve.paper.estimate_run`). ``plausible`` keeps the paper's segment choice
-(how often it picks the target's segment: docs/retrieval.md) and replaces the pose by the best of a plausible set
+the pose; the grasp goes to the last in-contact step's estimate. ``plausible`` keeps the paper's segment choice, made
+once on the final tracked points (:func:`pipeline.retrieve.paper.estimate_run`; how often it picks the target's
+segment: docs/retrieval.md) and replaces the pose by the best of a plausible set
 fitted to the known shape, the contact points weighted by recency and the gripper's free space
 (:mod:`pipeline.retrieve.plausible`).
 """
@@ -33,7 +33,7 @@ from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
 __all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator",
-           "paper_final_estimator", "plausible_estimator", "needs_every_step", "history_from_final",
+           "plausible_estimator", "needs_every_step", "history_from_final",
            "retrieval_metadata", "plausible_notes", "parse_estimators"]
 
 DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
@@ -138,13 +138,6 @@ def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Seque
     not used: the grasp goes to the last in-contact step's estimate."""
     return estimate_online([(k, [(s.id, s.points) for s in segs]) for k, segs in history], info.target, info.ee,
                            info.steps, sdf, params, rngs[0], rngs[1])
-
-
-def paper_final_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-                          params: RetrievalParams, own: None = None) -> Estimate:
-    """The paper's procedure once, on the final segments (§V-C, :func:`pipeline.retrieve.paper.estimate_run`), the
-    registry's factory."""
-    return estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
 
 
 def plausible_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],

@@ -217,7 +217,7 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
             "every_step"):
         raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
                          f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "
-                         f"then segment (or use --estimator paper-final)")
+                         f"then segment")
     table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
                                  segments_path=str(segments_path))
     meta = config.metadata()

@@ -31,10 +31,11 @@ def made(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("made")
     _ok("collect", "--scene", "FB", "--seeds", 0, "--max-actions", N_ACTIONS, "--out", tmp / "runs")
     _ok("isolate", "--in", tmp / "runs", "--out", tmp / "contacts.parquet")
-    _ok("track", "--in", tmp / "contacts.parquet", "--out", tmp / "tracks.parquet", "--robot", "disc:0.05")
+    _ok("track", "--in", tmp / "contacts.parquet", "--out", tmp / "tracks.parquet", "--robot", "disc:0.05",
+        "--every-step")
     _ok("segment", "--in", tmp / "tracks.parquet", "--out", tmp / "segments.parquet")
     _ok("retrieve", "--segments", tmp / "segments.parquet", "--runs", tmp / "runs", "--out",
-        tmp / "retrieval.parquet", "--no-grasp", "--estimator", "paper-final", "--restarts", 2)
+        tmp / "retrieval.parquet", "--no-grasp", "--estimator", "paper", "--restarts", 2)
     _ok("--seed", 1, "collect", "--scene", "FB", "--seeds", 0, "--max-actions", N_ACTIONS, "--out", tmp / "seed1")
     _ok("collect", "--scene", _moved_fb(tmp / "my" / "FB.toml"), "--seeds", 0, "--max-actions", N_ACTIONS,
         "--out", tmp / "moved")
@@ -90,7 +91,7 @@ def test_a_run_file_that_is_not_the_tables_run_is_refused(made, tmp_path, impost
     out = tmp_path / "out.parquet"
     if command == "retrieve":
         args = ["retrieve", "--segments", segments, "--runs", runs, "--out", out, "--no-grasp", "--estimator",
-                "paper-final", "--restarts", 2]
+                "paper", "--restarts", 2]
     else:
         args = ["score", "--retrieval", made / "retrieval.parquet", "--segments", segments, "--runs", runs,
                 "--out", out, "--diagnostics", made / "tracks.diagnostics.parquet"]
