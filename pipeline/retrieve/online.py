@@ -131,7 +131,8 @@ def online_protocol(history: Sequence[StepSegments], target: Primitive, ee: np.n
             continue
         visited = visited_until(ee, ee_steps, int(step))
 
-        def penetration(res: IcpResult) -> np.ndarray:
+        def penetration(res: IcpResult, visited: np.ndarray = visited) -> np.ndarray:
+            """Penetration (B,) of a result's poses into the gripper positions visited up to this step."""
             return np.maximum(-min_clearance(sdf, model, res.poses, visited), 0.0)
 
         first_warm = warm
