@@ -95,6 +95,23 @@ def test_rerun_skips_finished_jobs(copy):
     assert ev.scores.num_rows == 2 * len(registry.estimator_names())  # two jobs, every pose estimator each
 
 
+def test_tracks_made_without_every_step_are_tracked_again_for_the_online_estimator(copy):
+    # A folder made before `paper` ran at every in-contact step holds final-only tracks: they are out of date.
+    import pyarrow.parquet as pq
+
+    path = partition(copy, "tracks", "IB", 0, "stucco")
+    t = pq.read_table(path)
+    meta = dict(t.schema.metadata)
+    params = json.loads(meta[b"stucco.params"])
+    assert params["every_step"] is True
+    meta[b"stucco.params"] = json.dumps(dict(params, every_step=False)).encode()
+    pq.write_table(t.replace_schema_metadata(meta), path)
+    # (the rewritten file has a new digest, so its segments are out of date either way)
+    assert stale_stages(copy, Job("IB", 0, "stucco"), ("plausible",)) == STAGES[3:]
+    assert stale_stages(copy, Job("IB", 0, "stucco"), ("plausible", "paper")) == STAGES[2:]
+    assert stale_stages(copy, Job("IB", 0, "gmphd"), ("plausible", "paper")) == ()
+
+
 def test_interrupted_job_resumes_from_the_missing_stage(copy):
     partition(copy, "retrieval", "IB", 0, "stucco").unlink()
     before = _mtimes(copy)

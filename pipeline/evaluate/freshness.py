@@ -15,6 +15,7 @@ from pipeline import schema
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGES, job_paths, partition
 from pipeline.registry import DEFAULT_ESTIMATOR
+from pipeline.retrieve.estimators import needs_every_step
 
 __all__ = ["Digests", "up_to_date", "stale_stages", "run_stale", "figure_stale"]
 
@@ -65,10 +66,16 @@ def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT
     """The stages of ``job`` to (re)run: the first whose outputs (for any of ``estimators``) are missing or out
     of date, and all after it.
 
-    Empty when the job is finished (its scores are up to date with the whole chain, for every estimator).
+    Empty when the job is finished (its scores are up to date with the whole chain, for every estimator). Tracks
+    without the estimate after every step are out of date when one of ``estimators`` needs it.
     """
     digest = Digests()
     first = len(STAGES)
+    tracks = partition(Path(out), "tracks", job.scene, job.seed, job.method)
+    if needs_every_step(estimators) and tracks.is_file() and not _every_step(tracks):
+        # Tracks of a folder made before an estimator read every in-contact step: track again (the final estimate is
+        # the same bits, docs/retrieval.md "Online, as the authors ran it"), and everything after.
+        first = STAGES.index("track")
     for est in estimators:
         p = job_paths(Path(out), job, est)
         for i, (stage, outputs) in enumerate(_stage_inputs(p).items()):
@@ -78,6 +85,14 @@ def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT
                 first = i
                 break
     return STAGES[first:]
+
+
+def _every_step(path: Path) -> bool:
+    """The tracks file holds the estimate after every step (its metadata ``every_step``)."""
+    try:
+        return bool((schema.read_metadata(path).get("params") or {}).get("every_step"))
+    except schema.SchemaError:
+        return False
 
 
 def run_stale(out: Path, scene: str, seed: int) -> bool:
