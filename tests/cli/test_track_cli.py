@@ -124,6 +124,9 @@ def test_track_every_step(tmp_path, contacts_file, contacts_table):
     final = tracks.filter(pc.equal(tracks["estimate_step"], 69))
     ok(track(contacts_file, tmp_path / "last.parquet", *FAST))
     assert final.equals(schema.read_tracks(tmp_path / "last.parquet"))
+    # segment records it, for the estimators that read every in-contact step (retrieve --estimator paper)
+    ok(invoke("segment", "--in", out, "--out", tmp_path / "s.parquet"))
+    assert schema.read_metadata(tmp_path / "s.parquet")["params"]["every_step"] is True
 
 
 def test_track_dbscan_end_to_end(tmp_path, contacts_file):
@@ -180,7 +183,8 @@ def test_segment_writes_segment_column_and_prints_a_summary(tmp_path, contacts_f
     assert segs.column_names[-1] == "segment" and segs.num_rows == 13
     assert segs.drop_columns(["segment"]).equals(schema.read_tracks(tracks))
     meta = schema.read_metadata(seg)
-    assert meta["stage"] == "segment" and meta["params"] == dict(length=0.02, alpha=0.4, by="auto", method="stucco")
+    assert meta["stage"] == "segment" and meta["params"] == dict(length=0.02, alpha=0.4, by="auto", method="stucco",
+                                                                 every_step=False)
     lines = res.stdout.strip().splitlines()
     assert lines[0].split() == ["run", "segment", "points", "centroid_x_m", "centroid_y_m", "run_FMI"]
     n_seg = len(set(segs.column("segment").to_pylist()))
