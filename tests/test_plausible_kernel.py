@@ -78,3 +78,28 @@ def test_plain_python_kernel_gives_the_compiled_bits(monkeypatch):
         np.testing.assert_array_equal(t2.total, t.total)
         np.testing.assert_array_equal(H2, H)
         np.testing.assert_array_equal(g2, g)
+
+
+def test_free_space_cells_keep_the_first_point_of_each_cell_as_the_row_unique_did():
+    """free_space_points deduplicates on one int64 key per cell: the same points, in the same order, as
+    np.unique over the rows of cell indices (negative cells and a sweep crossing itself included)."""
+    from pipeline.retrieve.evidence import free_space_points, gripper_lattice
+    from pipeline.robot import disc_sdf
+
+    params = PlausibleParams()
+    lattice = gripper_lattice(disc_sdf(0.03), params.free_resolution)
+    start = np.array([[-0.2, -0.1], [-0.1, -0.1], [0.1, 0.05], [-0.05, -0.12]])
+    end = np.array([[-0.1, -0.1], [0.1, 0.05], [-0.05, -0.12], [0.02, 0.2]])
+    got = free_space_points(lattice, start, end, np.arange(4), 0, params, np.array([-0.01, 0.0]), 0.25)
+    # the reference: every candidate point in order, the first of each cell kept
+    later = np.arange(4) > 0
+    n = np.maximum(1, np.ceil(np.linalg.norm(end[later] - start[later], axis=1) / params.sweep_spacing).astype(int))
+    sweep = np.vstack([a + np.linspace(0.0, 1.0, k + 1)[:, None] * (b - a)
+                       for a, b, k in zip(start[later], end[later], n)])
+    poses = np.vstack([end[:1], sweep])
+    pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
+    pts = pts[np.linalg.norm(pts - np.array([-0.01, 0.0]), axis=1) <= 0.25]
+    _, first = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
+    expected = pts[np.sort(first)]
+    assert len(expected) < len(pts)  # there were duplicates to remove
+    np.testing.assert_array_equal(got, expected)
