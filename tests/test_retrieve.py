@@ -590,7 +590,8 @@ def test_the_paper_estimate_is_computed_once_for_both_estimators(fb_run, panda, 
     monkeypatch.setattr(estimators, "estimate_run", lambda *a: calls.append(1) or real(*a))
     monkeypatch.setattr(estimators, "_LAST_PAPER", [])
     paper = estimate("paper", segs, fb_run, panda, retrieval_rng(0, fb_run.run))
-    shared = estimate("plausible", segs, fb_run, panda, retrieval_rng(0, fb_run.run))
+    # the stage loads the robot's grid afresh for each estimator (another object, the same grid)
+    shared = estimate("plausible", segs, fb_run, load_robot("panda"), retrieval_rng(0, fb_run.run))
     assert len(calls) == 1
     monkeypatch.setattr(estimators, "_LAST_PAPER", [])
     fresh = estimate("plausible", segs, fb_run, panda, retrieval_rng(0, fb_run.run))

@@ -110,13 +110,13 @@ def _paper_once(segments: Sequence[Segment], info: RunInfo, sdf, params: Retriev
     """:func:`~pipeline.retrieve.paper.estimate_run` of a run, computed once for the estimators of a job: the
     plausible estimator starts from the paper's, with the same inputs and generators (a copy is returned; the
     generators are not advanced on a repeat, and neither estimator draws from them afterwards)."""
-    key = (info.run, str(info.path), repr(info.target), np.asarray(info.ee).tobytes(), params, id(sdf),
+    key = (info.run, str(info.path), repr(info.target), np.asarray(info.ee).tobytes(), params, sdf.digest,
            tuple((s.id, np.asarray(s.points, dtype=np.float64).tobytes()) for s in segments),
            repr(rngs[0].bit_generator.state), repr(rngs[1].bit_generator.state))
     if _LAST_PAPER and _LAST_PAPER[0][0] == key:
         return copy.deepcopy(_LAST_PAPER[0][1])
     est = estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
-    _LAST_PAPER[:] = [(key, copy.deepcopy(est), sdf)]
+    _LAST_PAPER[:] = [(key, copy.deepcopy(est))]
     return est
 
 
