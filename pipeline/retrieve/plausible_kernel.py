@@ -128,7 +128,8 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
         Contact sigmas (``kind == CONTACT`` only).
     kind : int
         CONTACT: Geman-McClure of sd / sigma with ``half_c2`` = c^2 / 2 and ``c2`` = c^2; FREE: squared depth
-        min(sd + tol, 0) / s0 (``inv_s0`` = 1 / s0, the Jacobian's scale) with weight ``weight_in`` where it is below zero.
+        min(sd + tol, 0) / s0 (``inv_s0`` = 1 / s0, the Jacobian's scale) with weight ``weight_in`` where it is
+        below zero.
     scratch : ndarray, shape (P,)
         Work space for the per-point costs.
     """
