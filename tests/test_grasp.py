@@ -181,3 +181,31 @@ def test_can_grasp_at_hand_placed_poses(name, delta, success):
         est[:2] = axis - np.array([[c, -s], [s, c]]) @ can.centre
     g = grasp_at(scene, poses, np.array(scene.gripper_start), est, P)
     assert g.success is success, (name, g.outcome)
+
+
+def test_a_grasp_is_simulated_once_per_process(fb_run, monkeypatch):
+    """The same run, pose and parameters again (two estimators agreeing) reuse the first simulation: an equal,
+    independent result; other parameters simulate afresh."""
+    import pipeline.grasp as grasp_module
+
+    calls = []
+    real = grasp_module._simulate_grasp
+    monkeypatch.setattr(grasp_module, "_simulate_grasp", lambda *a: calls.append(a) or real(*a))
+    monkeypatch.setattr(grasp_module, "_MEMO", type(grasp_module._MEMO)())
+    est = fb_run.true_pose + np.array([0.004, -0.003, 0.02])
+    a = grasp_at(fb_run.scene, fb_run.final_poses, fb_run.final_ee, est, P)
+    b = grasp_at(fb_run.scene, fb_run.final_poses.copy(), fb_run.final_ee.copy(), est.copy(), P)
+    assert len(calls) == 1
+    assert (b.success, b.outcome, b.reached, b.yaw) == (a.success, a.outcome, a.reached, a.yaw)
+    np.testing.assert_array_equal(b.target_pose, a.target_pose)
+    for fa, fb in zip(a.fingers, b.fingers):
+        np.testing.assert_array_equal(fb.points, fa.points)
+        assert fb.force == fa.force
+    b.target_pose[0] += 1.0  # a copy: changing it changes neither the first result nor the next one
+    assert grasp_at(fb_run.scene, fb_run.final_poses, fb_run.final_ee, est, P).target_pose[0] == a.target_pose[0]
+    assert len(calls) == 1
+    grasp_at(fb_run.scene, fb_run.final_poses, fb_run.final_ee, est, GraspParams(settle_steps=239))
+    moved = fb_run.final_poses.copy()
+    moved[-1, 0] = np.nextafter(moved[-1, 0], 1.0)  # one bit of one body's recorded pose
+    grasp_at(fb_run.scene, moved, fb_run.final_ee, est, P)
+    assert len(calls) == 3

@@ -313,3 +313,23 @@ def test_set_grasp_with_a_margin_keeps_the_estimates_grasp_against_a_cluster_bar
     assert g.share == pytest.approx(0.45)
     assert math.isclose(math.cos(2 * (g.yaw - primitive_pose(prim, base)[2])), 1.0, abs_tol=1e-9)
     assert choose_grasp(sc, prim, poses, np.array([0.45, 0.275, 0.275]), 0).share == pytest.approx(0.55)
+
+
+def test_active_row_is_computed_once_for_the_estimators_of_a_job(monkeypatch):
+    """Every pose estimator of a job gets the active protocol's same row: computed once for the same run file,
+    method, seed and grasp parameters, afresh when any of them changes."""
+    from pipeline.grasp import GraspParams
+    from pipeline.probe import retrieval
+    from pipeline.retrieve import load_run
+
+    calls = []
+    real = retrieval._active_row
+    monkeypatch.setattr(retrieval, "_active_row", lambda *a: calls.append(a) or real(*a))
+    monkeypatch.setattr(retrieval, "_LAST_ROW", [])
+    info = load_run(REG / "FB-000.parquet")
+    first = retrieval.active_row(info, "stucco", 0, False, GraspParams())
+    again = retrieval.active_row(info, "stucco", 0, False, GraspParams())
+    assert len(calls) == 1 and again == first and again is not first
+    retrieval.active_row(info, "stucco", 1, False, GraspParams())
+    retrieval.active_row(info, "stucco", 1, False, GraspParams(settle_steps=239))
+    assert len(calls) == 3

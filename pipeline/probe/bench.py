@@ -45,6 +45,21 @@ def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> 
     return min(budget, len(history) - 1)
 
 
+def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: bool, rows: int | None,
+                 root_seed: int, params: ProbeParams) -> tuple:
+    """(grasp result, position error, yaw error) of the set the policy holds at decision ``k``."""
+    belief, _ = active_set(info, root_seed, params.method, None if last else k)
+    t = schema.read_run(path)
+    poses = info.final_poses if last else np.asarray(t.column("obj_pose")[rows - 1].as_py()).reshape(-1, 3)
+    n0 = int(history[0]["rows"])
+    ee = info.final_ee if last else info.ee[n0]
+    g = choose_grasp(scene, info.target, belief.poses, belief.weights, belief.best)
+    res = simulate_set_grasp(scene, poses, ee, g)
+    pose = info.target.canonical(belief.poses[belief.best])
+    pe, ye = pose_error(info.target, pose, poses[info.target_id])
+    return res, pe, ye
+
+
 def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_seed: int,
          params: ProbeParams) -> list[dict]:
     scene = load_scene(scene_name)
@@ -57,19 +72,14 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]
     need = required_contacts(info.target, params)
     out = []
+    stopped: dict[int, tuple] = {}  # decision -> its set, grasp outcome and errors: budgets stopping there share it
     for b in budgets:
         k = stop_decision(history, b, need, params.plan.agree_share)
         last = k == len(history) - 1
-        belief, _ = active_set(info, root_seed, params.method, None if last else k)
         rows = None if last else int(history[k]["rows"])
-        t = schema.read_run(path)
-        poses = info.final_poses if last else np.asarray(t.column("obj_pose")[rows - 1].as_py()).reshape(-1, 3)
-        n0 = int(history[0]["rows"])
-        ee = info.final_ee if last else info.ee[n0]
-        g = choose_grasp(scene, info.target, belief.poses, belief.weights, belief.best)
-        res = simulate_set_grasp(scene, poses, ee, g)
-        pose = info.target.canonical(belief.poses[belief.best])
-        pe, ye = pose_error(info.target, pose, poses[info.target_id])
+        if k not in stopped:
+            stopped[k] = _at_decision(info, path, scene, history, k, last, rows, root_seed, params)
+        res, pe, ye = stopped[k]
         st = run_stats(path, rows)
         dec = np.asarray(st["decision_s"][:k + 1])
         out.append(dict(scene=scene.name, seed=seed, budget=b, probes=k, success=bool(res.success),

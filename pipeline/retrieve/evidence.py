@@ -98,5 +98,9 @@ def free_space_points(lattice: np.ndarray, ee_start: np.ndarray, ee_end: np.ndar
     pts = pts[np.linalg.norm(pts - centre, axis=1) <= radius]
     if len(pts) == 0:
         return pts
-    _, first = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
+    cell = np.rint(pts / params.free_resolution).astype(np.int64)
+    # One int64 per cell (row-major in the cells' bounding box): np.unique over rows (axis=0) sorts them as
+    # opaque bytes, ten times slower; the first point of each cell is the same either way (a stable sort).
+    cell -= cell.min(axis=0)
+    _, first = np.unique(cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1], return_index=True)
     return pts[np.sort(first)]

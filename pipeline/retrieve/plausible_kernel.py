@@ -1,0 +1,235 @@
+"""Compiled cost terms of the plausible estimator: :func:`pipeline.retrieve.plausible.evaluate_terms` in one pass.
+
+The numpy form builds (hypotheses, points, 3, 3) temporaries for every term of every Levenberg-Marquardt iteration;
+this kernel walks the points once per hypothesis and keeps only running sums. It computes the **same bits** as the
+numpy form (tests/test_plausible_kernel.py), because it repeats numpy's arithmetic operation by operation:
+
+* the element-wise expressions in the same order (no fused multiply-add: numba does not contract without
+  ``fastmath``), the yaw's cosine and sine taken from numpy on the same array view as the numpy form;
+* a cost, ``(B, P).sum(axis=1)`` over the contiguous last axis, with numpy's pairwise summation
+  (:func:`pairwise_sum`: blocks of 8 partial sums up to 128 values, halves above);
+* the normal matrix and gradient, ``np.sum(..., axis=1)`` over a non-last axis, as numpy does it: one running sum
+  per entry, point after point.
+
+It runs as plain Python with ``NUMBA_DISABLE_JIT=1`` with the same results (only slower). Measured in
+docs/evaluation.md, "Where the time goes".
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["pairwise_sum", "piece_terms", "warm_up", "CONTACT", "FREE"]
+
+#: Kinds of a term (the ``kind`` argument of :func:`piece_terms`).
+CONTACT, FREE = 0, 1
+
+
+@njit(cache=True)
+def _block_sum(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] for n <= 128: 8 partial sums, combined as a tree, then the tail."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        k = lo + i
+        r0 += a[k]
+        r1 += a[k + 1]
+        r2 += a[k + 2]
+        r3 += a[k + 3]
+        r4 += a[k + 4]
+        r5 += a[k + 5]
+        r6 += a[k + 6]
+        r7 += a[k + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _left_half(n):
+    """Length of the first half numpy splits a sum of n > 128 values into (a multiple of 8)."""
+    n2 = n // 2
+    return n2 - n2 % 8
+
+
+@njit(cache=True)
+def pairwise_sum(a, lo, n):
+    """Sum of ``a[lo:lo + n]`` in numpy's pairwise order (``np.add.reduce`` over a contiguous axis): blocks of
+    at most 128 values (:func:`_block_sum`), halves summed above. numpy recurses; here an explicit stack of
+    halves does (a recursive function in numba's on-disk cache crashed the process)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    los = np.empty(64, np.int64)
+    ns = np.empty(64, np.int64)
+    stage = np.zeros(64, np.int64)  # 0: not split yet, 1: summing the left half, 2: the right half
+    left = np.empty(64)
+    top = 0
+    los[0] = lo
+    ns[0] = n
+    val = 0.0
+    have = False  # val holds the sum of the half that just finished
+    while True:
+        if have:
+            if top < 0:
+                return val
+            if stage[top] == 1:
+                left[top] = val
+                stage[top] = 2
+                n2 = _left_half(ns[top])
+                top += 1
+                los[top] = los[top - 1] + n2
+                ns[top] = ns[top - 1] - n2
+                stage[top] = 0
+                have = False
+            else:
+                val = left[top] + val
+                top -= 1
+            continue
+        m = ns[top]
+        if m <= 128:
+            val = _block_sum(a, los[top], m)
+            top -= 1
+            have = True
+        else:
+            stage[top] = 1
+            top += 1
+            los[top] = los[top - 1]
+            ns[top] = _left_half(m)
+            stage[top] = 0
+
+
+@njit(cache=True)
+def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2, c2, tol, s0, inv_s0, weight_in,
+                jacobian, cost, H, grad, scratch):
+    """One term (contact points, or free-space / other-segment points) of B primitive poses, into ``cost`` (B,)
+    (the plain sum over the points; the caller applies the term's factor), and with ``jacobian`` into ``H``
+    (B, 3, 3) and ``grad`` (B, 3) (this term's sums only).
+
+    Parameters
+    ----------
+    cylinder : bool
+        The primitive is a cylinder of radius ``hx``; else a box of half sides (hx, hy), metres.
+    pose : ndarray, shape (B, 3)
+        Primitive poses (centre x, centre y, yaw); ``cos_t``, ``sin_t`` (B,) the cosines and sines of the yaws.
+    pts : ndarray, shape (P, 2), metres
+    sigma : ndarray, shape (P,), metres
+        Contact sigmas (``kind == CONTACT`` only).
+    kind : int
+        CONTACT: Geman-McClure of sd / sigma with ``half_c2`` = c^2 / 2 and ``c2`` = c^2; FREE: squared depth
+        min(sd + tol, 0) / s0 (``inv_s0`` = 1 / s0, the Jacobian's scale) with weight ``weight_in`` where it is
+        below zero.
+    scratch : ndarray, shape (P,)
+        Work space for the per-point costs.
+    """
+    B = pose.shape[0]
+    P = pts.shape[0]
+    for b in range(B):
+        c = cos_t[b]
+        s = sin_t[b]
+        px = pose[b, 0]
+        py = pose[b, 1]
+        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+        g0 = g1 = g2 = 0.0
+        for p in range(P):
+            dx = pts[p, 0] - px
+            dy = pts[p, 1] - py
+            qx = c * dx + s * dy
+            qy = -s * dx + c * dy
+            if cylinder:
+                r = math.sqrt(qx * qx + qy * qy)
+                if r > 1e-12:
+                    lx = qx / r
+                    ly = qy / r
+                else:
+                    lx = 1.0
+                    ly = 0.0
+                sd = r - hx
+            else:
+                ax = abs(qx) - hx
+                ay = abs(qy) - hy
+                sx = 1.0 if qx >= 0.0 else -1.0
+                sy = 1.0 if qy >= 0.0 else -1.0
+                ox = max(ax, 0.0)
+                oy = max(ay, 0.0)
+                out = math.sqrt(ox * ox + oy * oy)
+                first = not (ay > ax)  # np.argmax: the first of equal values
+                inside = min(ax if first else ay, 0.0)
+                sd = out + inside
+                if out > 0.0:
+                    lx = ox * sx / out
+                    ly = oy * sy / out
+                elif first:
+                    lx = sx
+                    ly = 0.0
+                else:
+                    lx = 0.0
+                    ly = sy
+            if kind == CONTACT:
+                u = sd / sigma[p]
+                scratch[p] = half_c2 * u * u / (c2 + u * u)
+                v = c2 / (c2 + u * u)
+                w = v * v
+                resid = u
+                scale = 1.0 / sigma[p]
+            else:
+                resid = min(sd + tol, 0.0) / s0
+                scratch[p] = resid * resid
+                w = weight_in if resid < 0.0 else 0.0
+                scale = inv_s0
+            if jacobian:
+                gx = c * lx - s * ly
+                gy = s * lx + c * ly
+                j0 = -gx * scale
+                j1 = -gy * scale
+                j2 = (gx * dy - gy * dx) * scale
+                w0 = j0 * w
+                w1 = j1 * w
+                w2 = j2 * w
+                h00 += w0 * j0
+                h01 += w0 * j1
+                h02 += w0 * j2
+                h10 += w1 * j0
+                h11 += w1 * j1
+                h12 += w1 * j2
+                h20 += w2 * j0
+                h21 += w2 * j1
+                h22 += w2 * j2
+                g0 += w0 * resid
+                g1 += w1 * resid
+                g2 += w2 * resid
+        cost[b] = pairwise_sum(scratch, 0, P)
+        if jacobian:
+            H[b, 0, 0] = h00
+            H[b, 0, 1] = h01
+            H[b, 0, 2] = h02
+            H[b, 1, 0] = h10
+            H[b, 1, 1] = h11
+            H[b, 1, 2] = h12
+            H[b, 2, 0] = h20
+            H[b, 2, 1] = h21
+            H[b, 2, 2] = h22
+            grad[b, 0] = g0
+            grad[b, 1] = g1
+            grad[b, 2] = g2
+
+
+def warm_up() -> None:
+    """Compile the kernels (about 1.5 s, once per machine: numba caches them on disk), as ``make setup`` does, so
+    that no evaluation job pays for it."""
+    pose = np.zeros((1, 3))
+    pts = np.zeros((1, 2))
+    out = np.empty(1), np.empty((1, 3, 3)), np.empty((1, 3))
+    piece_terms(False, 0.1, 0.1, pose, np.ones(1), np.zeros(1), pts, np.ones(1), CONTACT, 4.5, 9.0, 0.0, 0.003,
+                1.0 / 0.003, 1.0, True, *out, np.empty(1))
