@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from pipeline.track.ordering import (_below_exp, _first_above, _first_at_least, _groups_by_first_coordinate,
-                                     _merge_order, _reinsert)
+                                     _merge_order, _reinsert, _same_config)
 
 #: A term counts as penetrating only when sdf + tol is below -PEN_EPS (metres): grid cells that sit exactly at
 #: -tol give sdf + tol = -1e-17 in float64 (0 in float32), and such a tie must not mark a point inconsistent.
@@ -121,8 +121,8 @@ def predict_and_update(P, C, order, u, prev_points, dx, x, p, m_old, length, col
             disp[k, d] = dx[k, d]
     for n in prange(N):
         group = _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length)
-        counts, gorder, xs, ys = _groups_by_first_coordinate(P, C, n, group, order, m_old, K)
-        _update_moved_pairs(P, C, n, counts, gorder, xs, ys, disp, zero, colpen, npen, values, shape, strides,
+        counts, gorder, xs, ys, dup = _groups_by_first_coordinate(P, C, n, group, order, m_old, K)
+        _update_moved_pairs(P, C, n, counts, gorder, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides,
                             origin, inv_res, lo, hi, tol)
         _add_new_pairs(P, C, n, m_old, m_old + K, counts, gorder, xs, ys, zero, colpen, npen, values, shape,
                        strides, origin, inv_res, lo, hi, tol)
@@ -148,13 +148,13 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
             if d2 < best_d2:
                 best_d2 = d2
                 best = k
-        if _below_exp(u[n, j], -best_d2 / length):
-            group[j] = best
-            for d in range(D):
-                P[n, j, d] += dx[best, d]
-                C[n, j, d] += dx[best, d]
-        else:
-            group[j] = K
+        joined = _below_exp(u[n, j], -best_d2 / length)
+        group[j] = best if joined else K
+        for d in range(D):  # without a branch: whether a point joins is a coin flip
+            v = P[n, j, d]
+            w = C[n, j, d]
+            P[n, j, d] = v + dx[best, d] if joined else v
+            C[n, j, d] = w + dx[best, d] if joined else w
     for k in range(K):
         for d in range(D):
             P[n, m_old + k, d] = p[k, d]
@@ -163,15 +163,21 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
 
 
 @njit(cache=True, inline="always")
-def _update_moved_pairs(P, C, n, counts, order, xs, ys, disp, zero, colpen, npen, values, shape, strides, origin,
+def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides, origin,
                         inv_res, lo, hi, tol):
     """Re-evaluate, on particle n, every (config, point) pair of old points whose groups moved by different
     displacements, updating ``colpen``/``npen`` by the change. Only pairs whose old or new offset can lie in the
     robot's box are evaluated: a window of the points sorted by the first coordinate, then a test of the second
     (with ``WINDOW_MARGIN`` against round-off). A point's terms are added in the same order as ever (config group,
-    then configs by their point's first coordinate), so its sums keep the same bits."""
+    then configs by their point's first coordinate), so its sums keep the same bits. Resampling and Alg. 2 fill
+    particles with exact copies of points: a config equal to the previous one reuses its terms, and so does a
+    point equal to the previous one (``dup``)."""
     K = disp.shape[0] - 1
     D = P.shape[2]
+    m_old = order.size
+    hit_j = np.empty(m_old, np.int64)  # the terms that changed for the last config evaluated
+    hit_new = np.empty(m_old)
+    hit_old = np.empty(m_old)
     for a in range(K + 1):  # group of the config
         for b in range(K + 1):  # group of the point
             if a == b or counts[a] == counts[a + 1] or counts[b] == counts[b + 1]:
@@ -185,27 +191,47 @@ def _update_moved_pairs(P, C, n, counts, order, xs, ys, disp, zero, colpen, npen
                 s1 = disp[b, 1] - disp[a, 1]
                 y_lo = lo[1] + min(0.0, s1) - WINDOW_MARGIN
                 y_hi = hi[1] + max(0.0, s1) + WINDOW_MARGIN
+            n_hit = 0
             for ii in range(counts[a], counts[a + 1]):
                 i = order[ii]
+                if ii > counts[a] and _same_config(C, n, i, order[ii - 1]):
+                    # the same config as the previous one: the same window and terms, added again to each point
+                    for h in range(n_hit):
+                        _add_change(colpen, npen, n, hit_j[h], hit_new[h], hit_old[h])
+                    continue
+                n_hit = 0
                 c0 = C[n, i, 0]
                 c1 = C[n, i, 1] if D > 1 else 0.0
                 j0 = _first_at_least(xs, counts[b], counts[b + 1], c0 + win_lo)
                 j1 = _first_above(xs, j0, counts[b + 1], c0 + win_hi)
+                new = 0.0
+                old = 0.0
                 for jj in range(j0, j1):
                     q1 = ys[jj] - c1
                     if q1 < y_lo or q1 > y_hi:
                         continue  # neither the old nor the new offset is in the box: both terms are 0
                     j = order[jj]
-                    new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
-                                        lo, hi, tol)
-                    old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
-                                        lo, hi, tol)
+                    if jj == j0 or not dup[jj]:  # else the same point as the previous one: the same terms
+                        new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
+                        old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
                     if new != old:
-                        colpen[n, j] += new - old
-                        # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT=1)
-                        npen[n, j] += int(new < 0.0) - int(old < 0.0)
-                        if npen[n, j] == 0:
-                            colpen[n, j] = 0.0
+                        _add_change(colpen, npen, n, j, new, old)
+                        hit_j[n_hit] = j
+                        hit_new[n_hit] = new
+                        hit_old[n_hit] = old
+                        n_hit += 1
+
+
+@njit(cache=True, inline="always")
+def _add_change(colpen, npen, n, j, new, old):
+    """Point j's term against one config changed from ``old`` to ``new``."""
+    colpen[n, j] += new - old
+    # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT=1)
+    npen[n, j] += int(new < 0.0) - int(old < 0.0)
+    if npen[n, j] == 0:
+        colpen[n, j] = 0.0
 
 
 @njit(cache=True, inline="always")

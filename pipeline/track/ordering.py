@@ -72,12 +72,14 @@ def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
 
     ``order[n, :m_old]`` lists the points by first coordinate before the motion; a group moved by one shift keeps
     that order, so a stable split gives each group sorted. Where the split is not sorted (an order not kept up to
-    date) or two points of a group tie on the coordinate without being identical (point and config), the group
-    is sorted as it always was (``np.argsort`` of its coordinates by point index), so configs reach every point
-    in the same order as ever and its sums keep their bits; identical points add identical terms in either order.
+    date) or two points of a group tie on the coordinate with different configs, the group is sorted as it
+    always was (``np.argsort`` of its coordinates by point index), so configs reach every point in the same
+    order as ever and its sums keep their bits: the order of a group matters only as the order in which its
+    configs add their terms, and equal configs add equal terms in either order.
 
     Returns (counts (K + 2,): group a is ``gorder[counts[a]:counts[a + 1]]``, gorder (m_old,), xs (m_old,): first
-    coordinates in that order, ys (m_old,): second coordinates in that order (zeros when D = 1)).
+    coordinates in that order, ys (m_old,): second coordinates in that order (zeros when D = 1), dup (m_old,):
+    the point is at the same position as the one before it in its group).
     """
     D = P.shape[2]
     counts = np.zeros(K + 2, np.int64)
@@ -87,29 +89,49 @@ def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
         counts[a + 1] += counts[a]
     gorder = np.empty(m_old, np.int64)
     xs = np.empty(m_old)
+    ys = np.zeros(m_old)
+    dup = np.zeros(m_old, np.bool_)
+    resort = np.zeros(K + 1, np.bool_)
     fill = counts[: K + 1].copy()
     for t in range(m_old):
         j = order[n, t]
         a = group[j]
-        gorder[fill[a]] = j
-        xs[fill[a]] = P[n, j, 0]
-        fill[a] += 1
+        f = fill[a]
+        fill[a] = f + 1
+        gorder[f] = j
+        xs[f] = P[n, j, 0]
+        if D > 1:
+            ys[f] = P[n, j, 1]
+        if f > counts[a]:
+            k = gorder[f - 1]
+            if xs[f] == xs[f - 1]:
+                resort[a] |= not _same_config(C, n, j, k)
+                dup[f] = _same_position(P, n, j, k)
+            elif xs[f] < xs[f - 1]:
+                resort[a] = True
     for a in range(K + 1):
-        for f in range(counts[a] + 1, counts[a + 1]):
-            if xs[f] < xs[f - 1] or (xs[f] == xs[f - 1] and not _same_point(P, C, n, gorder[f], gorder[f - 1])):
-                _sort_group(P, n, group, a, counts, gorder, xs)
-                break
-    ys = np.zeros(m_old)
-    if D > 1:
-        for t in range(m_old):
-            ys[t] = P[n, gorder[t], 1]
-    return counts, gorder, xs, ys
+        if resort[a]:
+            _sort_group(P, n, group, a, counts, gorder, xs)
+            for f in range(counts[a], counts[a + 1]):
+                if D > 1:
+                    ys[f] = P[n, gorder[f], 1]
+                dup[f] = f > counts[a] and xs[f] == xs[f - 1] and _same_position(P, n, gorder[f], gorder[f - 1])
+    return counts, gorder, xs, ys, dup
 
 
 @njit(cache=True, inline="always")
-def _same_point(P, C, n, i, j):
+def _same_position(P, n, i, j):
     for d in range(P.shape[2]):
-        if P[n, i, d] != P[n, j, d] or C[n, i, d] != C[n, j, d]:
+        if P[n, i, d] != P[n, j, d]:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _same_config(C, n, i, k):
+    """Configs i and k of particle n are equal: they add equal terms to any point."""
+    for d in range(C.shape[2]):
+        if C[n, i, d] != C[n, k, d]:
             return False
     return True
 
