@@ -408,32 +408,6 @@ def replace_inconsistent(P, C, order, rows, m, colpen, npen, values, shape, stri
     return n_replaced
 
 
-@njit(cache=True)
-def take_rows(ancestors, m, P, C, colpen, npen, order):
-    """Resampling in place: particle i becomes a copy of particle ``ancestors[i]`` (its first m points and their
-    bookkeeping). ``ancestors`` must be sorted (systematic resampling's are): then the rows that pull from a later
-    row, done first in increasing order, and those that pull from an earlier one, done second in decreasing
-    order, always read a row that has not been overwritten yet."""
-    N = ancestors.size
-    for i in range(N):
-        if ancestors[i] > i:
-            _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
-    for i in range(N - 1, -1, -1):
-        if ancestors[i] < i:
-            _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
-
-
-@njit(cache=True, inline="always")
-def _copy_row(src, dst, m, P, C, colpen, npen, order):
-    for j in range(m):
-        for d in range(P.shape[2]):
-            P[dst, j, d] = P[src, j, d]
-            C[dst, j, d] = C[src, j, d]
-        colpen[dst, j] = colpen[src, j]
-        npen[dst, j] = npen[src, j]
-        order[dst, j] = order[src, j]
-
-
 def penetration_bruteforce(P: np.ndarray, C: np.ndarray, m: int, query, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Reference (non-incremental) computation of ``colpen`` and ``npen`` with plain numpy.
 

@@ -1,6 +1,6 @@
 """Sorted-order bookkeeping of the soft tracker's kernels (:mod:`pipeline.track.kernels`): each particle's points
 by first coordinate, split into displacement groups, merged back, repaired after Alg. 2; searches in sorted runs;
-and the adjacency draw ``u < exp(t)`` decided without exp where a table settles it.
+the adjacency draw ``u < exp(t)`` decided without exp where a table settles it; and resampling's row copies.
 
 Everything here only decides *which* pairs the kernels evaluate and in what order, never a value: a group is
 visited in exactly the order the kernels always used (``np.argsort`` of the group's first coordinates by point
@@ -194,3 +194,29 @@ def _reinsert(P, n, order, m, is_bad, bad):
             s -= 1
         order[n, s] = j
         t += 1
+
+
+@njit(cache=True)
+def take_rows(ancestors, m, P, C, colpen, npen, order):
+    """Resampling in place: particle i becomes a copy of particle ``ancestors[i]`` (its first m points and their
+    bookkeeping). ``ancestors`` must be sorted (systematic resampling's are): then the rows that pull from a later
+    row, done first in increasing order, and those that pull from an earlier one, done second in decreasing
+    order, always read a row that has not been overwritten yet."""
+    N = ancestors.size
+    for i in range(N):
+        if ancestors[i] > i:
+            _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
+    for i in range(N - 1, -1, -1):
+        if ancestors[i] < i:
+            _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
+
+
+@njit(cache=True, inline="always")
+def _copy_row(src, dst, m, P, C, colpen, npen, order):
+    for j in range(m):
+        for d in range(P.shape[2]):
+            P[dst, j, d] = P[src, j, d]
+            C[dst, j, d] = C[src, j, d]
+        colpen[dst, j] = colpen[src, j]
+        npen[dst, j] = npen[src, j]
+        order[dst, j] = order[src, j]

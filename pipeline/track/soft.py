@@ -31,6 +31,7 @@ from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.track import kernels
 from pipeline.track.base import StepResult, params_from_dict
+from pipeline.track.ordering import take_rows
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
@@ -279,7 +280,7 @@ class SoftTracker:
                 n_rep = kernels.replace_inconsistent(self._P, self._C, self._order, distinct, self._m, self._colpen,
                                                      self._npen, *self._grid, self._lo, self._hi, prm.tolerance)
                 n_replaced = int(n_rep[ancestors].sum())
-            kernels.take_rows(ancestors, self._m, *arrays)
+            take_rows(ancestors, self._m, *arrays)
             log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
         elif replace:
             n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._order, self._all_rows, self._m,
