@@ -99,16 +99,16 @@ def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
         f = fill[a]
         fill[a] = f + 1
         gorder[f] = j
-        xs[f] = P[n, j, 0]
+        x0 = P[n, j, 0]
+        xs[f] = x0
         if D > 1:
             ys[f] = P[n, j, 1]
-        if f > counts[a]:
+        if f > counts[a] and x0 <= xs[f - 1]:
             k = gorder[f - 1]
-            if xs[f] == xs[f - 1]:
-                resort[a] |= not _same_config(C, n, j, k)
-                dup[f] = _same_position(P, n, j, k)
-            elif xs[f] < xs[f - 1]:
+            if x0 < xs[f - 1] or not _same_config(C, n, j, k):
                 resort[a] = True
+            else:
+                dup[f] = _same_position(P, n, j, k)
     for a in range(K + 1):
         if resort[a]:
             _sort_group(P, n, group, a, counts, gorder, xs)
