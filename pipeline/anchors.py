@@ -26,13 +26,39 @@ def stream_path(T: int, directory: str | Path | None = None) -> Path:
     return Path(directory or ANCHOR_DIR) / f"stream_T{T}.npz"
 
 
+def source_path(T: int, directory: str | Path | None = None) -> Path:
+    """The file that holds the stream of T contacts: ``stream_T{T}.npz``, or else the shortest longer stream in the
+    folder (the streams are prefixes of one trajectory, so its first T contacts are that stream); the path of
+    the missing file when there is neither."""
+    path = stream_path(T, directory)
+    longer = sorted(t for t in _stream_counts(path.parent) if t > T)
+    return path if path.is_file() or not longer else stream_path(longer[0], directory)
+
+
+def _stream_counts(folder: Path) -> list[int]:
+    return sorted(int(f.stem[len("stream_T"):]) for f in folder.glob("stream_T*.npz")
+                  if f.stem[len("stream_T"):].isdigit())
+
+
+def load_contacts_stream(T: int, directory: str | Path | None = None) -> dict[str, np.ndarray]:
+    """The stream of T contacts (:func:`source_path`), cut just after its T-th contact step when it comes from a
+    longer file; the per-step arrays are cut, the rest (object sizes, grid, parameters) kept."""
+    stream = load_stream(source_path(T, directory))
+    c = stream["in_contact"].astype(bool)
+    if c.sum() == T:
+        return stream
+    steps = int(np.flatnonzero(c)[T - 1]) + 1
+    return {k: (v[:steps] if getattr(v, "ndim", 0) and len(v) == len(c) else v) for k, v in stream.items()}
+
+
 #: Arrays every stream file must hold, with their dimensionality.
 STREAM_ARRAYS = {"x": 2, "dx": 2, "p": 2, "obj_id": 1, "in_contact": 1, "obj_centers": 3, "obj_sizes": 1,
                  "robot_radius": 0}
 
 
 def check_streams(ts: list[int] | tuple[int, ...], directory: str | Path | None = None) -> list[Path]:
-    """The stream files for contact counts `ts`, each checked to load (no pickles) with the arrays a replay needs.
+    """The stream files for contact counts `ts` (a longer stream stands for a missing count), each checked to load
+    (no pickles) with the arrays a replay needs.
 
     Raises
     ------
@@ -41,11 +67,10 @@ def check_streams(ts: list[int] | tuple[int, ...], directory: str | Path | None 
     """
     paths = []
     for T in ts:
-        path = stream_path(T, directory)
+        path = source_path(T, directory)
         if not path.is_file():
-            have = sorted(int(f.stem[len("stream_T"):]) for f in path.parent.glob("stream_T*.npz")
-                          if f.stem[len("stream_T"):].isdigit())
-            raise ValueError(f"{path}: no stream for T={T}; streams in {path.parent}: "
+            have = _stream_counts(path.parent)
+            raise ValueError(f"{path}: no stream for T={T} (nor a longer one to cut); streams in {path.parent}: "
                              f"{', '.join(f'T={t}' for t in have) or 'none'}")
         try:
             with np.load(path, allow_pickle=False) as z:

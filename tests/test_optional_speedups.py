@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from pipeline.robot import panda_cache
-from pipeline.track import kernels
+from pipeline.track import kernels, ordering
 from tests.test_soft import _random_stream, make, run
 
 # every jitted function, helpers included (as NUMBA_DISABLE_JIT=1 runs them: numpy scalars, not Python floats)
-KERNELS = tuple(name for name, f in vars(kernels).items() if hasattr(f, "py_func"))
+KERNELS = tuple((module, name) for module in (kernels, ordering) for name, f in vars(module).items()
+                if hasattr(f, "py_func"))
 
 
 def _state(tracker):
@@ -27,9 +28,10 @@ def test_python_kernels_give_the_compiled_results(disc, monkeypatch, replace):
         return _state(run(make(disc, 5, n_particles=6, replace=replace), _random_stream(rng, 15, p_free=0.0)))
 
     compiled = tracked()
-    assert {"predict_and_update", "free_space_penetration", "replace_inconsistent", "_contribution"} <= set(KERNELS)
-    for name in KERNELS:
-        monkeypatch.setattr(kernels, name, getattr(kernels, name).py_func)
+    assert {"predict_and_update", "free_space_penetration", "replace_inconsistent", "_contribution",
+            "_groups_by_first_coordinate", "_sort_group", "_below_exp"} <= {name for _, name in KERNELS}
+    for module, name in KERNELS:
+        monkeypatch.setattr(module, name, getattr(module, name).py_func)
     python = tracked()
     if replace == "never":  # penetrating points stay counted, so the count updates (bool arithmetic) ran
         assert python[3].sum() > 0

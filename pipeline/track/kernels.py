@@ -20,14 +20,19 @@ exactly as :meth:`pipeline.robot.GridSDF.query` does.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
+
+from pipeline.track.ordering import (_below_exp, _first_above, _first_at_least, _groups_by_first_coordinate,
+                                     _merge_order, _reinsert, _same_config)
 
 #: A term counts as penetrating only when sdf + tol is below -PEN_EPS (metres): grid cells that sit exactly at
 #: -tol give sdf + tol = -1e-17 in float64 (0 in float32), and such a tie must not mark a point inconsistent.
 PEN_EPS = 1e-12
+
+#: Slack (metres) of the box tests that skip a pair before evaluating it, far above the round-off of an offset
+#: (about 1e-17 m) and far below a grid cell: a skipped pair's terms are 0 before and after the motion.
+WINDOW_MARGIN = 1e-9
 
 
 def set_threads(n: int) -> None:
@@ -69,7 +74,7 @@ def _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv
 
 
 @njit(cache=True, parallel=True)
-def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, npen,
+def predict_and_update(P, C, order, u, prev_points, dx, x, p, m_old, length, colpen, npen,
                        values, shape, strides, origin, inv_res, lo, hi, tol):
     """Predict step of Alg. 1 on every particle, then bring ``colpen``/``npen`` up to date.
 
@@ -83,6 +88,9 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
     ----------
     P, C : ndarray, shape (N, capacity, D)
         Points and configs, updated in place; slots ``m_old .. m_old+K-1`` receive the new points.
+    order : ndarray, shape (N, capacity), int32
+        Each particle's points by first coordinate (an accelerator: any content gives the same results); kept up
+        to date in place.
     u : ndarray, shape (N, m_old)
         Uniform draws in [0, 1) for the adjacency sampling.
     prev_points : ndarray, shape (K, D)
@@ -113,11 +121,12 @@ def predict_and_update(P, C, u, prev_points, dx, x, p, m_old, length, colpen, np
             disp[k, d] = dx[k, d]
     for n in prange(N):
         group = _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length)
-        counts, order, xs = _groups_by_first_coordinate(P, n, group, m_old, K)
-        _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, values, shape, strides, origin,
-                            inv_res, lo, hi, tol)
-        _add_new_pairs(P, C, n, m_old, m_old + K, zero, colpen, npen, values, shape, strides, origin, inv_res, lo,
-                       hi, tol)
+        counts, gorder, xs, ys, dup = _groups_by_first_coordinate(P, C, n, group, order, m_old, K)
+        _update_moved_pairs(P, C, n, counts, gorder, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides,
+                            origin, inv_res, lo, hi, tol)
+        _add_new_pairs(P, C, n, m_old, m_old + K, counts, gorder, xs, ys, zero, colpen, npen, values, shape,
+                       strides, origin, inv_res, lo, hi, tol)
+        _merge_order(P, n, counts, gorder, xs, order, m_old, K)
 
 
 @njit(cache=True, inline="always")
@@ -139,13 +148,13 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
             if d2 < best_d2:
                 best_d2 = d2
                 best = k
-        if u[n, j] < math.exp(-best_d2 / length):
-            group[j] = best
-            for d in range(D):
-                P[n, j, d] += dx[best, d]
-                C[n, j, d] += dx[best, d]
-        else:
-            group[j] = K
+        joined = _below_exp(u[n, j], -best_d2 / length)
+        group[j] = best if joined else K
+        for d in range(D):  # without a branch: whether a point joins is a coin flip
+            v = P[n, j, d]
+            w = C[n, j, d]
+            P[n, j, d] = v + dx[best, d] if joined else v
+            C[n, j, d] = w + dx[best, d] if joined else w
     for k in range(K):
         for d in range(D):
             P[n, m_old + k, d] = p[k, d]
@@ -154,41 +163,21 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
 
 
 @njit(cache=True, inline="always")
-def _groups_by_first_coordinate(P, n, group, m_old, K):
-    """Particle n's old points by displacement group, each group sorted by its points' first coordinate, so that
-    each config only scans the window of points that can lie inside the robot's interior box. Returns
-    (counts (K + 2,): group a is ``order[counts[a]:counts[a + 1]]``, order (m_old,), xs (m_old,): first
-    coordinates in that order)."""
-    counts = np.zeros(K + 2, np.int64)
-    for j in range(m_old):
-        counts[group[j] + 1] += 1
-    for a in range(K + 1):
-        counts[a + 1] += counts[a]
-    order = np.empty(m_old, np.int64)
-    fill = counts[: K + 1].copy()
-    for j in range(m_old):
-        a = group[j]
-        order[fill[a]] = j
-        fill[a] += 1
-    xs = np.empty(m_old)
-    for a in range(K + 1):
-        seg = order[counts[a]:counts[a + 1]].copy()
-        key = np.empty(seg.size)
-        for t in range(seg.size):
-            key[t] = P[n, seg[t], 0]
-        srt = np.argsort(key)
-        for t in range(seg.size):
-            order[counts[a] + t] = seg[srt[t]]
-            xs[counts[a] + t] = key[srt[t]]
-    return counts, order, xs
-
-
-@njit(cache=True, inline="always")
-def _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, values, shape, strides, origin,
+def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides, origin,
                         inv_res, lo, hi, tol):
     """Re-evaluate, on particle n, every (config, point) pair of old points whose groups moved by different
-    displacements (only those within the robot's box window), updating ``colpen``/``npen`` by the change."""
+    displacements, updating ``colpen``/``npen`` by the change. Only pairs whose old or new offset can lie in the
+    robot's box are evaluated: a window of the points sorted by the first coordinate, then a test of the second
+    (with ``WINDOW_MARGIN`` against round-off). A point's terms are added in the same order as ever (config group,
+    then configs by their point's first coordinate), so its sums keep the same bits. Resampling and Alg. 2 fill
+    particles with exact copies of points: a config equal to the previous one reuses its terms, and so does a
+    point equal to the previous one (``dup``)."""
     K = disp.shape[0] - 1
+    D = P.shape[2]
+    m_old = order.size
+    hit_j = np.empty(m_old, np.int64)  # the terms that changed for the last config evaluated
+    hit_new = np.empty(m_old)
+    hit_old = np.empty(m_old)
     for a in range(K + 1):  # group of the config
         for b in range(K + 1):  # group of the point
             if a == b or counts[a] == counts[a + 1] or counts[b] == counts[b + 1]:
@@ -196,29 +185,62 @@ def _update_moved_pairs(P, C, n, counts, order, xs, disp, zero, colpen, npen, va
             s0 = disp[b, 0] - disp[a, 0]  # how far the points moved relative to the configs (axis 0)
             win_lo = lo[0] + min(0.0, s0)
             win_hi = hi[0] + max(0.0, s0)
-            xs_b = xs[counts[b]:counts[b + 1]]
+            y_lo = -np.inf
+            y_hi = np.inf
+            if D > 1:
+                s1 = disp[b, 1] - disp[a, 1]
+                y_lo = lo[1] + min(0.0, s1) - WINDOW_MARGIN
+                y_hi = hi[1] + max(0.0, s1) + WINDOW_MARGIN
+            n_hit = 0
             for ii in range(counts[a], counts[a + 1]):
                 i = order[ii]
+                if ii > counts[a] and _same_config(C, n, i, order[ii - 1]):
+                    # the same config as the previous one: the same window and terms, added again to each point
+                    for h in range(n_hit):
+                        _add_change(colpen, npen, n, hit_j[h], hit_new[h], hit_old[h])
+                    continue
+                n_hit = 0
                 c0 = C[n, i, 0]
-                j0 = counts[b] + np.searchsorted(xs_b, c0 + win_lo)
-                j1 = counts[b] + np.searchsorted(xs_b, c0 + win_hi, side="right")
+                c1 = C[n, i, 1] if D > 1 else 0.0
+                j0 = _first_at_least(xs, counts[b], counts[b + 1], c0 + win_lo)
+                j1 = _first_above(xs, j0, counts[b + 1], c0 + win_hi)
+                new = 0.0
+                old = 0.0
                 for jj in range(j0, j1):
+                    q1 = ys[jj] - c1
+                    if q1 < y_lo or q1 > y_hi:
+                        continue  # neither the old nor the new offset is in the box: both terms are 0
                     j = order[jj]
-                    new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
-                                        lo, hi, tol)
-                    old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
-                                        lo, hi, tol)
+                    if jj == j0 or not dup[jj]:  # else the same point as the previous one: the same terms
+                        new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
+                        old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
+                                            lo, hi, tol)
                     if new != old:
-                        colpen[n, j] += new - old
-                        # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT=1)
-                        npen[n, j] += int(new < 0.0) - int(old < 0.0)
-                        if npen[n, j] == 0:
-                            colpen[n, j] = 0.0
+                        _add_change(colpen, npen, n, j, new, old)
+                        hit_j[n_hit] = j
+                        hit_new[n_hit] = new
+                        hit_old[n_hit] = old
+                        n_hit += 1
 
 
 @njit(cache=True, inline="always")
-def _add_new_pairs(P, C, n, m_old, m_new, zero, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
-    """On particle n: the new points against every config, and the new configs against the old points."""
+def _add_change(colpen, npen, n, j, new, old):
+    """Point j's term against one config changed from ``old`` to ``new``."""
+    colpen[n, j] += new - old
+    # ints: bool - bool fails in pure Python (NUMBA_DISABLE_JIT=1)
+    npen[n, j] += int(new < 0.0) - int(old < 0.0)
+    if npen[n, j] == 0:
+        colpen[n, j] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _add_new_pairs(P, C, n, m_old, m_new, counts, order, xs, ys, zero, colpen, npen, values, shape, strides, origin,
+                   inv_res, lo, hi, tol):
+    """On particle n: the new points against every config, and the new configs against the old points (only
+    those in the box's window, as in :func:`_update_moved_pairs`; one term per point and new config, in the
+    order of the configs)."""
+    D = P.shape[2]
     for j in range(m_old, m_new):
         colpen[n, j] = 0.0
         npen[n, j] = 0
@@ -228,11 +250,21 @@ def _add_new_pairs(P, C, n, m_old, m_new, zero, colpen, npen, values, shape, str
                 colpen[n, j] += c
                 npen[n, j] += 1
     for i in range(m_old, m_new):
-        for j in range(m_old):
-            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
-            if c < 0.0:
-                colpen[n, j] += c
-                npen[n, j] += 1
+        c0 = C[n, i, 0]
+        c1 = C[n, i, 1] if D > 1 else 0.0
+        for b in range(counts.size - 1):
+            j0 = _first_at_least(xs, counts[b], counts[b + 1], c0 + lo[0])
+            j1 = _first_above(xs, j0, counts[b + 1], c0 + hi[0])
+            for jj in range(j0, j1):
+                if D > 1:
+                    q1 = ys[jj] - c1
+                    if q1 < lo[1] - WINDOW_MARGIN or q1 > hi[1] + WINDOW_MARGIN:
+                        continue
+                j = order[jj]
+                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                if c < 0.0:
+                    colpen[n, j] += c
+                    npen[n, j] += 1
 
 
 @njit(cache=True, parallel=True)
@@ -297,21 +329,26 @@ def _config_terms(P, C, n, configs, skip, m, sign, colpen, npen, zero, values, s
 
 
 @njit(cache=True, parallel=True)
-def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
-    """Alg. 2 on every particle: each inconsistent point (and its config) becomes a copy of the nearest
+def replace_inconsistent(P, C, order, rows, m, colpen, npen, values, shape, strides, origin, inv_res, lo, hi, tol):
+    """Alg. 2 on the particles ``rows``: each inconsistent point (and its config) becomes a copy of the nearest
     consistent point of the same particle. A point is inconsistent when it penetrates at least one of its
     particle's configs deeper than the tolerance (``npen > 0``). Particles whose points are all consistent or
     all inconsistent are left alone. Updates ``colpen``/``npen`` exactly.
 
+    ``order`` (N, capacity): each particle's points by first coordinate, kept up to date (see
+    :func:`predict_and_update`). ``rows`` (R,) int64: the particles to process (the others are left alone).
+
     Returns
     -------
     n_replaced : ndarray, shape (N,), int64
+        Points replaced in each particle (0 outside ``rows``).
     """
     N = P.shape[0]
     D = P.shape[2]
     zero = np.zeros((1, D))
     n_replaced = np.zeros(N, np.int64)
-    for n in prange(N):
+    for r in prange(rows.size):
+        n = rows[r]
         n_bad = 0
         for j in range(m):
             if npen[n, j] > 0:
@@ -366,6 +403,7 @@ def replace_inconsistent(P, C, m, colpen, npen, values, shape, strides, origin, 
                     cnt += 1
             colpen[n, j] = acc
             npen[n, j] = cnt
+        _reinsert(P, n, order, m, is_bad, bad)
         n_replaced[n] = n_bad
     return n_replaced
 

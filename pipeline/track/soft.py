@@ -31,6 +31,7 @@ from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.track import kernels
 from pipeline.track.base import StepResult, params_from_dict
+from pipeline.track.ordering import take_rows
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
@@ -144,6 +145,8 @@ class SoftTracker:
         self._C = np.zeros((n, 0, self.dim))
         self._colpen = np.zeros((n, 0))
         self._npen = np.zeros((n, 0), np.int32)
+        self._order = np.zeros((n, 0), np.int32)  # points by first coordinate, per particle (kernels)
+        self._all_rows = np.arange(n, dtype=np.int64)
         self.log_weights_ = np.full(n, -math.log(n))
         self._map_points = np.zeros((0, self.dim))
         self.last_step_: StepResult | None = None
@@ -226,6 +229,7 @@ class SoftTracker:
         self._C = grow(self._C, np.float64)
         self._colpen = grow(self._colpen, np.float64)
         self._npen = grow(self._npen, np.int32)
+        self._order = grow(self._order, np.int32)
         self._capacity = cap
 
     def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> None:
@@ -233,7 +237,7 @@ class SoftTracker:
         m_old = self._m
         self._ensure_capacity(m_old + len(dx))
         u = self.rng.random((self.params.n_particles, m_old))
-        kernels.predict_and_update(self._P, self._C, u, p - dx, dx, x, p, m_old, self.params.length,
+        kernels.predict_and_update(self._P, self._C, self._order, u, p - dx, dx, x, p, m_old, self.params.length,
                                    self._colpen, self._npen, *self._grid, self._lo, self._hi,
                                    self.params.tolerance)
         self._m = m_old + len(dx)
@@ -266,23 +270,22 @@ class SoftTracker:
         resampled = ess < prm.ess_threshold
         n_replaced = 0
         replace = self._m > 0 and (prm.replace == "every-step" or (resampled and prm.replace == "after-resample"))
+        arrays = (self._P, self._C, self._colpen, self._npen, self._order)
         if resampled:
             ancestors = systematic(log_w, self.rng)
-            # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
-            # once per distinct ancestor, then hand out the copies.
-            distinct, copy_of = np.unique(ancestors, return_inverse=True)
-            live = slice(0, self._m)
-            state = [np.ascontiguousarray(a[distinct, live]) for a in (self._P, self._C, self._colpen, self._npen)]
             if replace:
-                points, configs, colpen, npen = state
-                n_replaced = int(kernels.replace_inconsistent(points, configs, self._m, colpen, npen, *self._grid,
-                                                              self._lo, self._hi, prm.tolerance)[copy_of].sum())
-            for full, part in zip((self._P, self._C, self._colpen, self._npen), state):
-                full[:, live] = part[copy_of]
+                # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
+                # once per distinct ancestor (in place, before the copies are made), then hand out the copies.
+                distinct = ancestors[np.r_[True, ancestors[1:] != ancestors[:-1]]]  # sorted: systematic
+                n_rep = kernels.replace_inconsistent(self._P, self._C, self._order, distinct, self._m, self._colpen,
+                                                     self._npen, *self._grid, self._lo, self._hi, prm.tolerance)
+                n_replaced = int(n_rep[ancestors].sum())
+            take_rows(ancestors, self._m, *arrays)
             log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
         elif replace:
-            n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._m, self._colpen, self._npen,
-                                                          *self._grid, self._lo, self._hi, prm.tolerance).sum())
+            n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._order, self._all_rows, self._m,
+                                                          self._colpen, self._npen, *self._grid, self._lo,
+                                                          self._hi, prm.tolerance).sum())
         self.log_weights_ = log_w
         self.last_step_ = StepResult(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_
