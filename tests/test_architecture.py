@@ -160,6 +160,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                 "pipeline.retrieve", "pipeline.retrieve.stage", "pipeline.retrieve.ladder",
                 "pipeline.retrieve.ladder_report", "pipeline.score")),
     ("algorithms", ("pipeline.track", "pipeline.retrieve.params", "pipeline.retrieve.model", "pipeline.retrieve.icp",
+                    "pipeline.retrieve.icp_kernel",
                     "pipeline.retrieve.paper", "pipeline.retrieve.online", "pipeline.retrieve.plausible",
                     "pipeline.retrieve.evidence",
                     "pipeline.retrieve.estimators", "pipeline.retrieve.runs", "pipeline.retrieve.tables",

@@ -15,12 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pipeline.geometry import apply_pose, rotate, wrap_angle
-from pipeline.portable import atan2
+from pipeline.retrieve.icp_kernel import icp_kernel, nearest_model
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.spd import solve_spd
 
 __all__ = ["IcpResult", "initial_transforms", "icp_error", "icp_restarts"]
 
@@ -75,9 +73,8 @@ def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
     model points, so that a point slid past the end of a face (which the normal does not see) still counts.
     """
     moved = apply_pose(world_to_model, points)  # (B, M, 2): the transform applied like a pose
-    diff = moved[:, :, None, :] - model[None, None, :, :]  # (B, M, N, 2)
-    nearest = np.argmin(np.sum(diff ** 2, axis=-1), axis=2)  # (B, M)
-    d = np.take_along_axis(diff, nearest[..., None, None], axis=2)[:, :, 0, :]  # (B, M, 2)
+    nearest, _ = nearest_model(np.ascontiguousarray(moved), np.ascontiguousarray(model))  # (B, M)
+    d = moved - model[nearest]  # (B, M, 2)
     if normals is None:
         r2 = np.sum(d ** 2, axis=-1)
     else:
@@ -89,85 +86,16 @@ def icp_error(world_to_model: np.ndarray, points: np.ndarray, model: np.ndarray,
     return np.sqrt(r2.mean(axis=1))
 
 
-def _correspond(tree: cKDTree, moved: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest model point of each moved point (B, M, 2) within ``radius``: (index (B, M), matched (B, M) bool)."""
-    d, idx = tree.query(moved.reshape(-1, 2), k=1)
-    idx = np.minimum(idx, tree.n - 1).reshape(moved.shape[:2])
-    return idx, (d <= radius).reshape(moved.shape[:2])
-
-
-def _fit_stats(moved: np.ndarray, target: np.ndarray, matched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Open3D's fitness (matched share) and inlier RMSE (metres) of B restarts, each (B,)."""
-    r2 = np.where(matched, np.sum((moved - target) ** 2, axis=-1), 0.0)
-    n = matched.sum(axis=1)
-    return n / matched.shape[1], np.sqrt(np.sum(r2, axis=1) / np.maximum(n, 1))
-
-
-def _point_to_point(points: np.ndarray, target: np.ndarray, matched: np.ndarray) -> np.ndarray:
-    """Closed-form rigid transforms (B, 3) (tx, ty, theta) taking points (M, 2) onto their matched targets
-    (B, M, 2): the 2-D Kabsch/Umeyama solution, theta = atan2 of the summed cross and dot products."""
-    w = matched.astype(np.float64)
-    n = np.maximum(w.sum(axis=1), 1.0)[:, None]
-    p_mean = np.sum(w[..., None] * points[None], axis=1) / n
-    q_mean = np.sum(w[..., None] * target, axis=1) / n
-    p = points[None] - p_mean[:, None, :]
-    q = target - q_mean[:, None, :]
-    cross = np.sum(w * (p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0]), axis=1)
-    dot = np.sum(w * (p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1]), axis=1)
-    theta = atan2(cross, dot)
-    return np.column_stack([q_mean - rotate(p_mean, theta), theta])
-
-
-def _point_to_plane_step(moved: np.ndarray, target: np.ndarray, normals: np.ndarray,
-                         matched: np.ndarray) -> np.ndarray:
-    """Linearised point-to-plane step (B, 3) (dx, dy, dtheta) for moved points (B, M, 2) against matched target
-    points and their normals (B, M, 2): least squares of (p + dtheta (-p_y, p_x) + d - q) . n."""
-    w = matched.astype(np.float64)
-    nx, ny = normals[..., 0], normals[..., 1]
-    r = (moved[..., 0] - target[..., 0]) * nx + (moved[..., 1] - target[..., 1]) * ny
-    J = np.stack([nx, ny, moved[..., 0] * ny - moved[..., 1] * nx], axis=-1)  # (B, M, 3)
-    wJ = J * w[..., None]
-    H = np.sum(wJ[..., :, None] * J[..., None, :], axis=1) + 1e-12 * np.eye(3)
-    g = np.sum(wJ * r[..., None], axis=1)
-    return -solve_spd(H, g)
-
-
-def _compose(step: np.ndarray, tf: np.ndarray) -> np.ndarray:
-    """The transform (B, 3) of applying ``tf`` then the small transform ``step`` (B, 3) (dx, dy, dtheta)."""
-    return np.column_stack([rotate(tf[:, :2], step[:, 2]) + step[:, :2], tf[:, 2] + step[:, 2]])
-
-
-def _icp(points: np.ndarray, model: np.ndarray, tree: cKDTree, inits: np.ndarray, params: RetrievalParams,
+def _icp(points: np.ndarray, model: np.ndarray, inits: np.ndarray, params: RetrievalParams,
          normals: np.ndarray | None) -> np.ndarray:
     """ICP iterations from transforms (B, 3): point-to-point, or point-to-plane with ``normals``; the final
-    transforms (B, 3). Each restart stops on its own when fitness and inlier RMSE change by < 1e-9."""
-    tf = inits.copy()
-    radius = params.max_correspondence_distance
-
-    def state(tf):
-        moved = apply_pose(tf, points)
-        idx, matched = _correspond(tree, moved, radius)
-        return moved, idx, matched, _fit_stats(moved, model[idx], matched)
-
-    moved, idx, matched, (fit, rmse) = state(tf)
-    active = np.ones(len(tf), dtype=bool)
-    for _ in range(params.max_iteration):
-        a = np.flatnonzero(active)
-        if not len(a):
-            break
-        # Only the restarts still moving are computed (every quantity is per restart, so the bits are those of
-        # computing all of them); a converged restart keeps its transform.
-        if normals is None:
-            new = _point_to_point(points, model[idx[a]], matched[a])
-        else:
-            new = _compose(_point_to_plane_step(moved[a], model[idx[a]], normals[idx[a]], matched[a]), tf[a])
-        # A restart without any correspondence does not move (Open3D's update is then the identity).
-        new = np.where(matched[a].any(axis=1)[:, None], new, tf[a])
-        moved2, idx2, matched2, (fit2, rmse2) = state(new)
-        done = (np.abs(fit2 - fit[a]) < 1e-9) & (np.abs(rmse2 - rmse[a]) < 1e-9)
-        tf[a], moved[a], idx[a], matched[a], fit[a], rmse[a] = new, moved2, idx2, matched2, fit2, rmse2
-        active[a[done]] = False
-    return tf
+    transforms (B, 3). Each restart stops on its own when fitness and inlier RMSE change by < 1e-9. The
+    iterations run in :func:`pipeline.retrieve.icp_kernel.icp_kernel`, one restart at a time (restarts are
+    independent), with the arithmetic of the batched numpy form kept in ``tests/test_icp_kernel.py``."""
+    plane = normals is not None
+    return icp_kernel(np.ascontiguousarray(points), np.ascontiguousarray(model),
+                      np.ascontiguousarray(normals) if plane else np.zeros((1, 2)), np.ascontiguousarray(inits),
+                      float(params.max_correspondence_distance), int(params.max_iteration), plane)
 
 
 def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, params: RetrievalParams,
@@ -204,7 +132,6 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
     plane = params.estimation == "point_to_plane"
     if plane and normals is None:
         raise ValueError("icp_restarts: point-to-plane ICP needs the model normals")
-    tree = cKDTree(model)
 
     def on_model(tf: np.ndarray) -> np.ndarray:
         """(B,) bool: the median point lies within max_point_distance of a model point. Point-to-plane lets a
@@ -212,11 +139,12 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
         of metres in a TC run): such a result fits no part of the model. (The median, so that one stray
         tracked point does not invalidate a segment.)"""
         moved = apply_pose(tf, points)
-        d, _ = tree.query(moved.reshape(-1, 2), k=1)
-        return np.all(np.isfinite(tf), axis=1) & (np.median(d.reshape(moved.shape[:2]), axis=1)
-                                                  <= params.max_point_distance)
+        _, d2 = nearest_model(moved, model)
+        # The distance as scipy's cKDTree computes it (inf for a point that is not finite).
+        d = np.where(np.isfinite(d2), np.sqrt(np.where(np.isfinite(d2), d2, 0.0)), np.inf)
+        return np.all(np.isfinite(tf), axis=1) & (np.median(d, axis=1) <= params.max_point_distance)
 
-    p2p = _icp(points, model, tree, inits, params, None)
+    p2p = _icp(points, model, inits, params, None)
     ok = on_model(p2p)
     out = np.where(ok[:, None], p2p, inits)
     valid = ok.copy()
@@ -224,7 +152,7 @@ def icp_restarts(points: np.ndarray, model: np.ndarray, inits: np.ndarray, param
         # Point-to-point first (correspondences settle), then point-to-plane slides the points along the faces
         # past the 9 mm spacing of the model points; if that fails, keep the point-to-point result.
         start = np.where(ok[:, None], p2p, inits)
-        p2l = _icp(points, model, tree, start, params, np.asarray(normals, dtype=np.float64))
+        p2l = _icp(points, model, start, params, np.asarray(normals, dtype=np.float64).reshape(-1, 2))
         ok2 = on_model(p2l)
         out = np.where(ok2[:, None], p2l, out)
         valid |= ok2

@@ -12,6 +12,7 @@ import numpy as np
 from pipeline.geometry import Primitive, apply_pose
 from pipeline.portable import tie_key
 from pipeline.retrieve.icp import IcpResult, icp_restarts, initial_transforms
+from pipeline.retrieve.icp_kernel import clearance_kernel
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.tables import CANDIDATE_FIELDS, run_candidates
@@ -56,10 +57,11 @@ def min_clearance(sdf, model: np.ndarray, poses: np.ndarray, ee: np.ndarray) -> 
     # pose b can reach the grid around ee_k only if its box [wmin, wmax] overlaps [ee_k + lo, ee_k + hi]
     wmin, wmax = world.min(axis=1), world.max(axis=1)  # (B, 2)
     near = np.all((wmax[:, None, :] >= ee[None] + lo) & (wmin[:, None, :] <= ee[None] + hi), axis=2)  # (B, K)
-    b, k = np.nonzero(near)
-    if len(b):
-        vals = sdf.query(world[b] - ee[k][:, None, :]).min(axis=1)  # (P,)
-        np.minimum.at(out, b, vals)
+    if near.any():
+        # sdf.query over the near pairs, compiled (the same lookups and minimum: tests/test_online.py).
+        values, shape, strides, origin, resolution = sdf.kernel_arrays()
+        out = clearance_kernel(np.ascontiguousarray(world), ee, near, values, shape, strides, origin,
+                               float(resolution), float(sdf.outside_value))
     return out
 
 
