@@ -43,7 +43,7 @@ class PushTrackParams:
     Attributes
     ----------
     n_particles : int
-        Particles (1024).
+        Particles (512).
     substeps : int
         Integration steps of one push (4): the contact point and normal are re-found on the moved target at each.
     motion : {"push", "translate", "static"}
@@ -63,7 +63,7 @@ class PushTrackParams:
     contact_sigma : float, metres
         Standard deviation of a contact point's distance to the surface (0.004: isolation error, tilt).
     outlier_sigmas : float
-        Geman-McClure scale of the contact term in sigmas (4.0).
+        Geman-McClure scale of the contact term in sigmas (2.5).
     free_sigma : float, metres
         Scale of the free-space depth (0.003).
     free_tolerance : float, metres
@@ -74,9 +74,24 @@ class PushTrackParams:
         Spacing of the gripper poses sampled along an action (0.01).
     ess_threshold : float
         Resample before a push when the effective sample size falls below this share of the particles (0.5).
+    inject : float
+        Share of the particles (0.03) replaced at every push, the lowest weights first, by fresh particles on the
+        push's contact (the contact manifold: a random outline point on the contact, stratified yaw), weighted
+        as the median particle: a segment's first contacts may be another object's, and walls or other objects
+        may move the target in ways the model does not predict.
+    n_refine : int
+        Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
+        contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
+        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.plausible.refine`).
+    refine_growth : float
+        The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
+        recency growth, smaller since the contacts turned with the target).
+    select : {"cost", "posterior"}
+        Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest refinement cost
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
     """
 
-    n_particles: int = 1024
+    n_particles: int = 512
     substeps: int = 4
     motion: str = "push"
     friction: float = 0.5
@@ -85,20 +100,24 @@ class PushTrackParams:
     noise_floor: float = 0.001
     yaw_floor: float = 0.01
     contact_sigma: float = 0.004
-    outlier_sigmas: float = 4.0
+    outlier_sigmas: float = 2.5
     free_sigma: float = 0.003
     free_tolerance: float = 0.004
     free_resolution: float = 0.01
     sweep_spacing: float = 0.01
     ess_threshold: float = 0.5
+    inject: float = 0.03
+    n_refine: int = 32
+    refine_growth: float = 1.5
+    select: str = "posterior"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
-        "motion": one_of("push", "translate", "static"),
+        "motion": one_of("push", "translate", "static"), "select": one_of("cost", "posterior"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing")},
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
-        "ess_threshold": number(0, 1)}
+        "ess_threshold": number(0, 1), "inject": number(0, 1), "n_refine": integer(0, 256), "refine_growth": number(1)}
 
     def __post_init__(self) -> None:
         check(self)
@@ -260,6 +279,9 @@ class FilterResult:
         COM poses.
     log_w : ndarray, shape (N,)
         Normalised log-weights (finite).
+    local : ndarray, shape (N, T, 2)
+        Each touching action's contact point in the particle's COM frame at that action (T touching actions):
+        the contacts carried with each particle's own trajectory are ``apply_pose(poses, local)``.
     n_pushes : int
         Actions that touched the target.
     n_resampled : int
@@ -268,6 +290,7 @@ class FilterResult:
 
     poses: np.ndarray
     log_w: np.ndarray
+    local: np.ndarray
     n_pushes: int
     n_resampled: int
 
@@ -296,11 +319,14 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
     log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
     resampled = 0
+    local = np.zeros((len(pose), len(touched), 2))
+    j = 0
     for t in range(first, len(actions.touch)):
         centre = np.mean(pose[:, :2], axis=0)
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
-                pose = pose[systematic(log_w, rng)]
+                ancestors = systematic(log_w, rng)
+                pose, local = pose[ancestors], local[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
                 resampled += 1
             d = actions.push[t]
@@ -309,10 +335,20 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
             sig = np.array([params.trans_noise * length + params.noise_floor] * 2
                            + [params.yaw_noise * length + params.yaw_floor])
             pose = pose + rng.normal(0.0, 1.0, size=pose.shape) * sig
+            n_new = int(params.inject * len(pose))
+            if n_new and j:
+                worst = np.lexsort((np.arange(len(pose)), log_w))[:n_new]
+                pose[worst] = initial_particles(prim, actions.contact[t], d, n_new, rng)
+                # their earlier contacts where they were observed, as if the target had not moved since
+                local[worst, :j] = rotate(actions.contact[touched[:j]][None, :, :] - pose[worst, None, :2],
+                                          pose[worst, 2, None], inverse=True)
+                log_w[worst] = np.median(log_w)
             ll = contact_loglik(prim, pose, actions.contact[t], params)
             ll = ll + free_loglik(prim, pose, free_points(np.array([t]), centre), params)
+            local[:, j] = rotate(actions.contact[t] - pose[:, :2], pose[:, 2], inverse=True)
+            j += 1
         else:
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
-    return FilterResult(poses=pose, log_w=log_w, n_pushes=len(touched), n_resampled=resampled)
+    return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)

@@ -16,12 +16,13 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.isolate import IsolationParams, isolate_run
-from pipeline.portable import exp, tie_key
+from pipeline.geometry import apply_pose
+from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible
-from pipeline.retrieve.evidence import cached_gripper_lattice, target_reach
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams
+from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
@@ -90,6 +91,33 @@ def filter_estimate(result: FilterResult) -> int:
     return int(order[0])
 
 
+def refine_final(target, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
+
+    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
+    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
+    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
+    """
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+    # Resampled copies of one particle refine to the same pose: one of each.
+    _, first = np.unique(order_key := np.round(result.poses[order], 9), axis=0, return_index=True)
+    del order_key
+    top = order[np.sort(first)][:own.n_refine]
+    T = result.local.shape[1]
+    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
+                         free_resolution=own.free_resolution)
+    poses, costs = [], []
+    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
+        pts = apply_pose(result.poses[i], result.local[i])
+        init = primitive_pose(target, result.poses[i])[None, :]
+        pose, terms = refine(target, init, pts, sigma, free, others, lm)
+        poses.append(com_pose(target, pose[0]))
+        costs.append(float(terms.total[0]))
+    return top, np.array(poses).reshape(-1, 3), np.array(costs)
+
+
 def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
                         params: RetrievalParams, own: PushTrackParams) -> Estimate:
     """The registry's factory (:class:`pipeline.registry.EstimatorSpec`): the paper's segment choice, then the
@@ -118,7 +146,19 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
         est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
         est.icp_s = time.perf_counter() - t0
         return est
-    best = filter_estimate(result)
+    best_pose = result.poses[filter_estimate(result)]
+    if own.n_refine:
+        centre = np.mean(pts, axis=0)
+        free = free_space_points(lattice, actions.ee_start, actions.ee_end, info.steps,
+                                 int(info.steps[np.flatnonzero(touch)[-1]]), PlausibleParams(
+                                     free_resolution=own.free_resolution, sweep_spacing=own.sweep_spacing),
+                                 centre, radius)
+        others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
+        others = others[np.hypot(*(others - centre).T) <= radius]
+        top, refined, costs = refine_final(target, result, free, others, own)
+        if own.select == "posterior":
+            costs = costs - result.log_w[top]
+        best_pose = refined[argmin_tolerant(costs, 1e-9)]
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
     B = len(order)
@@ -135,6 +175,6 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
         valid=share >= -2.0, position_var_m2=np.full(B, var), rank=np.arange(B),
         segment_chosen=np.ones(B, dtype=bool), chosen=np.arange(B) == 0)
     notes = [n for n in confidence_notes(pts, 0.0, 0.0, params) if n in ("few_points", "collinear")]
-    return Estimate(pose=target.canonical(result.poses[best]), segment=seg.id, n_points=int(touch.sum()),
+    return Estimate(pose=target.canonical(best_pose), segment=seg.id, n_points=int(touch.sum()),
                     n_segments=len(segments), position_var=var, rmse=float(rms[0]), penetration=0.0, notes=notes,
                     candidates=candidates, icp_s=time.perf_counter() - t0)
