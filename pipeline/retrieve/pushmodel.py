@@ -25,12 +25,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.geometry import Primitive, dot2, primitive_sdf, rotate, wrap_angle
-from pipeline.portable import atan2, exp, logsumexp
+from pipeline.geometry import Primitive, apply_pose, dot2, primitive_sdf, rotate, wrap_angle
+from pipeline.portable import argmin_tolerant, atan2, exp, logsumexp, tie_key
 from pipeline.retrieve.model import outline_point
+from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
 
 __all__ = ["PushTrackParams", "Actions", "FilterResult", "limit_surface_length", "push_step", "push",
-           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
+           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "refine_final", "final_pose", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
@@ -72,13 +73,17 @@ class PushTrackParams:
         Lattice spacing of the gripper's slice (0.01).
     sweep_spacing : float, metres
         Spacing of the gripper poses sampled along an action (0.01).
+    free_in_contact : bool
+        The sweeps of actions in contact with other segments are free space too; False (default): only the actions
+        without contact and the end poses of the target's (a contact of another segment may be the target's).
     ess_threshold : float
         Resample before a push when the effective sample size falls below this share of the particles (0.5).
     inject : float
         Share of the particles (0.03) replaced at every push, the lowest weights first, by fresh particles on the
         push's contact (the contact manifold: a random outline point on the contact, stratified yaw), weighted
-        as the median particle: a segment's first contacts may be another object's, and walls or other objects
-        may move the target in ways the model does not predict.
+        as the best particle times the likelihood of the earlier contacts where they were observed (sigma grown
+        by ``refine_growth`` per later push): a segment's first contacts may be another object's, and walls or
+        other objects may move the target in ways the model does not predict.
     n_refine : int
         Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
@@ -105,6 +110,7 @@ class PushTrackParams:
     free_tolerance: float = 0.004
     free_resolution: float = 0.01
     sweep_spacing: float = 0.01
+    free_in_contact: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
     n_refine: int = 32
@@ -342,7 +348,12 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                 # their earlier contacts where they were observed, as if the target had not moved since
                 local[worst, :j] = rotate(actions.contact[touched[:j]][None, :, :] - pose[worst, None, :2],
                                           pose[worst, 2, None], inverse=True)
-                log_w[worst] = np.median(log_w)
+                # weighted as the best particle times the likelihood of those contacts, each one's sigma grown
+                # per later push (they were observed before the target moved)
+                sd, _ = primitive_sdf(prim, _local(prim, pose[worst], actions.contact[touched[:j]]))
+                u2 = (sd / (params.contact_sigma * params.refine_growth ** (j - np.arange(j))[None, :])) ** 2
+                c2 = params.outlier_sigmas ** 2
+                log_w[worst] = np.max(log_w) - 0.5 * np.sum(c2 * u2 / (c2 + u2), axis=1)
             ll = contact_loglik(prim, pose, actions.contact[t], params)
             ll = ll + free_loglik(prim, pose, free_points(np.array([t]), centre), params)
             local[:, j] = rotate(actions.contact[t] - pose[:, :2], pose[:, 2], inverse=True)
@@ -352,3 +363,44 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
     return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)
+
+
+def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
+
+    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
+    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
+    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
+    """
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+    # Resampled copies of one particle refine to the same pose: one of each.
+    _, first = np.unique(order_key := np.round(result.poses[order], 9), axis=0, return_index=True)
+    del order_key
+    top = order[np.sort(first)][:own.n_refine]
+    T = result.local.shape[1]
+    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
+                         free_resolution=own.free_resolution)
+    poses, costs = [], []
+    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
+        pts = apply_pose(result.poses[i], result.local[i])
+        init = primitive_pose(target, result.poses[i])[None, :]
+        pose, terms = refine(target, init, pts, sigma, free, others, lm)
+        poses.append(com_pose(target, pose[0]))
+        costs.append(float(terms.total[0]))
+    return top, np.array(poses).reshape(-1, 3), np.array(costs)
+
+
+def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
+               params: PushTrackParams) -> np.ndarray:
+    """The estimate (COM pose (3,)) of a filtered run: the highest-weight particle without refinement
+    (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of lowest cost minus its log-weight
+    ("posterior"), ``params.select``; ties to the higher weight."""
+    if not params.n_refine:
+        order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+        return result.poses[order[0]]
+    top, refined, costs = refine_final(prim, result, free, others, params)
+    if params.select == "posterior":
+        costs = costs - result.log_w[top]
+    return refined[argmin_tolerant(costs, 1e-9)]

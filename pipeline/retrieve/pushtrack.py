@@ -16,19 +16,18 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.isolate import IsolationParams, isolate_run
-from pipeline.geometry import apply_pose
-from pipeline.portable import argmin_tolerant, exp, tie_key
+from pipeline.portable import exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
-from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.retrieve.plausible import PlausibleParams
+from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, final_pose, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 from pipeline.robot import surface_points
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "filter_estimate", "PLAUSIBLE_SET"]
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
@@ -65,6 +64,8 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
+        if not params.free_in_contact:  # another segment's contact may be the target's, mis-segmented
+            rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
         if len(rows) == 0 or len(lattice) == 0:
             return np.zeros((0, 2))
         a, b = actions.ee_start[rows], actions.ee_end[rows]
@@ -83,39 +84,6 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
         return pts[np.sort(keep)]
 
     return free_points
-
-
-def filter_estimate(result: FilterResult) -> int:
-    """Index of the estimate among the final particles: the highest weight (ties to the lower index)."""
-    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
-    return int(order[0])
-
-
-def refine_final(target, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
-
-    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
-    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
-    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
-    """
-    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
-    # Resampled copies of one particle refine to the same pose: one of each.
-    _, first = np.unique(order_key := np.round(result.poses[order], 9), axis=0, return_index=True)
-    del order_key
-    top = order[np.sort(first)][:own.n_refine]
-    T = result.local.shape[1]
-    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
-    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
-                         free_resolution=own.free_resolution)
-    poses, costs = [], []
-    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
-        pts = apply_pose(result.poses[i], result.local[i])
-        init = primitive_pose(target, result.poses[i])[None, :]
-        pose, terms = refine(target, init, pts, sigma, free, others, lm)
-        poses.append(com_pose(target, pose[0]))
-        costs.append(float(terms.total[0]))
-    return top, np.array(poses).reshape(-1, 3), np.array(costs)
 
 
 def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
@@ -146,7 +114,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
         est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
         est.icp_s = time.perf_counter() - t0
         return est
-    best_pose = result.poses[filter_estimate(result)]
+    free = others = np.zeros((0, 2))
     if own.n_refine:
         centre = np.mean(pts, axis=0)
         free = free_space_points(lattice, actions.ee_start, actions.ee_end, info.steps,
@@ -155,10 +123,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
                                  centre, radius)
         others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
         others = others[np.hypot(*(others - centre).T) <= radius]
-        top, refined, costs = refine_final(target, result, free, others, own)
-        if own.select == "posterior":
-            costs = costs - result.log_w[top]
-        best_pose = refined[argmin_tolerant(costs, 1e-9)]
+    best_pose = final_pose(target, result, free, others, own)
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
     B = len(order)
