@@ -82,8 +82,11 @@ class PushTrackParams:
         Share of the particles (0.03) replaced at every push, the lowest weights first, by fresh particles on the
         push's contact (the contact manifold: a random outline point on the contact, stratified yaw), weighted
         as the best particle times the likelihood of the earlier contacts where they were observed (sigma grown
-        by ``refine_growth`` per later push): a segment's first contacts may be another object's, and walls or
+        by ``inject_growth`` per later push): a segment's first contacts may be another object's, and walls or
         other objects may move the target in ways the model does not predict.
+    inject_growth : float
+        Factor on an earlier contact's sigma per later push when weighting a fresh particle (1.0: every earlier
+        contact counts in full, so a fresh particle wins only where the target stayed put, as against a wall).
     n_refine : int
         Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
@@ -113,6 +116,7 @@ class PushTrackParams:
     free_in_contact: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
+    inject_growth: float = 1.0
     n_refine: int = 32
     refine_growth: float = 1.5
     select: str = "posterior"
@@ -123,7 +127,7 @@ class PushTrackParams:
                                                       "free_resolution", "sweep_spacing")},
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
-        "ess_threshold": number(0, 1), "inject": number(0, 1), "n_refine": integer(0, 256), "refine_growth": number(1)}
+        "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1), "n_refine": integer(0, 256), "refine_growth": number(1)}
 
     def __post_init__(self) -> None:
         check(self)
@@ -351,7 +355,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                 # weighted as the best particle times the likelihood of those contacts, each one's sigma grown
                 # per later push (they were observed before the target moved)
                 sd, _ = primitive_sdf(prim, _local(prim, pose[worst], actions.contact[touched[:j]]))
-                u2 = (sd / (params.contact_sigma * params.refine_growth ** (j - np.arange(j))[None, :])) ** 2
+                u2 = (sd / (params.contact_sigma * params.inject_growth ** (j - np.arange(j))[None, :])) ** 2
                 c2 = params.outlier_sigmas ** 2
                 log_w[worst] = np.max(log_w) - 0.5 * np.sum(c2 * u2 / (c2 + u2), axis=1)
             ll = contact_loglik(prim, pose, actions.contact[t], params)
