@@ -104,6 +104,9 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     seg = next(s for s in segments if s.id == paper.segment)
     target = info.target
     contact, push = observed_actions(info, sdf)
+    if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
+        contact = np.full_like(contact, np.nan)
+        contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
     touch = np.isin(info.steps, np.asarray(seg.steps)) & np.all(np.isfinite(contact), axis=1)
     actions = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push)
     pts = contact[touch] if touch.any() else np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
