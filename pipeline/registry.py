@@ -300,6 +300,10 @@ register(EstimatorSpec("plausible", "the paper's segment choice, then the best p
 register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
                                 "warm-started, the grasp at the last in-contact step's estimate",
                        "pipeline.retrieve.estimators:paper_estimator", needs=("every_step",)))
+register(EstimatorSpec("pushtrack", "the paper's segment choice, then the target's pose tracked through its pushes by "
+                                    "a particle filter (contacts at their own steps, free space, quasi-static pushing)",
+                       "pipeline.retrieve.pushtrack:pushtrack_estimator",
+                       params="pipeline.retrieve.pushmodel:PushTrackParams"))
 
 register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))

@@ -104,6 +104,12 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Free-space lattice spacings of the plausible estimator, mm ('' for none).")
 @click.option("--paper-estimator/--no-paper-estimator", default=True, show_default=True,
               help="Also run the other registered pose estimators (the paper's) at the defaults.")
+@click.option("--pushtrack-particles", "pt_particles", default="128,256,512,1024", show_default=True,
+              help="Particles of the pushtrack estimator ('' for none).")
+@click.option("--pushtrack-refine", "pt_refine", default="0,8,32", show_default=True,
+              help="Particles the pushtrack estimator refines at the end ('' for none).")
+@click.option("--pushtrack-substeps", "pt_substeps", default="1,4,8", show_default=True,
+              help="Integration steps of one push in the pushtrack estimator ('' for none).")
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")
@@ -112,7 +118,7 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
 @click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   baselines, out_dir, jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -130,6 +136,9 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                               hypotheses=_ints("--hypotheses", hyp_list, 1, 4096),
                               free_mm=_floats("--free-mm", free_list, 0.5, 100.0),
                               paper_estimator=paper_estimator,
+                              pushtrack=(("n_particles", _ints("--pushtrack-particles", pt_particles, 8, 16384)),
+                                         ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
+                                         ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,

@@ -26,7 +26,7 @@ REGRESSION = ROOT / "data" / "regression"
 def test_builtin_names_in_report_order_with_the_default_first():
     assert registry.tracker_names() == ("stucco", "birch", "dbscan", "kmeans", "gmphd")
     assert registry.baseline_names() == ("birch", "dbscan", "kmeans", "gmphd")
-    assert registry.estimator_names() == ("plausible", "paper")
+    assert registry.estimator_names() == ("plausible", "paper", "pushtrack")
     assert registry.DEFAULT_ESTIMATOR == "plausible" and registry.estimator("paper").needs == ("every_step",)
     assert registry.policy_names() == ("scripted", "greedy-walk", "scripted+probe")
     assert registry.default_policy("retrieval") == "scripted" and registry.default_policy("training") == "greedy-walk"
@@ -202,7 +202,7 @@ def test_toy_names_leave_with_the_fixture_and_are_refused_after():
 
     assert "toy" not in registry.tracker_names()
     res = CliRunner().invoke(cli, ["retrieve", "--segments", "s", "--runs", "r", "--out", "o", "--estimator", "toy"])
-    assert res.exit_code == 2 and "'toy' is not one of 'plausible', 'paper'" in res.output
+    assert res.exit_code == 2 and "'toy' is not one of 'plausible', 'paper', 'pushtrack'" in res.output
 
 
 class StillPolicy:

@@ -63,22 +63,33 @@ def test_choose_breaks_fmi_near_ties_by_ce():
 
 
 def test_accuracy_settings_have_the_default_once():
-    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (16, 32), (5, 10), baselines=("kmeans",))]
+    names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (16, 32), (5, 10), baselines=("kmeans",),
+                                               pushtrack=(("n_particles", (128, 512)), ("n_refine", (32,))))]
     assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "stucco hypotheses=16",
-                     "stucco free=10mm", "stucco paper estimator", "kmeans"]
+                     "stucco free=10mm", "stucco paper estimator", "stucco pushtrack estimator",
+                     "stucco pushtrack n_particles=128", "kmeans"]
+
+
+def test_pushtrack_knobs_override_only_the_estimators_parameters():
+    sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
+                              pushtrack=(("n_particles", (128,)), ("substeps", (1,))))
+    mine = [s for s in sweep if s.estimator == "pushtrack"]
+    assert [(s.knob, s.value, s.estimator_params) for s in mine] == [
+        ("pushtrack_n_particles", 128.0, (("n_particles", 128),)), ("pushtrack_substeps", 1.0, (("substeps", 1),))]
 
 
 def test_bench_accuracy_cli_tiny_grid(tmp_path):
     out = tmp_path / "acc"
     res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
-                                   "--free-mm", "", "--no-paper-estimator", "--baselines", "dbscan", "--out",
+                                   "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
+                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--baselines", "dbscan", "--out",
                                    str(out)])
     assert res.exit_code == 0, res.output
     assert "knee" in res.output
     rows = list(csv.DictReader(open(out / "summary.csv")))
     assert [r["setting"] for r in rows] == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=4mm",
-                                            "stucco hypotheses=16", "dbscan"]
+                                            "stucco hypotheses=16", "stucco pushtrack n_particles=64", "dbscan"]
     assert (out / "pareto.png").stat().st_size > 0
 
 
@@ -142,7 +153,7 @@ def test_evaluate_dask_backend_on_local_cluster(tmp_path):
 
     jobs = [Job("FB", 0, m) for m in ("dbscan", "stucco")]
     dask_scores = gather_scores(tmp_path / "dask", jobs, cfg.estimators)
-    assert dask_scores.num_rows == 2 * len(cfg.estimators)  # two jobs, every pose estimator each
+    assert dask_scores.num_rows == 2 * len(cfg.estimators)  # two jobs, every registered pose estimator each
     # the same jobs, the same seeds: tracking results do not depend on where a job ran
     assert dask_scores.column("fmi").to_pylist() == local.scores.column("fmi").to_pylist()
     assert dask_scores.column("n_points").to_pylist() == local.scores.column("n_points").to_pylist()

@@ -64,11 +64,15 @@ class Segment:
         Final tracked positions.
     steps : ndarray, shape (M,), int
         Step (action index) at which each point was observed.
+    observed : ndarray, shape (M, 2), metres, or None
+        Each point where it was observed, at its own step (None: not given; the pushtrack estimator then
+        re-isolates the contacts from the run file). The retrieval ladder's ideal contacts carry it.
     """
 
     id: int
     points: np.ndarray
     steps: np.ndarray
+    observed: np.ndarray | None = None
 
 
 #: The segments of every in-contact step of one run, in step order: (step, segments of the tracker's estimate after

@@ -10,7 +10,14 @@ unchanged) is tried at poses that lose one piece of knowledge per rung:
    long axis, one rung each (the grasp's tolerance);
 3. ``ideal_true_segment``: the estimator on ideal contact points of the target alone (the segment is known);
 4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
-5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it.
+5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it;
+6. for an estimator with a ``motion`` parameter (pushtrack, docs/retrieval.md): ``ideal_true_segment_static``,
+   ``..._translate``, ``tracker_our_choice_static``, ``..._translate``: rungs 3 and 5 again with the target held
+   still between contacts (only the filter's noise) or moved by the pusher without turning (the tracker's
+   assumption), instead of the pushing model.
+
+The ideal segments also carry each contact where it was observed, at its own step (``Segment.observed``): the
+estimators that read contacts at their own steps (pushtrack) get those, the others the contacts where they lie now.
 
 An estimator that runs at every in-contact step (``paper``) gets the tracker's segments after each in-contact step
 on the last rung, and on the ideal rungs the ideal points observed up to each step at their final positions
@@ -35,7 +42,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow.parquet as pq
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.layout import partition
@@ -47,7 +54,7 @@ from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
-__all__ = ["PERTURBATIONS", "RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason", "run_ladder",
+__all__ = ["PERTURBATIONS", "RUNGS", "MOTION_RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason", "run_ladder",
            "ladder_rows"]
 
 #: (rung, yaw offset rad, offset along the long axis m, offset across m) of the perturbed true pose.
@@ -56,7 +63,11 @@ PERTURBATIONS = tuple((f"yaw{d:+.2f}", d, 0.0, 0.0) for a in (0.05, 0.10, 0.15) 
      s * cm / 100 if axis == "across" else 0.0)
     for cm in (1, 2) for axis in ("along", "across") for sign, s in (("+", 1.0), ("-", -1.0)))
 ESTIMATOR_RUNGS = ("ideal_true_segment", "ideal_our_choice", "tracker_our_choice")
-RUNGS = ("true_pose",) + tuple(p[0] for p in PERTURBATIONS) + ESTIMATOR_RUNGS
+#: (rung, the estimator rung it repeats, motion model) of an estimator with a ``motion`` parameter (pushtrack):
+#: the same contacts without the pushing model, so the ladder shows what the model adds.
+MOTION_RUNGS = tuple((f"{base}_{m}", base, m) for base in ("ideal_true_segment", "tracker_our_choice")
+                     for m in ("static", "translate"))
+RUNGS = ("true_pose",) + tuple(p[0] for p in PERTURBATIONS) + ESTIMATOR_RUNGS + tuple(r[0] for r in MOTION_RUNGS)
 #: A pose farther than this from the truth is another object's (m).
 WRONG_SEGMENT_TOL = 0.10
 #: The grasp's tolerances measured at the true pose (docs/retrieval.md): 0.05 rad, 2 cm.
@@ -140,7 +151,8 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
         m = keep & (body == b)
         at, final = poses[m, b], info.final_poses[b]
         local = rotate(xy[m] - at[:, :2], at[:, 2], inverse=True)
-        out.append(Segment(int(b), rotate(local, float(final[2])) + final[:2], steps[m].astype(np.int64)))
+        out.append(Segment(int(b), rotate(local, float(final[2])) + final[:2], steps[m].astype(np.int64),
+                           observed=xy[m]))
     return out
 
 
@@ -281,6 +293,11 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
             history = tracked_history if rung == "tracker_our_choice" else history_from_final(segs)
             e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run), history=history)
             grasp(est, rung, e.pose, purity_of(e.segment) if e.segment >= 0 else 0.0)
+            if not hasattr(registry.build_params(registry.estimator(est)), "motion"):
+                continue
+            for name, _, motion in (r for r in MOTION_RUNGS if r[1] == rung):
+                e = estimate(est, segs, info, sdf, retrieval_rng(root_seed, info.run), own={"motion": motion})
+                grasp(est, name, e.pose, purity_of(e.segment) if e.segment >= 0 else 0.0)
     return rows
 
 

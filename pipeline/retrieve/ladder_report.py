@@ -42,7 +42,11 @@ _COLUMNS = (("true pose", ("true_pose",)), ("yaw ±0.05", ("yaw+0.05", "yaw-0.05
             ("1 cm", tuple(p[0] for p in PERTURBATIONS if p[0].startswith(("pos+1", "pos-1")))),
             ("2 cm", tuple(p[0] for p in PERTURBATIONS if p[0].startswith(("pos+2", "pos-2")))),
             ("ideal, true segment", ("ideal_true_segment",)), ("ideal, our choice", ("ideal_our_choice",)),
-            ("tracker, our choice", ("tracker_our_choice",)))
+            ("tracker, our choice", ("tracker_our_choice",)),
+            ("ideal, true segment, held still", ("ideal_true_segment_static",)),
+            ("ideal, true segment, translated", ("ideal_true_segment_translate",)),
+            ("tracker, held still", ("tracker_our_choice_static",)),
+            ("tracker, translated", ("tracker_our_choice_translate",)))
 
 
 def summary_markdown(summary: Sequence[dict]) -> str:

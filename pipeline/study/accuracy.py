@@ -49,7 +49,8 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> 
     t2 = time.perf_counter()
     # The sweep's hypotheses and free-space spacing are the plausible estimator's knobs.
     own = (PlausibleParams(n_hypotheses=s.hypotheses, free_resolution=s.free_resolution)
-           if registry.resolve(registry.estimator(s.estimator).params) is PlausibleParams else None)
+           if registry.resolve(registry.estimator(s.estimator).params) is PlausibleParams
+           else dict(s.estimator_params) or None)
     config = RetrieveConfig(method=s.method, estimator=s.estimator, estimator_params=own, grasp=True,
                             params=RetrievalParams(n_restarts=s.restarts, robot=s.robot), grasp_params=GraspParams())
     retrieval, _ = retrieve(segments, runs.parent, config, root_seed=root_seed, jobs=1)

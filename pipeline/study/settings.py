@@ -13,7 +13,8 @@ __all__ = ["Setting", "accuracy_settings"]
 @dataclass(frozen=True)
 class Setting:
     """One point of the accuracy sweep: a method with its tracker parameters, ICP restarts, robot grid and pose
-    estimator (with the plausible estimator's hypotheses and free-space lattice spacing in metres).
+    estimator (with the plausible estimator's hypotheses and free-space lattice spacing in metres, or another
+    estimator's own parameter overrides ``estimator_params``, e.g. the pushtrack estimator's particles).
 
     ``knob`` names what the setting varies and ``value`` its value (NaN for a method or estimator choice).
     """
@@ -28,21 +29,28 @@ class Setting:
     estimator: str = registry.DEFAULT_ESTIMATOR
     hypotheses: int = 32
     free_resolution: float = 0.005
+    estimator_params: tuple[tuple[str, Any], ...] = ()
 
 
 def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts: Sequence[int] = (5, 10, 30),
                       sdf_mm: Sequence[float] = (1, 2, 4), hypotheses: Sequence[int] = (16, 32, 64, 128),
                       free_mm: Sequence[float] = (2.5, 5, 10), paper_estimator: bool = True,
-                      baselines: Sequence[str] | None = None) -> list[Setting]:
+                      baselines: Sequence[str] | None = None,
+                      pushtrack: Sequence[tuple[str, Sequence[float]]] = (
+                          ("n_particles", (128, 256, 512, 1024)), ("n_refine", (0, 8, 32)),
+                          ("substeps", (1, 4, 8)))) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
     I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's),
-    then the baselines at their defaults (None: :func:`pipeline.registry.baseline_names`). The default STUCCO
-    setting appears once."""
+    the pushtrack estimator's knobs ``pushtrack`` ((parameter, values) pairs of
+    :class:`~pipeline.retrieve.pushmodel.PushTrackParams`: particles, refined particles, push integration steps;
+    the default values run as "stucco pushtrack estimator"), then the baselines at their defaults (None:
+    :func:`pipeline.registry.baseline_names`). The default STUCCO setting appears once."""
     out: list[Setting] = []
     seen: set[tuple] = set()
 
     def add(s: Setting) -> None:
-        key = (s.method, s.params, s.restarts, s.robot, s.estimator, s.hypotheses, s.free_resolution)
+        key = (s.method, s.params, s.restarts, s.robot, s.estimator, s.hypotheses, s.free_resolution,
+               s.estimator_params)
         if key not in seen:
             seen.add(key)
             out.append(s)
@@ -61,6 +69,14 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
     if paper_estimator:
         for e in registry.estimator_names()[1:]:  # the paper's, and any other registered
             add(Setting(f"stucco {e} estimator", "stucco", "estimator", math.nan, (), estimator=e))
+    if "pushtrack" in registry.estimator_names():
+        defaults = registry.build_params(registry.estimator("pushtrack"))
+        for knob, values in pushtrack:
+            for v in values:
+                v = type(getattr(defaults, knob))(v)
+                own = () if v == getattr(defaults, knob) else ((knob, v),)
+                add(Setting(f"stucco pushtrack {knob}={v:g}" if own else "stucco pushtrack estimator", "stucco",
+                            f"pushtrack_{knob}", float(v), (), estimator="pushtrack", estimator_params=own))
     for b in (registry.baseline_names() if baselines is None else baselines):
         add(Setting(b, b, "method", math.nan))
     return out

@@ -1,0 +1,410 @@
+"""Tracking the target's planar pose through the gripper's pushes: a particle filter over SE(2) (docs/retrieval.md,
+"The pushtrack estimator").
+
+The target's COM pose x_t = (x, y, yaw) changes only during the actions in which the gripper touches the target's
+segment. Such an action pushes the target: the pusher moves by its in-contact displacement d at the contact point,
+and the quasi-static model of planar pushing with an ellipsoidal limit surface (Lynch, Mason; the object's twist
+is proportional to (f, m / c^2) for the applied force f and moment m about the COM, c the limit surface's
+characteristic length) predicts the target's twist: the contact sticks when the force the sticking motion needs lies
+inside the friction cone, and slides along the cone's edge otherwise. Walls and other objects are not modelled: a
+noise term growing with the push length lets the contacts correct the prediction.
+
+Observations weigh the particles at their own times: the contact point of a touching action lies on the target's
+surface at the pose after that action (robust Geman-McClure term), and the gripper's slice at the end of every
+action and along every action that did not touch the target lies outside the target at that time's pose (squared
+depth beyond a tolerance, the plausible estimator's free-space term). Weights are kept in log space; the particles
+are resampled (systematic) before a push when the effective sample size is low. Every array holds all particles:
+no loop over particles or points.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.geometry import Primitive, apply_pose, dot2, primitive_sdf, rotate, wrap_angle
+from pipeline.portable import argmin_tolerant, atan2, exp, logsumexp, tie_key
+from pipeline.retrieve.model import outline_point
+from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
+
+__all__ = ["PushTrackParams", "Actions", "FilterResult", "limit_surface_length", "push_step", "push",
+           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "refine_final", "final_pose", "MAX_PARTICLES"]
+
+#: Most particles: the filter holds (particles, free-space points) arrays per action.
+MAX_PARTICLES = 16384
+
+
+@dataclass(frozen=True)
+class PushTrackParams:
+    """Parameters of the pose-tracking estimator; serialised into the retrieval metadata.
+
+    Attributes
+    ----------
+    n_particles : int
+        Particles (512).
+    substeps : int
+        Integration steps of one push (4): the contact point and normal are re-found on the moved target at each.
+    motion : {"push", "translate", "static"}
+        "push": the quasi-static pushing model; "translate": the target moves by the pusher's displacement
+        projected on the contact normal, never turns (the tracker's assumption, §VI-A); "static": never moves
+        (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
+    friction : float
+        Pusher-target friction coefficient of the pushing model (0.5).
+    trans_noise : float
+        Standard deviation of the position noise per metre pushed (0.3), plus ``noise_floor``.
+    yaw_noise : float, rad per metre pushed
+        Standard deviation of the yaw noise per metre pushed (3.0), plus ``yaw_floor``.
+    noise_floor : float, metres
+        Position noise of every push (0.001).
+    yaw_floor : float, radians
+        Yaw noise of every push (0.01).
+    contact_sigma : float, metres
+        Standard deviation of a contact point's distance to the surface (0.004: isolation error, tilt).
+    outlier_sigmas : float
+        Geman-McClure scale of the contact term in sigmas (2.5).
+    free_sigma : float, metres
+        Scale of the free-space depth (0.003).
+    free_tolerance : float, metres
+        Depth of the gripper's slice inside the target that costs nothing (0.004).
+    free_resolution : float, metres
+        Lattice spacing of the gripper's slice (0.01).
+    sweep_spacing : float, metres
+        Spacing of the gripper poses sampled along an action (0.01).
+    free_in_contact : bool
+        The sweeps of actions in contact with other segments are free space too; False (default): only the actions
+        without contact and the end poses of the target's (a contact of another segment may be the target's).
+    ess_threshold : float
+        Resample before a push when the effective sample size falls below this share of the particles (0.5).
+    inject : float
+        Share of the particles (0.03) replaced at every push, the lowest weights first, by fresh particles on the
+        push's contact (the contact manifold: a random outline point on the contact, stratified yaw), weighted
+        as the best particle times the likelihood of the earlier contacts where they were observed (sigma grown
+        by ``inject_growth`` per later push): a segment's first contacts may be another object's, and walls or
+        other objects may move the target in ways the model does not predict.
+    inject_growth : float
+        Factor on an earlier contact's sigma per later push when weighting a fresh particle (1.0: every earlier
+        contact counts in full, so a fresh particle wins only where the target stayed put, as against a wall).
+    n_refine : int
+        Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
+        contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
+        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.plausible.refine`).
+    refine_growth : float
+        The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
+        recency growth, smaller since the contacts turned with the target).
+    select : {"cost", "posterior"}
+        Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest refinement cost
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
+    """
+
+    n_particles: int = 512
+    substeps: int = 4
+    motion: str = "push"
+    friction: float = 0.5
+    trans_noise: float = 0.3
+    yaw_noise: float = 3.0
+    noise_floor: float = 0.001
+    yaw_floor: float = 0.01
+    contact_sigma: float = 0.004
+    outlier_sigmas: float = 2.5
+    free_sigma: float = 0.003
+    free_tolerance: float = 0.004
+    free_resolution: float = 0.01
+    sweep_spacing: float = 0.01
+    free_in_contact: bool = False
+    ess_threshold: float = 0.5
+    inject: float = 0.03
+    inject_growth: float = 1.0
+    n_refine: int = 32
+    refine_growth: float = 1.5
+    select: str = "posterior"
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
+        "motion": one_of("push", "translate", "static"), "select": one_of("cost", "posterior"),
+        **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
+                                                      "free_resolution", "sweep_spacing")},
+        **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
+                                        "free_tolerance")},
+        "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1), "n_refine": integer(0, 256), "refine_growth": number(1)}
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Actions:
+    """One run's actions as the filter reads them (K actions).
+
+    Attributes
+    ----------
+    ee_start, ee_end : ndarray, shape (K, 2), metres
+        Gripper position at the start and end of each action.
+    touch : ndarray, shape (K,), bool
+        The action touched the target's segment (a contact step of the chosen segment).
+    contact : ndarray, shape (K, 2), metres
+        Isolated contact point at the end of the action (NaN where none).
+    push : ndarray, shape (K, 2), metres
+        The gripper's displacement while in contact during the action (0 where none).
+    """
+
+    ee_start: np.ndarray
+    ee_end: np.ndarray
+    touch: np.ndarray
+    contact: np.ndarray
+    push: np.ndarray
+
+
+def limit_surface_length(prim: Primitive, n: int = 64) -> float:
+    """Characteristic length c (m) of the ellipsoidal limit surface of a uniform pressure over the primitive's
+    footprint: the mean distance of the footprint from the COM (the ratio of the largest friction moment to the
+    largest friction force)."""
+    u = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    if prim.kind == "cylinder":
+        r = prim.half[0]
+        q = np.stack(np.meshgrid(u * r, u * r, indexing="ij"), -1).reshape(-1, 2)
+        q = q[np.hypot(q[:, 0], q[:, 1]) <= r]
+    else:
+        q = np.stack(np.meshgrid(u * prim.half[0], u * prim.half[1], indexing="ij"), -1).reshape(-1, 2)
+    world = rotate(q, prim.yaw) + prim.centre  # footprint in the COM frame
+    return float(np.mean(np.hypot(world[:, 0], world[:, 1])))
+
+
+def _surface_contact(prim: Primitive, pose: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest surface point (N, 2) to world point(s) p (2,) or (N, 2) of the target at COM poses (N, 3), and the
+    outward normal (N, 2) there."""
+    yaw = pose[:, 2] + prim.yaw
+    centre = prim.centre_world(pose)
+    q = rotate(p - centre, yaw, inverse=True)
+    sd, g = primitive_sdf(prim, q)
+    on = q - sd[:, None] * g
+    return rotate(on, yaw) + centre, rotate(g, yaw)
+
+
+def push_step(prim: Primitive, pose: np.ndarray, p: np.ndarray, d: np.ndarray, c: float, mu: float,
+              motion: str = "push") -> np.ndarray:
+    """Poses (N, 3) after the pusher at world point p (2,) moves by d (2,), metres, against targets at COM poses
+    (N, 3), quasi-statically (module docstring). A pusher moving away from the surface leaves the pose."""
+    cp, n = _surface_contact(prim, pose, p)
+    m = -n  # the direction the pusher can push in
+    dn = dot2(m, d)
+    if motion == "static":
+        return pose.copy()
+    if motion == "translate":
+        return pose + np.column_stack([m * np.maximum(dn, 0.0)[:, None], np.zeros(len(pose))])
+    r = cp - pose[:, :2]
+    a = np.column_stack([-r[:, 1], r[:, 0]])  # r rotated by +90 deg: the contact velocity per unit turn
+    c2 = c * c
+    # Sticking: the force whose twist moves the contact point with the pusher, f = M^-1 d with
+    # M = I + a a^T / c^2 (Sherman-Morrison, written out).
+    f = d - a * (dot2(a, d) / (c2 + dot2(a, a)))[:, None]
+    fn = dot2(f, m)
+    t = np.column_stack([-m[:, 1], m[:, 0]])
+    ft = dot2(f, t)
+    slide = np.abs(ft) > mu * np.maximum(fn, 0.0)
+    # Sliding: the force on the friction cone's edge, scaled so the contact's normal velocity is the pusher's.
+    edge = m + (mu * np.where(ft >= 0.0, 1.0, -1.0))[:, None] * t
+    mf = edge + a * (dot2(a, edge) / c2)[:, None]
+    k = dn / np.maximum(dot2(m, mf), 1e-12)
+    f = np.where(slide[:, None], edge * k[:, None], f)
+    w = dot2(a, f) / c2
+    moving = dn > 0.0
+    step = np.column_stack([f, w]) * moving[:, None]
+    return pose + step
+
+
+def push(prim: Primitive, pose: np.ndarray, start: np.ndarray, d: np.ndarray, c: float,
+         params: PushTrackParams) -> np.ndarray:
+    """Poses (N, 3) after a push of d (2,) m from the pusher point ``start`` (2,), in ``params.substeps`` steps."""
+    k = params.substeps
+    for i in range(k):
+        pose = push_step(prim, pose, start + d * (i / k), d / k, c, params.friction, params.motion)
+    return pose
+
+
+def _local(prim: Primitive, pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """World points (P, 2) in the primitive frame of every COM pose (N, 3): (N, P, 2)."""
+    centre = prim.centre_world(pose)
+    return rotate(pts[None, :, :] - centre[:, None, :], (pose[:, 2] + prim.yaw)[:, None], inverse=True)
+
+
+def contact_loglik(prim: Primitive, pose: np.ndarray, point: np.ndarray, params: PushTrackParams) -> np.ndarray:
+    """Log-likelihood (N,) of a contact point (2,) on the surface of the target at COM poses (N, 3)."""
+    sd, _ = primitive_sdf(prim, _local(prim, pose, point[None, :])[:, 0, :])
+    u2 = (sd / params.contact_sigma) ** 2
+    c2 = params.outlier_sigmas ** 2
+    return -0.5 * c2 * u2 / (c2 + u2)
+
+
+def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
+    """Log-likelihood (N,) of gripper points (F, 2) lying outside the target at COM poses (N, 3)."""
+    if len(free) == 0:
+        return np.zeros(len(pose))
+    sd, _ = primitive_sdf(prim, _local(prim, pose, free))
+    r = np.minimum(sd + params.free_tolerance, 0.0) / params.free_sigma
+    return -0.5 * np.sum(r * r, axis=1)
+
+
+def initial_particles(prim: Primitive, point: np.ndarray, normal_hint: np.ndarray, n: int,
+                      rng: np.random.Generator) -> np.ndarray:
+    """n COM poses (n, 3) whose surface passes through ``point`` (2,): stratified yaw from a random offset, a random
+    point of the outline on ``point``; with a nonzero ``normal_hint`` (2,) (the push direction) the outline point
+    is drawn on a side whose outward normal opposes it (the pusher pushes into the target)."""
+    theta = (rng.uniform() + np.arange(n)) * (2.0 * np.pi / n)
+    if prim.kind == "cylinder":
+        ang = rng.uniform(0.0, 2.0 * np.pi, n)
+        if np.any(normal_hint != 0.0):
+            hint = float(atan2(-normal_hint[1], -normal_hint[0]))
+            ang = hint + rng.uniform(-0.5 * np.pi, 0.5 * np.pi, n) - theta - prim.yaw
+        u = prim.half[0] * np.column_stack([np.cos(ang), np.sin(ang)])
+    else:
+        hx, hy = prim.half
+        u = outline_point(rng.uniform(0.0, 4.0 * (hx + hy), n), hx, hy)
+    yaw = theta + prim.yaw
+    centre = point - rotate(u, yaw)
+    com = centre - rotate(np.broadcast_to(prim.centre, centre.shape), theta)
+    return np.column_stack([com, wrap_angle(theta)])
+
+
+def systematic(log_w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ancestors (N,) by systematic resampling of log-weights (N,) (at least one finite)."""
+    w = exp(log_w - logsumexp(log_w))
+    cum = np.cumsum(w)
+    cum[-1] = 1.0
+    pos = (rng.uniform() + np.arange(len(w))) / len(w)
+    return np.minimum(np.searchsorted(cum, pos, side="right"), len(w) - 1)
+
+
+@dataclass
+class FilterResult:
+    """The particles after the run's last action.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (N, 3)
+        COM poses.
+    log_w : ndarray, shape (N,)
+        Normalised log-weights (finite).
+    local : ndarray, shape (N, T, 2)
+        Each touching action's contact point in the particle's COM frame at that action (T touching actions):
+        the contacts carried with each particle's own trajectory are ``apply_pose(poses, local)``.
+    n_pushes : int
+        Actions that touched the target.
+    n_resampled : int
+        Resampling steps.
+    """
+
+    poses: np.ndarray
+    log_w: np.ndarray
+    local: np.ndarray
+    n_pushes: int
+    n_resampled: int
+
+
+def _normalised(log_w: np.ndarray) -> np.ndarray:
+    """Log-weights that sum to one; uniform when none is finite (every particle inconsistent)."""
+    log_w = np.where(np.isnan(log_w), -np.inf, log_w)
+    if not np.any(np.isfinite(log_w)):
+        return np.full(len(log_w), -math.log(len(log_w)))
+    return log_w - logsumexp(log_w)
+
+
+def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrackParams,
+               rng: np.random.Generator) -> FilterResult | None:
+    """The particle filter over one run's actions; None when no action touched the target.
+
+    ``free_points(rows, centre)`` returns the world points (F, 2) the gripper's slice covered during the actions
+    ``rows`` (an index array; only the end pose for a touching action) near ``centre`` (2,).
+    """
+    touched = np.flatnonzero(actions.touch)
+    if len(touched) == 0:
+        return None
+    c = limit_surface_length(prim)
+    first = int(touched[0])
+    start = actions.contact[first] - actions.push[first]
+    pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
+    log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
+    resampled = 0
+    local = np.zeros((len(pose), len(touched), 2))
+    j = 0
+    for t in range(first, len(actions.touch)):
+        centre = np.mean(pose[:, :2], axis=0)
+        if actions.touch[t]:
+            if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
+                ancestors = systematic(log_w, rng)
+                pose, local = pose[ancestors], local[ancestors]
+                log_w = np.full(len(pose), -math.log(len(pose)))
+                resampled += 1
+            d = actions.push[t]
+            pose = push(prim, pose, actions.contact[t] - d, d, c, params)
+            length = math.hypot(d[0], d[1])
+            sig = np.array([params.trans_noise * length + params.noise_floor] * 2
+                           + [params.yaw_noise * length + params.yaw_floor])
+            pose = pose + rng.normal(0.0, 1.0, size=pose.shape) * sig
+            n_new = int(params.inject * len(pose))
+            if n_new and j:
+                worst = np.lexsort((np.arange(len(pose)), log_w))[:n_new]
+                pose[worst] = initial_particles(prim, actions.contact[t], d, n_new, rng)
+                # their earlier contacts where they were observed, as if the target had not moved since
+                local[worst, :j] = rotate(actions.contact[touched[:j]][None, :, :] - pose[worst, None, :2],
+                                          pose[worst, 2, None], inverse=True)
+                # weighted as the best particle times the likelihood of those contacts, each one's sigma grown
+                # per later push (they were observed before the target moved)
+                sd, _ = primitive_sdf(prim, _local(prim, pose[worst], actions.contact[touched[:j]]))
+                u2 = (sd / (params.contact_sigma * params.inject_growth ** (j - np.arange(j))[None, :])) ** 2
+                c2 = params.outlier_sigmas ** 2
+                log_w[worst] = np.max(log_w) - 0.5 * np.sum(c2 * u2 / (c2 + u2), axis=1)
+            ll = contact_loglik(prim, pose, actions.contact[t], params)
+            ll = ll + free_loglik(prim, pose, free_points(np.array([t]), centre), params)
+            local[:, j] = rotate(actions.contact[t] - pose[:, :2], pose[:, 2], inverse=True)
+            j += 1
+        else:
+            ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
+        log_w = _normalised(log_w + ll)
+    pose[:, 2] = wrap_angle(pose[:, 2])
+    return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)
+
+
+def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
+
+    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
+    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
+    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
+    """
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+    # Resampled copies of one particle refine to the same pose: one of each.
+    _, first = np.unique(order_key := np.round(result.poses[order], 9), axis=0, return_index=True)
+    del order_key
+    top = order[np.sort(first)][:own.n_refine]
+    T = result.local.shape[1]
+    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
+                         free_resolution=own.free_resolution)
+    poses, costs = [], []
+    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
+        pts = apply_pose(result.poses[i], result.local[i])
+        init = primitive_pose(target, result.poses[i])[None, :]
+        pose, terms = refine(target, init, pts, sigma, free, others, lm)
+        poses.append(com_pose(target, pose[0]))
+        costs.append(float(terms.total[0]))
+    return top, np.array(poses).reshape(-1, 3), np.array(costs)
+
+
+def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
+               params: PushTrackParams) -> np.ndarray:
+    """The estimate (COM pose (3,)) of a filtered run: the highest-weight particle without refinement
+    (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of lowest cost minus its log-weight
+    ("posterior"), ``params.select``; ties to the higher weight."""
+    if not params.n_refine:
+        order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+        return result.poses[order[0]]
+    top, refined, costs = refine_final(prim, result, free, others, params)
+    if params.select == "posterior":
+        costs = costs - result.log_w[top]
+    return refined[argmin_tolerant(costs, 1e-9)]

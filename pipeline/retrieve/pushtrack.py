@@ -1,0 +1,148 @@
+"""The ``pushtrack`` estimator: the paper's segment choice, then the target's pose tracked through its pushes.
+
+The tracker's segments say which contact steps belong to the target (the segment the paper's choice picks, as the
+plausible estimator does); the contacts themselves are taken at their own steps, where they were observed, not
+where the tracker carried them (it moves old points by translation only, §VI-A). The run file gives each action's
+isolated contact point (the same detection and isolation as ``stucco isolate``, with its defaults) and the
+gripper's in-contact displacement; :func:`pipeline.retrieve.pushmodel.run_filter` tracks the pose over the actions
+and the final particles are the plausible set (docs/retrieval.md, "The pushtrack estimator").
+"""
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from pipeline.isolate import IsolationParams, isolate_run
+from pipeline.portable import exp, tie_key
+from pipeline.retrieve.estimators import Segment, estimate_plausible
+from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
+from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
+from pipeline.retrieve.params import RetrievalParams
+from pipeline.retrieve.plausible import PlausibleParams
+from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, final_pose, run_filter
+from pipeline.retrieve.runs import RunInfo
+from pipeline.retrieve.tables import run_candidates
+from pipeline.robot import surface_points
+
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "PLAUSIBLE_SET"]
+
+#: Particles kept as the run's candidates (the plausible set): the highest weights.
+PLAUSIBLE_SET = 64
+
+_SURFACES: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _surface(sdf) -> tuple[np.ndarray, np.ndarray]:
+    """The isolation's candidate surface points and normals of a gripper grid, built once per process."""
+    if sdf.digest not in _SURFACES:
+        iso = IsolationParams()
+        _SURFACES[sdf.digest] = surface_points(sdf, n_query=iso.n_query, radius=iso.radius,
+                                               min_separation=iso.min_separation)
+    return _SURFACES[sdf.digest]
+
+
+def observed_actions(info: RunInfo, sdf) -> tuple[np.ndarray, np.ndarray]:
+    """Contact point (K, 2) at the end of every action (NaN without) and the gripper's in-contact displacement
+    (K, 2) (0 without), metres, re-isolated from the run file with the isolate stage's defaults."""
+    cols, _, _ = isolate_run(pq.read_table(info.path), *_surface(sdf))
+    inc = np.asarray(cols["in_contact"], dtype=bool)
+    f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
+    contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
+    push = np.where(inc[:, None], np.column_stack([f("dx_m"), f("dy_m")]), 0.0)
+    return contact, np.nan_to_num(push)
+
+
+def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams, radius: float):
+    """``free_points(rows, centre)`` for :func:`~pipeline.retrieve.pushmodel.run_filter`: the world points (F, 2)
+    of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not touch
+    the target (a pose every ``sweep_spacing``), within ``radius`` of ``centre``, deduplicated on a
+    ``free_resolution`` grid."""
+    reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)
+
+    def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
+        rows = np.asarray(rows, dtype=np.int64)
+        if not params.free_in_contact:  # another segment's contact may be the target's, mis-segmented
+            rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
+        if len(rows) == 0 or len(lattice) == 0:
+            return np.zeros((0, 2))
+        a, b = actions.ee_start[rows], actions.ee_end[rows]
+        n = np.where(actions.touch[rows], 0, np.ceil(np.hypot(*(b - a).T) / params.sweep_spacing)).astype(np.int64)
+        seg = np.repeat(np.arange(len(rows)), n + 1)
+        first = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+        k = np.arange(len(seg)) - first
+        frac = np.where(n[seg] > 0, k / np.maximum(n[seg], 1), 1.0)  # a touching action: its end pose only
+        poses = a[seg] + frac[:, None] * (b - a)[seg]
+        poses = poses[np.hypot(*(poses - centre).T) <= reach]
+        if len(poses) == 0:
+            return np.zeros((0, 2))
+        pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
+        pts = pts[np.hypot(*(pts - centre).T) <= radius]
+        _, keep = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
+        return pts[np.sort(keep)]
+
+    return free_points
+
+
+def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                        params: RetrievalParams, own: PushTrackParams) -> Estimate:
+    """The registry's factory (:class:`pipeline.registry.EstimatorSpec`): the paper's segment choice, then the
+    final pose of the particle filter over the chosen segment's contacts at their own steps.
+
+    Falls back to the plausible estimator when the chosen segment has no isolated contact in the run file (a
+    segmentation made from other contacts). Candidates: the :data:`PLAUSIBLE_SET` highest-weight particles
+    (``restart`` = particle, ``icp_rmse_m`` = distance of the last target contact to the surface, ``valid`` =
+    weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres).
+    """
+    t0 = time.perf_counter()
+    paper = estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
+    if paper.segment < 0:
+        paper.icp_s = time.perf_counter() - t0
+        return paper
+    seg = next(s for s in segments if s.id == paper.segment)
+    target = info.target
+    contact, push = observed_actions(info, sdf)
+    if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
+        contact = np.full_like(contact, np.nan)
+        contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
+    touch = np.isin(info.steps, np.asarray(seg.steps)) & np.all(np.isfinite(contact), axis=1)
+    actions = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push)
+    pts = contact[touch] if touch.any() else np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
+    _, radius = target_reach(target, pts)
+    lattice = cached_gripper_lattice(sdf, own.free_resolution)
+    result = run_filter(target, actions, free_space_of(actions, lattice, own, radius), own, rngs[2])
+    if result is None:
+        est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
+        est.icp_s = time.perf_counter() - t0
+        return est
+    free = others = np.zeros((0, 2))
+    if own.n_refine:
+        centre = np.mean(pts, axis=0)
+        free = free_space_points(lattice, actions.ee_start, actions.ee_end, info.steps,
+                                 int(info.steps[np.flatnonzero(touch)[-1]]), PlausibleParams(
+                                     free_resolution=own.free_resolution, sweep_spacing=own.sweep_spacing),
+                                 centre, radius)
+        others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
+        others = others[np.hypot(*(others - centre).T) <= radius]
+    best_pose = final_pose(target, result, free, others, own)
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
+    poses, log_w = result.poses[order], result.log_w[order]
+    B = len(order)
+    last = contact[np.flatnonzero(touch)[-1]]
+    rms = np.abs(np.array([target.signed_distance(last[None, :], p)[0] for p in poses]))
+    share = log_w - log_w.max()
+    centres = target.centre_world(result.poses)
+    wlin = exp(result.log_w)
+    mean = np.sum(centres * wlin[:, None], axis=0)
+    var = float(np.sum(wlin * np.sum((centres - mean) ** 2, axis=1)))
+    candidates = run_candidates(
+        segment=np.full(B, seg.id), restart=order.astype(np.int64), n_points=np.full(B, int(touch.sum())),
+        x_m=poses[:, 0], y_m=poses[:, 1], yaw_rad=poses[:, 2], icp_rmse_m=rms, penetration_m=np.zeros(B),
+        valid=share >= -2.0, position_var_m2=np.full(B, var), rank=np.arange(B),
+        segment_chosen=np.ones(B, dtype=bool), chosen=np.arange(B) == 0)
+    notes = [n for n in confidence_notes(pts, 0.0, 0.0, params) if n in ("few_points", "collinear")]
+    return Estimate(pose=target.canonical(best_pose), segment=seg.id, n_points=int(touch.sum()),
+                    n_segments=len(segments), position_var=var, rmse=float(rms[0]), penetration=0.0, notes=notes,
+                    candidates=candidates, icp_s=time.perf_counter() - t0)

@@ -1,0 +1,203 @@
+"""The pushtrack estimator: the pushing model's known answers, and the hard cases of the filter and the estimator
+(never touched, touched once, pushed against a wall, a target that only slides, two segments that both fit, every
+particle inconsistent, the same seed twice)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.geometry import Primitive, apply_pose
+from pipeline.retrieve import RetrievalParams
+from pipeline.retrieve.estimators import Segment, estimate
+from pipeline.retrieve.model import pose_error
+from pipeline.retrieve.pushmodel import (Actions, PushTrackParams, contact_loglik, free_loglik, initial_particles,
+                                         final_pose, limit_surface_length, push, push_step, run_filter)
+from pipeline.retrieve.pushtrack import observed_actions
+from pipeline.retrieve.runs import load_run, retrieval_rng
+from pipeline.robot import load_robot
+
+BOX = Primitive("box", (0.03, 0.08), np.array([0.0, 0.0]), 0.0, "box")
+C = limit_surface_length(BOX)
+P = PushTrackParams()
+NO_FREE = lambda rows, centre: np.zeros((0, 2))  # noqa: E731
+
+
+def test_a_push_through_the_centre_translates_without_turning():
+    pose = np.array([[0.5, 0.0, 0.0]])
+    out = push_step(BOX, pose, np.array([0.5 - 0.03, 0.0]), np.array([0.01, 0.0]), C, 0.5)
+    assert np.allclose(out, [[0.51, 0.0, 0.0]], atol=1e-12)
+
+
+def test_an_off_centre_push_turns_the_box_away_from_the_pusher():
+    # pushing the -x face at y = +6 cm in +x: the moment about the COM is negative, the box turns clockwise
+    pose = np.array([[0.5, 0.0, 0.0]])
+    out = push_step(BOX, pose, np.array([0.47, 0.06]), np.array([0.005, 0.0]), C, 0.5)
+    assert out[0, 2] < -0.01 and 0.0 < out[0, 0] - 0.5 < 0.005
+    # the contact point on the box moves with the pusher along the push (sticking): its x advances by the push
+    before = apply_pose(pose[0], np.array([[-0.03, 0.06]]))[0]
+    after = apply_pose(out[0], np.array([[-0.03, 0.06]]))[0]
+    assert after[0] - before[0] == pytest.approx(0.005, abs=2e-4)
+
+
+def test_a_pusher_moving_away_leaves_the_target():
+    pose = np.array([[0.5, 0.0, 0.3]])
+    out = push_step(BOX, pose, np.array([0.47, 0.0]), np.array([-0.01, 0.0]), C, 0.5)
+    assert np.array_equal(out, pose)
+
+
+def test_a_frictionless_pusher_only_pushes_along_the_normal():
+    pose = np.array([[0.5, 0.0, 0.0]])
+    out = push_step(BOX, pose, np.array([0.47, 0.0]), np.array([0.01, 0.01]), C, 0.0)
+    assert out[0, 1] == pytest.approx(0.0, abs=1e-12) and out[0, 0] == pytest.approx(0.51, abs=1e-12)
+
+
+def test_limit_surface_length_of_a_disc_is_two_thirds_of_its_radius():
+    can = Primitive("cylinder", (0.03,), np.array([0.0, 0.0]), 0.0, "can")
+    assert limit_surface_length(can, 200) == pytest.approx(0.02, rel=0.01)
+
+
+def test_initial_particles_lie_on_the_contact():
+    rng = np.random.default_rng(0)
+    pose = initial_particles(BOX, np.array([0.3, 0.1]), np.array([0.0, 0.0]), 64, rng)
+    sd = np.array([BOX.signed_distance(np.array([[0.3, 0.1]]), p)[0] for p in pose])
+    assert np.allclose(sd, 0.0, atol=1e-12)
+
+
+def _pushes(truth: np.ndarray, local: np.ndarray, push: np.ndarray) -> Actions:
+    """Actions whose contacts are the body-frame points ``local`` (K, 2) on the target at poses ``truth``
+    (K, 3), each pushed by ``push`` (K, 2); the gripper stands 5 cm outside the contact."""
+    contact = apply_pose(truth, local[:, None, :])[:, 0, :]
+    ee = contact - 0.05 * push / np.maximum(np.hypot(*push.T), 1e-12)[:, None]
+    return Actions(ee_start=ee - push, ee_end=ee, touch=np.ones(len(local), dtype=bool), contact=contact,
+                   push=push)
+
+
+def _best(result) -> np.ndarray:
+    """The estimate the estimator returns: the refined particles' choice (no free space, no other points)."""
+    return final_pose(BOX, result, np.zeros((0, 2)), np.zeros((0, 2)), P)
+
+
+def test_never_touched_gives_no_filter():
+    a = Actions(ee_start=np.zeros((3, 2)), ee_end=np.ones((3, 2)), touch=np.zeros(3, dtype=bool),
+                contact=np.full((3, 2), np.nan), push=np.zeros((3, 2)))
+    assert run_filter(BOX, a, NO_FREE, P, np.random.default_rng(0)) is None
+
+
+def test_touched_once_is_finite_and_on_the_contact():
+    truth = np.array([[0.4, 0.0, 0.2]])
+    a = _pushes(truth, np.array([[-0.03, 0.01]]), np.array([[0.0, 0.0]]))
+    r = run_filter(BOX, a, NO_FREE, P, np.random.default_rng(0))
+    assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
+    assert abs(BOX.signed_distance(a.contact, _best(r))[0]) < 0.002
+
+
+def _faces(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """k contacts (body frame) walking round three faces of the box, so the pose is observable, and the outward
+    normal (body frame) of each one's face."""
+    s = np.linspace(-0.06, 0.06, k)
+    f = np.arange(k) % 3
+    local = np.where((f == 0)[:, None], np.column_stack([np.full(k, -0.03), s]),
+                     np.where((f == 1)[:, None], np.column_stack([s / 3, np.full(k, -0.08)]),
+                              np.column_stack([s / 3, np.full(k, 0.08)])))
+    normal = np.where((f == 0)[:, None], [-1.0, 0.0], np.where((f == 1)[:, None], [0.0, -1.0], [0.0, 1.0]))
+    return local, normal
+
+
+def _world(v: np.ndarray, yaw: float) -> np.ndarray:
+    return np.column_stack([math.cos(yaw) * v[:, 0] - math.sin(yaw) * v[:, 1],
+                            math.sin(yaw) * v[:, 0] + math.cos(yaw) * v[:, 1]])
+
+
+def test_pushed_against_a_wall_the_contacts_win():
+    # every third action pushes the -x face 1 cm, 5 cm off-centre: the model predicts the box moves and turns; a
+    # wall held it still (the others touch the long faces near their ends). The estimate follows the contacts, not
+    # the model: far closer to the truth than the model's own prediction from the true start, and the last
+    # contacts lie on its surface.
+    k = 12
+    truth = np.tile([0.4, 0.0, 0.3], (k, 1))
+    local = np.tile([[-0.03, 0.05], [0.025, 0.08], [-0.025, -0.08]], (k // 3, 1))
+    pushing = np.arange(k) % 3 == 0
+    a = _pushes(truth, local, np.where(pushing[:, None], 0.01 * _world(np.array([[1.0, 0.0]] * k), 0.3), 0.0))
+    model = truth[:1].copy()
+    for t in range(k):
+        model = push(BOX, model, a.contact[t] - a.push[t], a.push[t], C, P)
+    est = _best(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(1)))
+    pos_model, yaw_model = pose_error(BOX, model[0], truth[-1])
+    pos, yaw = pose_error(BOX, est, truth[-1])
+    assert pos_model > 0.015 and yaw_model > 0.3
+    assert pos < pos_model / 3 and yaw < yaw_model / 2
+    assert np.median(np.abs(BOX.signed_distance(a.contact[-4:], est))) < 0.005
+
+
+def test_a_target_that_only_slides_keeps_its_yaw():
+    # every third action pushes the centre of the -x face 1 cm along +x (body frame): the box slides, never
+    # turns; the others touch the -x face off-centre and the +y face near its ends without pushing
+    k = 12
+    pattern = np.array([[-0.03, 0.0], [-0.03, 0.06], [0.025, 0.08], [-0.03, 0.0], [-0.03, -0.06], [-0.025, 0.08]])
+    local = np.tile(pattern, (k // 6, 1))
+    pushing = np.arange(k) % 3 == 0
+    truth = np.column_stack([0.4 + 0.01 * math.cos(-0.4) * np.cumsum(pushing),
+                             0.01 * math.sin(-0.4) * np.cumsum(pushing), np.full(k, -0.4)])
+    push = np.where(pushing[:, None], 0.01 * _world(np.array([[1.0, 0.0]] * k), -0.4), 0.0)
+    r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, P, np.random.default_rng(2))
+    pos, yaw = pose_error(BOX, _best(r), truth[-1])
+    assert pos < 0.01 and yaw < 0.05
+
+
+def test_every_particle_inconsistent_stays_finite():
+    truth = np.array([[0.4, 0.0, 0.0]] * 3)
+    a = _pushes(truth, np.array([[-0.03, 0.0]] * 3), np.zeros((3, 2)))
+    # free space covering the whole neighbourhood: no pose is outside it
+    grid = np.stack(np.meshgrid(np.linspace(0.2, 0.6, 41), np.linspace(-0.2, 0.2, 41)), -1).reshape(-1, 2)
+    r = run_filter(BOX, a, lambda rows, centre: grid, P, np.random.default_rng(3))
+    assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
+    assert math.isclose(float(np.sum(np.exp(r.log_w))), 1.0, rel_tol=1e-9)
+    assert np.all(free_loglik(BOX, r.poses, grid, P) < -100.0)
+
+
+def test_likelihoods_peak_on_the_surface():
+    pose = np.array([[0.4, 0.0, 0.0], [0.41, 0.0, 0.0]])
+    ll = contact_loglik(BOX, pose, np.array([0.37, 0.0]), P)
+    assert ll[0] == pytest.approx(0.0, abs=1e-12) and ll[1] < -1.0
+
+
+@pytest.fixture(scope="module")
+def fb_run():
+    info = load_run("data/regression/FB-000.parquet")
+    oid = pq.read_table(info.path, columns=["object_id"]).column("object_id").to_numpy()
+    contact, _ = observed_actions(info, load_robot("panda"))
+    mine = np.flatnonzero((oid == info.target_id) & np.all(np.isfinite(contact), axis=1))
+    return info, contact, mine
+
+
+def test_estimator_without_segments_is_finite_and_flagged(fb_run):
+    info, _, _ = fb_run
+    est = estimate("pushtrack", [], info, load_robot("panda"), retrieval_rng(0, info.run), RetrievalParams())
+    assert est.segment == -1 and np.all(np.isfinite(est.pose)) and "no_points" in est.notes
+
+
+def test_two_segments_that_both_fit_follow_the_choice(fb_run):
+    # the target's contacts split in two segments: both are on the target's shape; the estimate takes the
+    # chosen one's contacts and lies on them
+    info, contact, mine = fb_run
+    assert len(mine) >= 6
+    halves = (mine[: len(mine) // 2], mine[len(mine) // 2:])
+    segs = [Segment(i, contact[h], info.steps[h]) for i, h in enumerate(halves)]
+    sdf = load_robot("panda")
+    est = estimate("pushtrack", segs, info, sdf, retrieval_rng(0, info.run), RetrievalParams())
+    again = estimate("pushtrack", segs, info, sdf, retrieval_rng(0, info.run), RetrievalParams())
+    assert est.segment in (0, 1) and np.all(np.isfinite(est.pose))
+    assert np.array_equal(est.pose, again.pose)  # the same seed, the same estimate
+    assert set(est.candidates["segment"]) == {est.segment}
+    last = contact[halves[est.segment][-1]]
+    assert abs(info.target.signed_distance(last[None, :], est.pose)[0]) < 0.01
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError):
+        PushTrackParams(motion="teleport")
+    with pytest.raises(ValueError):
+        PushTrackParams(n_particles=0)
