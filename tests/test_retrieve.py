@@ -585,9 +585,9 @@ def test_the_notes_column_lists_every_note_the_estimators_emit():
     assert all(n in meaning for n in NOTES)
 
 
-def test_the_paper_estimate_is_computed_once_for_both_estimators(fb_run, panda, monkeypatch):
-    """The plausible estimator starts from the paper's estimate of the same run: computed once per job, the same
-    estimate (a copy) and the same plausible result as with the paper's computed afresh."""
+def test_the_paper_choice_is_computed_once_for_the_estimators_that_start_from_it(fb_run, panda, monkeypatch):
+    """The plausible and pushtrack estimators start from the paper's choice on the final points of the same run:
+    computed once per job, the same estimate (a copy) and the same results as with the choice computed afresh."""
     from pipeline.retrieve import estimators
     from pipeline.retrieve.estimators import Segment, estimate
 
@@ -597,7 +597,7 @@ def test_the_paper_estimate_is_computed_once_for_both_estimators(fb_run, panda, 
     real = estimators.estimate_run
     monkeypatch.setattr(estimators, "estimate_run", lambda *a: calls.append(1) or real(*a))
     monkeypatch.setattr(estimators, "_LAST_PAPER", [])
-    paper = estimate("paper", segs, fb_run, panda, retrieval_rng(0, fb_run.run))
+    first = estimators.paper_choice(segs, fb_run, panda, RetrievalParams(), retrieval_rng(0, fb_run.run))
     # the stage loads the robot's grid afresh for each estimator (another object, the same grid)
     shared = estimate("plausible", segs, fb_run, load_robot("panda"), retrieval_rng(0, fb_run.run))
     assert len(calls) == 1
@@ -607,8 +607,8 @@ def test_the_paper_estimate_is_computed_once_for_both_estimators(fb_run, panda, 
     np.testing.assert_array_equal(shared.pose, fresh.pose)
     for k in fresh.candidates:
         np.testing.assert_array_equal(shared.candidates[k], fresh.candidates[k])
-    again = estimate("paper", segs, fb_run, panda, retrieval_rng(0, fb_run.run))
-    assert len(calls) == 2 and again is not paper
-    np.testing.assert_array_equal(again.pose, paper.pose)
-    other = estimate("paper", segs, fb_run, panda, retrieval_rng(1, fb_run.run))  # other generators: computed
-    assert len(calls) == 3 and other.segment == paper.segment
+    again = estimators.paper_choice(segs, fb_run, panda, RetrievalParams(), retrieval_rng(0, fb_run.run))
+    assert len(calls) == 2 and again is not first
+    np.testing.assert_array_equal(again.pose, first.pose)
+    other = estimators.paper_choice(segs, fb_run, panda, RetrievalParams(), retrieval_rng(1, fb_run.run))
+    assert len(calls) == 3 and other.segment == first.segment  # other generators: computed

@@ -145,11 +145,11 @@ def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Seque
                            info.steps, sdf, params, rngs[0], rngs[1])
 
 
-#: (key, estimate) of the last :func:`_paper_once` in this process.
+#: (key, estimate) of the last :func:`paper_choice` in this process.
 _LAST_PAPER: list = []
 
 
-def _paper_once(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
+def paper_choice(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
                 rngs: Sequence[np.random.Generator]) -> Estimate:
     """:func:`~pipeline.retrieve.paper.estimate_run` of a run (the paper's choice of segment on the final points),
     computed once for the estimators of a job that start from it, with the same inputs and generators (a copy is
@@ -208,7 +208,7 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     ``position_var_m2`` = squared spread of the agreeing poses, ``rank`` by cost).
     """
     t0 = time.perf_counter()
-    paper = _paper_once(segments, info, sdf, params, rngs)
+    paper = paper_choice(segments, info, sdf, params, rngs)
     if paper.segment < 0:
         paper.icp_s = time.perf_counter() - t0
         return paper

@@ -17,9 +17,9 @@ import pyarrow.parquet as pq
 
 from pipeline.isolate import IsolationParams, isolate_run
 from pipeline.portable import exp, tie_key
-from pipeline.retrieve.estimators import Segment, estimate_plausible
+from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_choice
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
-from pipeline.retrieve.paper import Estimate, confidence_notes, estimate_run
+from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, final_pose, run_filter
@@ -97,7 +97,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres).
     """
     t0 = time.perf_counter()
-    paper = estimate_run([(s.id, s.points) for s in segments], info.target, info.ee, sdf, params, rngs[0], rngs[1])
+    paper = paper_choice(segments, info, sdf, params, rngs)
     if paper.segment < 0:
         paper.icp_s = time.perf_counter() - t0
         return paper
