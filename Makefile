@@ -26,6 +26,7 @@ $(STAMP): pyproject.toml requirements.lock
 	$(BIN)/pip install -q -c requirements.lock -e '.[dev]'
 	@echo "compiling the tracker's numba kernels once (cached on disk; about 30 s, never booked as tracking time)"
 	$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()"
+	$(BIN)/python -c "from pipeline.retrieve.icp_kernel import warm_up; warm_up()"
 	@touch $(STAMP)
 
 # FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
