@@ -3,12 +3,13 @@
 Point-to-point ICP as Open3D's ``registration_icp`` runs it (nearest model point within the correspondence
 radius; the closed-form best rigid transform of the pairs; stop when fitness and inlier RMSE change by less than
 1e-9 or after ``max_iteration``), optionally followed by point-to-plane ICP onto the model's normals (the
-linearised step of Open3D's point-to-plane estimator, restricted to the plane). It is written here, in SE(2),
-batched over the restarts: Open3D's ICP (its own TBB threads and SIMD kernels) did not give the same bits twice
+linearised step of Open3D's point-to-plane estimator, restricted to the plane). It is written here, in SE(2):
+Open3D's ICP (its own TBB threads and SIMD kernels) did not give the same bits twice
 on one machine, let alone across CPUs, and a 3-D ICP of planar points needs guarding against mirrored results.
-Nearest neighbours come from scipy's cKDTree; every sum runs in a fixed order and every angle through
-:mod:`pipeline.portable`, so the result is the same on every x86-64 CPU (docs/evaluation.md, "Same numbers on
-every machine").
+The iterations and the nearest model points run in the compiled kernels of :mod:`pipeline.retrieve.icp_kernel`
+(brute force over the ~50 model points, the distances scipy's cKDTree gave before); every sum runs in a fixed
+order and every angle through the C library's scalar functions, so the result is the same on every x86-64 CPU
+(docs/evaluation.md, "Same numbers on every machine").
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Compiled ICP iterations in SE(2), one restart at a time: the arithmetic of the batched numpy form, bit for bit.
 
 The online estimator (docs/retrieval.md, "Online, as the authors ran it") runs ICP from 30 restarts on a handful
-of points (5-30) at every in-contact step; written with numpy over the restarts, nearly all of its time went into
+of points at every in-contact step; written with numpy over the restarts, nearly all of its time went into
 per-call overhead of small arrays. This kernel runs the same iterations per restart in compiled code and gives
 the same bits, because it repeats numpy's order of every operation:
 
@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["icp_kernel"]
+__all__ = ["icp_kernel", "nearest_model", "clearance_kernel", "warm_up"]
 
 
 @njit(cache=True)
@@ -320,3 +320,18 @@ def clearance_kernel(world, ee, near, values, shape, strides, origin, resolution
                     break
         out[b] = cur
     return out
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's on-disk cache) every kernel here on a tiny input: ``make setup`` calls it
+    once per machine, so the first retrieval of a clean checkout does not compile (docs/retrieval.md)."""
+    model = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])
+    pts = model[:2] + 0.01
+    inits = np.zeros((2, 3))
+    for plane in (False, True):
+        icp_kernel(pts, model, model, inits, 1.0, 2, plane)
+    nearest_model(pts[None], model)
+    values = np.zeros(4)
+    values.setflags(write=False)  # as GridSDF.kernel_arrays gives it (a read-only array is its own numba type)
+    clearance_kernel(model[None], pts, np.ones((1, 2), dtype=np.bool_), values, np.array([2, 2]),
+                     np.array([2, 1]), np.zeros(2), 0.1, 1.0)

@@ -22,6 +22,7 @@ import numpy as np
 
 from pipeline.geometry import Primitive
 from pipeline.retrieve.icp import IcpResult
+from pipeline.retrieve.icp_kernel import warm_up
 from pipeline.retrieve.model import model_normals, model_points
 from pipeline.retrieve.paper import Choice, Estimate, assemble, choose_segment, icp_segment, min_clearance, nonempty
 from pipeline.retrieve.params import RetrievalParams
@@ -117,6 +118,7 @@ def online_protocol(history: Sequence[StepSegments], target: Primitive, ee: np.n
     trail : list of StepChoice
         The choice at every in-contact step.
     """
+    warm_up()  # compile or load the kernels before the clock starts (as the tracker does)
     t0 = time.perf_counter()
     model = model_points(target, params, rng_model)
     normals = model_normals(target, model)
