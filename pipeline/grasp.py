@@ -422,18 +422,18 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
                 reached = True
                 break
             u = np.clip(d / scale, -1.0, 1.0)
-            world.act(float(u[0] * scale), float(u[1] * scale))
+            world.advance(float(u[0] * scale), float(u[1] * scale))
         else:
             reached = bool(math.hypot(*(pre - world.gripper_pose()[0][:2])) < params.reach_tolerance)
         # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
         world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
-        world.act(0.0, 0.0)
+        world.advance(0.0, 0.0)
         _set_fingers(world, OPEN)
-        world.act(0.0, 0.0)
+        world.advance(0.0, 0.0)
         for _ in range(steps):
-            world.act(float(approach[0] * scale), float(approach[1] * scale))
+            world.advance(float(approach[0] * scale), float(approach[1] * scale))
         _set_fingers(world, 0.0)
-        world.act(0.0, 0.0)
+        world.advance(0.0, 0.0)
         fingers = _finger_contacts(world, body)
         pose = _body_pose(world, body)
         base = world.gripper_pose()[0][:2]

@@ -285,3 +285,21 @@ def test_cli_collect_wrong_policy_for_scene_names_file_and_key(tmp_path):
     res = CliRunner().invoke(_cli(), ["collect", "--scene", "SELECT1", "--policy", "scripted", "--out",
                                       str(tmp_path)])
     assert res.exit_code == 1 and "SELECT1.toml: key 'actions'" in res.stderr
+
+
+def test_advance_ends_where_act_ends():
+    """World.advance (the grasp's unobserved action) steps exactly as act: the same gripper and object states,
+    to the bit, after pushing the box (reading poses and contacts does not change the simulation)."""
+    from pipeline.sim import World
+
+    scene = load_scene("FB")
+    states = []
+    for observed in (True, False):
+        with World(scene) as w:
+            for dx, dy in [(0.03, 0.0)] * 6 + [(0.0, 0.03), (-0.02, 0.01)]:
+                (w.act if observed else w.advance)(dx, dy)
+            states.append((w.gripper_pose()[0], w.object_poses()))
+    np.testing.assert_array_equal(states[0][0], states[1][0])
+    np.testing.assert_array_equal(states[0][1], states[1][1])
+    with World(scene) as w:
+        assert np.any(states[0][1] != w.object_poses())  # the actions did push something

@@ -250,6 +250,20 @@ class World:
                            quat=np.array(quat), wrench=np.array(wr, dtype=np.float64), truth_xy=np.array(txy),
                            truth_first=np.array(tf, dtype=np.int64), truth_last=np.array(tl, dtype=np.int64))
 
+    def advance(self, dx: float, dy: float) -> None:
+        """:meth:`act` without observing: the same targets and sim steps (reading the pose and contacts does not
+        change the simulation), for scripts that need only the state it ends in (the grasp,
+        :mod:`pipeline.grasp`)."""
+        c = self.client
+        g = self.gripper
+        step = p.stepSimulation
+        (sx, sy, _), _ = p.getBasePositionAndOrientation(g.body, physicsClientId=c)
+        for k in range(MINI_STEPS):
+            f = (k + 1) / MINI_STEPS
+            g.move_to(sx + f * dx, sy + f * dy)
+            for _ in range(STEPS_PER_MINI):
+                step(physicsClientId=c)
+
     # -- state ----------------------------------------------------------------------------------------------
 
     def object_poses(self) -> np.ndarray:
