@@ -80,3 +80,11 @@ def test_groups_visit_configs_in_the_order_of_the_argsort_they_replace(seed):
 @njit
 def _numba_argsort(keys):
     return np.argsort(keys)
+
+
+def test_take_rows_refuses_unsorted_ancestors_before_copying():
+    P = np.arange(12.0).reshape(3, 2, 2)
+    arrays = [P, P.copy(), np.zeros((3, 2)), np.zeros((3, 2), np.int32), np.zeros((3, 2), np.int32)]
+    with pytest.raises(ValueError, match="sorted"):
+        ordering.take_rows(np.array([2, 0, 1]), 2, *arrays)
+    np.testing.assert_array_equal(P, np.arange(12.0).reshape(3, 2, 2))
