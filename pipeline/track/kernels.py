@@ -13,7 +13,11 @@ All kernels work on the tracker's arrays in place:
 The paper's per-particle penetration epsilon_n (Alg. 1 line 16) is ``colpen[n, :m].sum()``. Keeping it per point
 is what makes the update incremental: a contact step only changes pairs whose relative position changed (one
 side moved by a different displacement than the other), plus the pairs of the new points. Pairs that cannot
-penetrate are skipped with a bounding-box test against the robot's interior (the region where sdf < -tol).
+penetrate are skipped with a bounding-box test against the robot's interior (the region where sdf < -tol): a
+window of each particle's points kept sorted by first coordinate, then a test of the second
+(:mod:`pipeline.track.ordering`). Copies that resampling and Alg. 2 make reuse the terms of their original. None of
+this changes a value or the order in which a point's terms are added: the results keep their bits
+(docs/tracker_speed.md).
 
 The grid lookup is nearest-cell, ``idx = rint((q - origin) / resolution)`` (ties to even), outside the grid = free,
 exactly as :meth:`pipeline.robot.GridSDF.query` does.

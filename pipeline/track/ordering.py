@@ -203,6 +203,9 @@ def take_rows(ancestors, m, P, C, colpen, npen, order):
     row, done first in increasing order, and those that pull from an earlier one, done second in decreasing
     order, always read a row that has not been overwritten yet."""
     N = ancestors.size
+    for i in range(1, N):
+        if ancestors[i] < ancestors[i - 1]:
+            raise ValueError("take_rows: ancestors must be sorted")
     for i in range(N):
         if ancestors[i] > i:
             _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
