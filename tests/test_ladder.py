@@ -10,7 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.geometry import primitive_of
-from pipeline.retrieve.ladder import MOTION_RUNGS, PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason, perturbed
+from pipeline.retrieve.ladder import (MOTION_RUNGS, PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason,
+                                      perturbed)
 from pipeline.retrieve.ladder_report import ladder_tables, summarise
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import load_run

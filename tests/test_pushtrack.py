@@ -14,8 +14,8 @@ from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.estimators import Segment, estimate
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.pushmodel import (Actions, PushTrackParams, contact_loglik, free_loglik, initial_particles,
-                                         final_pose, limit_surface_length, push, push_step, run_filter)
-from pipeline.retrieve.pushtrack import observed_actions
+                                         limit_surface_length, push, push_step, run_filter)
+from pipeline.retrieve.pushtrack import final_pose, observed_actions
 from pipeline.retrieve.runs import load_run, retrieval_rng
 from pipeline.robot import load_robot
 
@@ -77,7 +77,7 @@ def _pushes(truth: np.ndarray, local: np.ndarray, push: np.ndarray) -> Actions:
 
 def _best(result) -> np.ndarray:
     """The estimate the estimator returns: the refined particles' choice (no free space, no other points)."""
-    return final_pose(BOX, result, np.zeros((0, 2)), np.zeros((0, 2)), P)
+    return final_pose(BOX, result, np.zeros((0, 2)), np.zeros((0, 2)), P)[0]
 
 
 def test_never_touched_gives_no_filter():

@@ -83,7 +83,8 @@ def test_bench_accuracy_cli_tiny_grid(tmp_path):
     res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
                                    "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
-                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--baselines", "dbscan", "--out",
+                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--baselines", "dbscan",
+                                   "--out",
                                    str(out)])
     assert res.exit_code == 0, res.output
     assert "knee" in res.output

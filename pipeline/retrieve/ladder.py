@@ -54,8 +54,8 @@ from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates
 
-__all__ = ["PERTURBATIONS", "RUNGS", "MOTION_RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason", "run_ladder",
-           "ladder_rows"]
+__all__ = ["PERTURBATIONS", "RUNGS", "MOTION_RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason",
+           "run_ladder", "ladder_rows"]
 
 #: (rung, yaw offset rad, offset along the long axis m, offset across m) of the perturbed true pose.
 PERTURBATIONS = tuple((f"yaw{d:+.2f}", d, 0.0, 0.0) for a in (0.05, 0.10, 0.15) for d in (a, -a)) + tuple(

@@ -25,13 +25,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.geometry import Primitive, apply_pose, dot2, primitive_sdf, rotate, wrap_angle
-from pipeline.portable import argmin_tolerant, atan2, exp, logsumexp, tie_key
+from pipeline.geometry import Primitive, dot2, primitive_sdf, rotate, wrap_angle
+from pipeline.portable import atan2, exp, logsumexp
 from pipeline.retrieve.model import outline_point
-from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
 
 __all__ = ["PushTrackParams", "Actions", "FilterResult", "limit_surface_length", "push_step", "push",
-           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "refine_final", "final_pose", "MAX_PARTICLES"]
+           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
@@ -90,13 +89,13 @@ class PushTrackParams:
     n_refine : int
         Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
-        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.plausible.refine`).
+        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.pushtrack.final_pose`).
     refine_growth : float
         The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
         recency growth, smaller since the contacts turned with the target).
     select : {"cost", "posterior"}
-        Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest refinement cost
-        minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
+        Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest
+        refinement cost minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
     """
 
     n_particles: int = 512
@@ -127,7 +126,8 @@ class PushTrackParams:
                                                       "free_resolution", "sweep_spacing")},
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
-        "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1), "n_refine": integer(0, 256), "refine_growth": number(1)}
+        "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
+        "n_refine": integer(0, 256), "refine_growth": number(1)}
 
     def __post_init__(self) -> None:
         check(self)
@@ -367,44 +367,3 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
     return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)
-
-
-def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
-
-    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
-    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
-    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
-    """
-    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
-    # Resampled copies of one particle refine to the same pose: one of each.
-    _, first = np.unique(order_key := np.round(result.poses[order], 9), axis=0, return_index=True)
-    del order_key
-    top = order[np.sort(first)][:own.n_refine]
-    T = result.local.shape[1]
-    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
-    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
-                         free_resolution=own.free_resolution)
-    poses, costs = [], []
-    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
-        pts = apply_pose(result.poses[i], result.local[i])
-        init = primitive_pose(target, result.poses[i])[None, :]
-        pose, terms = refine(target, init, pts, sigma, free, others, lm)
-        poses.append(com_pose(target, pose[0]))
-        costs.append(float(terms.total[0]))
-    return top, np.array(poses).reshape(-1, 3), np.array(costs)
-
-
-def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
-               params: PushTrackParams) -> np.ndarray:
-    """The estimate (COM pose (3,)) of a filtered run: the highest-weight particle without refinement
-    (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of lowest cost minus its log-weight
-    ("posterior"), ``params.select``; ties to the higher weight."""
-    if not params.n_refine:
-        order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
-        return result.poses[order[0]]
-    top, refined, costs = refine_final(prim, result, free, others, params)
-    if params.select == "posterior":
-        costs = costs - result.log_w[top]
-    return refined[argmin_tolerant(costs, 1e-9)]

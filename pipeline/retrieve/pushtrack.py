@@ -4,8 +4,9 @@ The tracker's segments say which contact steps belong to the target (the segment
 plausible estimator does); the contacts themselves are taken at their own steps, where they were observed, not
 where the tracker carried them (it moves old points by translation only, §VI-A). The run file gives each action's
 isolated contact point (the same detection and isolation as ``stucco isolate``, with its defaults) and the
-gripper's in-contact displacement; :func:`pipeline.retrieve.pushmodel.run_filter` tracks the pose over the actions
-and the final particles are the plausible set (docs/retrieval.md, "The pushtrack estimator").
+gripper's in-contact displacement; :func:`pipeline.retrieve.pushmodel.run_filter` tracks the pose over the actions,
+:func:`final_pose` refines the best particles at the end, and the final particles are the plausible set
+(docs/retrieval.md, "The pushtrack estimator").
 """
 from __future__ import annotations
 
@@ -16,18 +17,20 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.isolate import IsolationParams, isolate_run
-from pipeline.portable import exp, tie_key
+from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
+from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_choice
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams
-from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, final_pose, run_filter
+from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
+from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 from pipeline.robot import surface_points
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "PLAUSIBLE_SET"]
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "refine_final", "final_pose",
+           "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
@@ -86,15 +89,57 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
     return free_points
 
 
+def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``own.n_refine`` highest-weight particles refined at the end (:class:`PushTrackParams`).
+
+    Returns (indices (H,) of the refined particles, their refined COM poses (H, 3), their costs (H,) in squared
+    contact sigmas: the plausible estimator's terms over the particle's carried contacts, the free space
+    ``free`` (F, 2) after the last push and the other segments' points ``others`` (O, 2)).
+    """
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+    # Resampled copies of one particle refine to the same pose: one of each.
+    _, first = np.unique(np.round(result.poses[order], 9), axis=0, return_index=True)
+    top = order[np.sort(first)][:own.n_refine]
+    T = result.local.shape[1]
+    sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
+                         free_resolution=own.free_resolution)
+    poses, costs = [], []
+    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
+        pts = apply_pose(result.poses[i], result.local[i])
+        init = primitive_pose(target, result.poses[i])[None, :]
+        pose, terms = refine(target, init, pts, sigma, free, others, lm)
+        poses.append(com_pose(target, pose[0]))
+        costs.append(float(terms.total[0]))
+    return top, np.array(poses).reshape(-1, 3), np.array(costs)
+
+
+def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
+               params: PushTrackParams) -> tuple[np.ndarray, int]:
+    """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
+    particle without refinement (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of
+    lowest cost minus its log-weight ("posterior"), ``params.select``; ties to the higher weight."""
+    order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
+    if not params.n_refine:
+        return result.poses[order[0]], int(order[0])
+    top, refined, costs = refine_final(prim, result, free, others, params)
+    if params.select == "posterior":
+        costs = costs - result.log_w[top]
+    k = argmin_tolerant(costs, 1e-9)
+    return refined[k], int(top[k])
+
+
 def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
                         params: RetrievalParams, own: PushTrackParams) -> Estimate:
     """The registry's factory (:class:`pipeline.registry.EstimatorSpec`): the paper's segment choice, then the
     final pose of the particle filter over the chosen segment's contacts at their own steps.
 
     Falls back to the plausible estimator when the chosen segment has no isolated contact in the run file (a
-    segmentation made from other contacts). Candidates: the :data:`PLAUSIBLE_SET` highest-weight particles
-    (``restart`` = particle, ``icp_rmse_m`` = distance of the last target contact to the surface, ``valid`` =
-    weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres).
+    segmentation made from other contacts). Candidates: the :data:`PLAUSIBLE_SET` highest-weight particles, before
+    the refinement (``restart`` = particle, ``icp_rmse_m`` = distance of the last target contact to the surface,
+    ``valid`` = weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres,
+    ``chosen`` = the particle whose refinement is the estimate, when among them).
     """
     t0 = time.perf_counter()
     paper = paper_choice(segments, info, sdf, params, rngs)
@@ -126,12 +171,13 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
                                  centre, radius)
         others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
         others = others[np.hypot(*(others - centre).T) <= radius]
-    best_pose = final_pose(target, result, free, others, own)
+    best_pose, best = final_pose(target, result, free, others, own)
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
     B = len(order)
     last = contact[np.flatnonzero(touch)[-1]]
-    rms = np.abs(np.array([target.signed_distance(last[None, :], p)[0] for p in poses]))
+    q = rotate(last - target.centre_world(poses), poses[:, 2] + target.yaw, inverse=True)
+    rms = np.abs(primitive_sdf(target, q)[0])
     share = log_w - log_w.max()
     centres = target.centre_world(result.poses)
     wlin = exp(result.log_w)
@@ -141,7 +187,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
         segment=np.full(B, seg.id), restart=order.astype(np.int64), n_points=np.full(B, int(touch.sum())),
         x_m=poses[:, 0], y_m=poses[:, 1], yaw_rad=poses[:, 2], icp_rmse_m=rms, penetration_m=np.zeros(B),
         valid=share >= -2.0, position_var_m2=np.full(B, var), rank=np.arange(B),
-        segment_chosen=np.ones(B, dtype=bool), chosen=np.arange(B) == 0)
+        segment_chosen=np.ones(B, dtype=bool), chosen=order == best)
     notes = [n for n in confidence_notes(pts, 0.0, 0.0, params) if n in ("few_points", "collinear")]
     return Estimate(pose=target.canonical(best_pose), segment=seg.id, n_points=int(touch.sum()),
                     n_segments=len(segments), position_var=var, rmse=float(rms[0]), penetration=0.0, notes=notes,

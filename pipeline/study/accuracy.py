@@ -53,8 +53,9 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int) -> 
            else dict(s.estimator_params) or None)
     config = RetrieveConfig(method=s.method, estimator=s.estimator, estimator_params=own, grasp=True,
                             params=RetrievalParams(n_restarts=s.restarts, robot=s.robot), grasp_params=GraspParams())
-    retrieval, _ = retrieve(segments, runs.parent, config, root_seed=root_seed, jobs=1)
-    table = score(segments, retrieval, runs.parent, diagnostics=diagnostics).to_pylist()[0]
+    # the one run file: its directory holds every (scene, seed) of the sweep
+    retrieval, _ = retrieve(segments, runs, config, root_seed=root_seed, jobs=1)
+    table = score(segments, retrieval, runs, diagnostics=diagnostics).to_pylist()[0]
     track_s, segment_s = t1 - t0, t2 - t1
     return dict(setting=s.name, method=s.method, knob=s.knob, value=s.value, scene=table["scene"],
                 seed=table["seed"], fmi=table["fmi"], contact_error_cm=table["contact_error_cm"],
