@@ -169,7 +169,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                     "pipeline.retrieve.plausible_kernel")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
-                            "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.spd",
+                            "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum", "pipeline.spd",
                             "pipeline.environment")),
 )
 

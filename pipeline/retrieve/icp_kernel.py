@@ -5,7 +5,7 @@ of points at every in-contact step; written with numpy over the restarts, nearly
 per-call overhead of small arrays. This kernel runs the same iterations per restart in compiled code and gives
 the same bits, because it repeats numpy's order of every operation:
 
-* a sum over the points of a (restarts, points) array is numpy's pairwise summation (:func:`_pairwise`, eight
+* a sum over the points of a (restarts, points) array is numpy's pairwise summation (:func:`pipeline.pairwise_sum.pairwise_sum`, eight
   accumulators per block of at most 128, halves above), started from 0.0 as numpy's ``add.reduce`` is;
 * a sum over the points of a (restarts, points, k) array runs point by point from 0.0 (numpy's strided
   reduction);
@@ -22,71 +22,15 @@ import math
 import numpy as np
 from numba import njit
 
+from pipeline.pairwise_sum import pairwise_sum
+
 __all__ = ["icp_kernel", "nearest_model", "clearance_kernel", "warm_up"]
-
-
-@njit(cache=True)
-def _block(a, lo, n):
-    """numpy's pairwise sum of a[lo:lo + n] for n <= 128: one block of eight accumulators (plain below 8)."""
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    while i < n - (n % 8):
-        r0 += a[lo + i]
-        r1 += a[lo + i + 1]
-        r2 += a[lo + i + 2]
-        r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]
-        r5 += a[lo + i + 5]
-        r6 += a[lo + i + 6]
-        r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True)
-def _pairwise(a, n):
-    """numpy's pairwise sum of a[:n] (without the 0.0 its reduction adds first): blocks of at most 128, and
-    above that the sum of the two halves (the first a multiple of 8). numpy recurses; this walks the same tree
-    with an explicit stack (numba's cache does not load recursive functions reliably)."""
-    if n <= 128:
-        return _block(a, 0, n)
-    frames = np.empty((128, 3), dtype=np.int64)  # (start, length, halves pending) of the tree walk
-    partial = np.empty(128)
-    top, done = 1, 0
-    frames[0, 0], frames[0, 1], frames[0, 2] = 0, n, 0
-    while top > 0:
-        top -= 1
-        lo, k, combine = frames[top, 0], frames[top, 1], frames[top, 2]
-        if combine:
-            partial[done - 2] = partial[done - 2] + partial[done - 1]
-            done -= 1
-        elif k <= 128:
-            partial[done] = _block(a, lo, k)
-            done += 1
-        else:
-            k2 = k // 2
-            k2 -= k2 % 8
-            frames[top, 0], frames[top, 1], frames[top, 2] = lo, k, 1
-            frames[top + 1, 0], frames[top + 1, 1], frames[top + 1, 2] = lo + k2, k - k2, 0
-            frames[top + 2, 0], frames[top + 2, 1], frames[top + 2, 2] = lo, k2, 0
-            top += 3
-    return partial[0]
 
 
 @njit(cache=True)
 def _npsum(a):
     """``numpy.sum`` of a contiguous 1-D float64 array (0.0 plus the pairwise sum)."""
-    return 0.0 + _pairwise(a, a.shape[0])
+    return 0.0 + pairwise_sum(a, 0, a.shape[0])
 
 
 @njit(cache=True)
