@@ -33,9 +33,9 @@ from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, f
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator",
-           "plausible_estimator", "needs_every_step", "history_from_final",
-           "retrieval_metadata", "plausible_notes", "parse_estimators"]
+__all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator", "paper_choice",
+           "paper_segment", "plausible_estimator", "needs_every_step", "history_from_final", "retrieval_metadata",
+           "plausible_notes", "parse_estimators"]
 
 DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
 
@@ -164,6 +164,17 @@ def paper_choice(segments: Sequence[Segment], info: RunInfo, sdf, params: Retrie
     return est
 
 
+def paper_segment(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
+                  rngs: Sequence[np.random.Generator], t0: float) -> tuple[Estimate, Segment | None]:
+    """The paper's choice (:func:`paper_choice`) and its segment, or (the paper's estimate, its ``icp_s`` counted
+    from ``t0``, None) when no segment fits: the start of every estimator that refines the paper's choice."""
+    paper = paper_choice(segments, info, sdf, params, rngs)
+    if paper.segment < 0:
+        paper.icp_s = time.perf_counter() - t0
+        return paper, None
+    return paper, next(s for s in segments if s.id == paper.segment)
+
+
 def plausible_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
                         params: RetrievalParams, own: PlausibleParams) -> Estimate:
     """:func:`estimate_plausible` in the registry's factory signature."""
@@ -208,11 +219,9 @@ def estimate_plausible(segments: Sequence[Segment], info: RunInfo, sdf, params: 
     ``position_var_m2`` = squared spread of the agreeing poses, ``rank`` by cost).
     """
     t0 = time.perf_counter()
-    paper = paper_choice(segments, info, sdf, params, rngs)
-    if paper.segment < 0:
-        paper.icp_s = time.perf_counter() - t0
+    paper, seg = paper_segment(segments, info, sdf, params, rngs, t0)
+    if seg is None:
         return paper
-    seg = next(s for s in segments if s.id == paper.segment)
     target = info.target
     pts = np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
     centre, radius = target_reach(target, pts)

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 from pipeline.isolate import IsolationParams, isolate_run
 from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
 from pipeline.portable import argmin_tolerant, exp, tie_key
-from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_choice
+from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
@@ -142,11 +142,9 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     ``chosen`` = the particle whose refinement is the estimate, when among them).
     """
     t0 = time.perf_counter()
-    paper = paper_choice(segments, info, sdf, params, rngs)
-    if paper.segment < 0:
-        paper.icp_s = time.perf_counter() - t0
+    paper, seg = paper_segment(segments, info, sdf, params, rngs, t0)
+    if seg is None:
         return paper
-    seg = next(s for s in segments if s.id == paper.segment)
     target = info.target
     contact, push = observed_actions(info, sdf)
     if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
