@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 KSTAMP := $(VENV)/.kernels
-KERNELS := $(wildcard pipeline/track/*.py pipeline/retrieve/*_kernel.py)
+KERNELS := $(wildcard pipeline/track/*.py pipeline/retrieve/*_kernel.py pipeline/pairwise_sum.py)
 ANCHORS ?= data/anchors
 
 .PHONY: setup syslibs lock quick reproduce reproduce-active test bench clean
