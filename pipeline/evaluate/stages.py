@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from pipeline import registry
 from pipeline.atomic import atomic_path, write_text
 
 from pipeline.collect import collect_file, output_path
