@@ -20,7 +20,6 @@ from pathlib import Path
 import pyarrow as pa
 
 from pipeline.atomic import atomic_path, write_text
-
 from pipeline.collect import collect_file, output_path
 from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
