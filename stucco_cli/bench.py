@@ -237,3 +237,60 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
                    f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['moved_mm_median']:.1f} / "
                    f"{s['turned_rad_median']:.3f} | {s['wide']} |")
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
+
+
+@bench.command("scale")
+@click.option("--scene", default="TC", show_default=True, help="The retrieval task whose seeds make the grid.")
+@click.option("--runs", "run_counts", default="20,100", show_default=True,
+              help="Comma-separated grid sizes: the first N seeds, each evaluated from scratch.")
+@click.option("--methods", default=registry.tracker_names()[0], show_default=True,
+              help="Comma-separated tracking methods of every run.")
+@click.option("--estimators", default="all", show_default=True,
+              help="Pose estimators of every job (comma-separated: " + ", ".join(registry.estimator_names())
+                   + "; or 'all').")
+@click.option("--max-actions", type=click.IntRange(min=1), default=None,
+              help="Cut every run after N actions (small grids for a try).")
+@click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True,
+              help="loky: -j local processes; dask: joblib's Dask backend on --scheduler.")
+@click.option("--scheduler", default=None, help="Dask scheduler address for --backend dask (tcp://HOST:8786).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/scale"), show_default=True,
+              help="One evaluation folder per grid size, scale.csv and scale.png.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Also draw the figure here (e.g. docs/img/scale.png).")
+@pass_settings
+def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, backend, scheduler, out_dir,
+                png) -> None:
+    """How `stucco evaluate` wall time grows with the number of runs of one task (collection included)."""
+    writable_dir("--out", out_dir)
+    check_paths({}, {"--png": png})
+    from pipeline.evaluate import parse_scenes
+    from pipeline.retrieve.estimators import parse_estimators
+    from pipeline.study.scale import scale_rows, write_outputs
+
+    scene_list = parsed("--scene", parse_scenes, scene)
+    if len(scene_list) != 1:
+        raise click.BadParameter("expected one task", param_hint="--scene")
+    counts = _ints("--runs", run_counts, 1, 100_000)
+    if not counts:
+        raise click.BadParameter("expected at least one grid size", param_hint="--runs")
+    method_list = _methods(methods)
+    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
+    if backend == "dask" and not scheduler:
+        raise click.BadParameter("--backend dask needs --scheduler ADDRESS", param_hint="--scheduler")
+    taken = [n for n in counts if (out_dir / f"{scene_list[0]}-{n}").exists()]
+    if taken:
+        raise click.BadParameter(f"{out_dir / f'{scene_list[0]}-{taken[0]}'} exists: a resumed evaluation is not a "
+                                 "measurement; remove it or choose another --out", param_hint="--out")
+    with user_errors("bench scale"):
+        rows = scale_rows(out_dir, scene_list[0], counts, method_list, est, jobs=settings.jobs,
+                          root_seed=settings.seed, max_actions=max_actions, backend=backend, scheduler=scheduler,
+                          progress=settings.progress)
+        paths = write_outputs(rows, out_dir, png)
+    click.echo("| task | runs | jobs | workers | backend | wall s | work s | wall per run s | efficiency | load |")
+    click.echo("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        eff = "-" if r["efficiency"] is None else f"{r['efficiency']:.2f}"
+        click.echo(f"| {r['scene']} | {r['runs']} | {r['jobs']} | {r['workers'] or '-'} | {r['backend']} | "
+                   f"{r['wall_s']:.1f} | {r['work_s']:.1f} | {r['wall_per_run_s']:.2f} | {eff} | {r['load_avg']:.1f} |")
+    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
