@@ -93,6 +93,12 @@ def write_outputs(rows: list[dict], out: str | Path, png: str | Path | None = No
                 label=f"{scene} work in the workers")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+    ax.set_xticks(sorted({r["runs"] for r in rows}))
+    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no labels on the minor ticks
+        axis.set_major_formatter(ScalarFormatter())
+        axis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("runs (seeds) of one task")
     ax.set_ylabel("seconds")
     ax.legend(loc="upper left", fontsize=8)
