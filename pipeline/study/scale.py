@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from pipeline.atomic import atomic_path
+from pipeline.atomic import atomic_path, save_figure
 from pipeline.evaluate import EvalConfig, evaluate
 
 __all__ = ["FIELDS", "scale_rows", "write_outputs"]
@@ -105,7 +105,5 @@ def write_outputs(rows: list[dict], out: str | Path, png: str | Path | None = No
     ax.set_title("stucco evaluate: time against grid size")
     fig.tight_layout()
     paths[1].parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(paths[1]) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, paths[1], dpi=120, image_format="png")
     return paths
