@@ -90,7 +90,7 @@ def write_outputs(rows: list[dict], out: str | Path, png: str | Path | None = No
         sel = sorted((r for r in rows if r["scene"] == scene and r["backend"] == backend), key=lambda r: r["runs"])
         ax.plot([r["runs"] for r in sel], [r["wall_s"] for r in sel], marker="o", label=f"{scene} wall ({backend})")
         ax.plot([r["runs"] for r in sel], [r["work_s"] for r in sel], marker="x", ls="--",
-                label=f"{scene} work in the workers")
+                label=f"{scene} work in the workers ({backend})")
     ax.set_xscale("log")
     ax.set_yscale("log")
     from matplotlib.ticker import NullFormatter, ScalarFormatter
