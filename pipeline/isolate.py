@@ -30,6 +30,7 @@ from pipeline.robot import load_robot, surface_points
 __all__ = [
     "DetectionParams",
     "IsolationParams",
+    "isolation_surface",
     "residual",
     "step_in_contact",
     "window_in_contact",
@@ -238,9 +239,24 @@ class IsolationResult:
                 "mean_m": float(np.mean(self.errors)), "n": int(len(self.errors))}
 
 
+_SURFACES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def isolation_surface(sdf, params: IsolationParams = IsolationParams()) -> tuple[np.ndarray, np.ndarray]:
+    """The candidate contact points (Q, 2) and normals (Q, 2) of a gripper grid for isolation
+    (:func:`pipeline.robot.surface_points` with ``params``' query), built once per process for each grid and
+    query: they depend on nothing else."""
+    key = (sdf.digest, params.n_query, params.radius, params.min_separation)
+    if key not in _SURFACES:
+        points, normals = surface_points(sdf, n_query=params.n_query, radius=params.radius,
+                                         min_separation=params.min_separation)
+        points.flags.writeable = normals.flags.writeable = False  # shared by every caller of this process
+        _SURFACES[key] = (points, normals)
+    return _SURFACES[key]
+
+
 def _surface(params: IsolationParams) -> tuple[np.ndarray, np.ndarray]:
-    sdf = load_robot(params.robot)
-    return surface_points(sdf, n_query=params.n_query, radius=params.radius, min_separation=params.min_separation)
+    return isolation_surface(load_robot(params.robot), params)
 
 
 def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionParams = DetectionParams(),

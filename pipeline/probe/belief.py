@@ -24,14 +24,14 @@ import pyarrow as pa
 
 from pipeline.portable import exp
 from pipeline.geometry import Primitive, primitive_sdf, rotate
-from pipeline.isolate import IsolationParams, isolate_run
+from pipeline.isolate import IsolationParams, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
 from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
-from pipeline.robot import load_robot, surface_points
+from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
@@ -69,9 +69,7 @@ class Sensing:
         self.method = method
         self.n_scripted = int(n_scripted)
         self.tracker = make_tracker(config, self.sdf, run_rng(root_seed, run))
-        iso = IsolationParams(robot=robot)
-        self.surface = surface_points(self.sdf, n_query=iso.n_query, radius=iso.radius,
-                                      min_separation=iso.min_separation)
+        self.surface = isolation_surface(self.sdf, IsolationParams(robot=robot))
         self.ee = [np.asarray(start, dtype=np.float64)[:2].copy()]
         self.touching = [False]  # per visited position: reached in contact by a probe
         self.steps: list[int] = []

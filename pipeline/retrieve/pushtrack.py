@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 import pyarrow.parquet as pq
 
-from pipeline.isolate import IsolationParams, isolate_run
+from pipeline.isolate import isolate_run, isolation_surface
 from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
@@ -27,7 +27,6 @@ from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pos
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
-from pipeline.robot import surface_points
 
 __all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "refine_final", "final_pose",
            "PLAUSIBLE_SET"]
@@ -35,22 +34,11 @@ __all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "refine_f
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
 
-_SURFACES: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def _surface(sdf) -> tuple[np.ndarray, np.ndarray]:
-    """The isolation's candidate surface points and normals of a gripper grid, built once per process."""
-    if sdf.digest not in _SURFACES:
-        iso = IsolationParams()
-        _SURFACES[sdf.digest] = surface_points(sdf, n_query=iso.n_query, radius=iso.radius,
-                                               min_separation=iso.min_separation)
-    return _SURFACES[sdf.digest]
-
 
 def observed_actions(info: RunInfo, sdf) -> tuple[np.ndarray, np.ndarray]:
     """Contact point (K, 2) at the end of every action (NaN without) and the gripper's in-contact displacement
     (K, 2) (0 without), metres, re-isolated from the run file with the isolate stage's defaults."""
-    cols, _, _ = isolate_run(pq.read_table(info.path), *_surface(sdf))
+    cols, _, _ = isolate_run(pq.read_table(info.path), *isolation_surface(sdf))
     inc = np.asarray(cols["in_contact"], dtype=bool)
     f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
     contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
