@@ -15,7 +15,8 @@ import numpy as np
 from pipeline.portable import exp
 from pipeline.retrieve.plausible import PlausibleParams
 
-__all__ = ["recency_sigma", "target_reach", "gripper_lattice", "cached_gripper_lattice", "free_space_points"]
+__all__ = ["recency_sigma", "target_reach", "gripper_lattice", "cached_gripper_lattice", "free_space_points",
+           "first_per_cell"]
 
 
 def recency_sigma(steps: np.ndarray, params: PlausibleParams) -> np.ndarray:
@@ -96,9 +97,15 @@ def free_space_points(lattice: np.ndarray, ee_start: np.ndarray, ee_end: np.ndar
         return np.zeros((0, 2))
     pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
     pts = pts[np.linalg.norm(pts - centre, axis=1) <= radius]
+    return first_per_cell(pts, params.free_resolution)
+
+
+def first_per_cell(pts: np.ndarray, resolution: float) -> np.ndarray:
+    """The first of the points (P, 2) in each cell of a ``resolution`` grid (cells centred on its multiples), in
+    their order: (F, 2), F <= P."""
     if len(pts) == 0:
         return pts
-    cell = np.rint(pts / params.free_resolution).astype(np.int64)
+    cell = np.rint(pts / resolution).astype(np.int64)
     # One int64 per cell (row-major in the cells' bounding box): np.unique over rows (axis=0) sorts them as
     # opaque bytes, ten times slower; the first point of each cell is the same either way (a stable sort).
     cell -= cell.min(axis=0)

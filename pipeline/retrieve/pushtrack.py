@@ -20,7 +20,7 @@ from pipeline.isolate import isolate_run, isolation_surface
 from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
-from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, target_reach
+from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
@@ -70,9 +70,7 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
         if len(poses) == 0:
             return np.zeros((0, 2))
         pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
-        pts = pts[np.hypot(*(pts - centre).T) <= radius]
-        _, keep = np.unique(np.rint(pts / params.free_resolution).astype(np.int64), axis=0, return_index=True)
-        return pts[np.sort(keep)]
+        return first_per_cell(pts[np.hypot(*(pts - centre).T) <= radius], params.free_resolution)
 
     return free_points
 
