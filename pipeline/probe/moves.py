@@ -11,9 +11,9 @@ import numpy as np
 
 from pipeline.geometry import Primitive
 from pipeline.probe.belief import PoseSet, Sensing
-from pipeline.probe.planning import near_target, path_to, transit_graph
+from pipeline.probe.transit import Keepout, path_to, transit_graph
 
-__all__ = ["Act", "retrace", "guarded_move", "blocked_positions", "return_to_start"]
+__all__ = ["Act", "retrace", "guarded_move", "transit_limits", "first_reaching", "return_to_start"]
 
 Act = Callable[[float, float], dict]
 
@@ -70,38 +70,63 @@ def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: n
     return here, n, contact, travel
 
 
-def blocked_positions(sensing: Sensing, target: Primitive, belief: PoseSet, outline: np.ndarray,
-             link_radius: float = 0.02) -> np.ndarray:
-    """Visited positions (K,) transit must avoid: reached in contact by a probe, or overlapping the target at the
-    set's estimate (the gripper passed there before the target was pushed there) unless that leaves the gripper
-    nowhere to go (it ended the scripted part pressed against the target)."""
+def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline: np.ndarray, plan,
+                   returning: bool = False) -> list[tuple[np.ndarray, Keepout | None]]:
+    """What transit must avoid, strictest first: pairs of (visited positions reached in contact by a probe (K,),
+    the keep-out around the target at the set's estimate). ``plan`` is a
+    :class:`pipeline.probe.planning.PlanParams`; the first pair that leaves transit somewhere to go is used.
+
+    Transit to a probe's start only keeps the gripper's positions out of the target (a move that grazes it ends
+    the probe as a contact, and starts close to the target are the informative ones: keeping 1.5 cm from it
+    and off the moves between positions lost 5 grasps net on the training seeds, docs/retrieval.md). The
+    return before the grasp keeps ``plan.transit_clearance`` from the target, positions and moves alike, then
+    none, then positions only: a contact there turns the target after the last decision, unseen. Last, no
+    keep-out at all, for a gripper that ended the scripted part pressed against the target."""
     touching = np.asarray(sensing.touching, dtype=bool)
-    near = near_target(target, belief.poses[belief.best], sensing.visited, outline, 0.0)
-    near[-1] = False  # where the gripper is now
-    if np.isfinite(transit_graph(sensing.visited, link_radius, touching | near)[0]).sum() <= 1:
-        return touching
-    return touching | near
+    pose = np.asarray(belief.poses[belief.best], dtype=np.float64)
+    positions = Keepout(target, pose, outline, 0.0, links=False)
+    if not returning:
+        return [(touching, positions), (touching, None)]
+    return [(touching, Keepout(target, pose, outline, plan.transit_clearance)),
+            (touching, Keepout(target, pose, outline, 0.0)), (touching, positions), (touching, None)]
 
 
-def return_to_start(act: Act, sensing: Sensing, params, blocked: np.ndarray, attempts: int = 4) -> int:
-    """Retrace visited positions (not those reached in contact) from the current one to the scripted part's last
-    position not reached in contact; a contact on the way (an object now lies where the gripper once passed)
-    backs off and the visited positions within 3 cm of it are left out of the next try. Returns the actions made
-    (none if the position cannot be reached)."""
+def first_reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | None]], link_radius: float
+                   ) -> tuple[np.ndarray, Keepout | None]:
+    """The first of ``limits`` (:func:`transit_limits`) under which transit reaches some visited position other
+    than the current one (the last limit otherwise)."""
+    for touching, keepout in limits[:-1]:
+        if np.isfinite(transit_graph(sensing.visited, link_radius, touching, keepout)[0]).sum() > 1:
+            return touching, keepout
+    return limits[-1]
+
+
+def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.ndarray, Keepout | None]],
+                    attempts: int = 4) -> int:
+    """Retrace visited positions (not those reached in contact, nor through the keep-out) from the current one to
+    the scripted part's last position still reachable under the strictest of ``limits`` (:func:`transit_limits`)
+    that reaches one; a contact on the way (an object now lies where the gripper once passed) backs off and the
+    visited positions within 3 cm of it are left out of the next try. Returns the actions made (none if no
+    position can be reached)."""
     visited = sensing.visited.copy()
-    touching = np.asarray(blocked, dtype=bool).copy()
+    masks = [np.asarray(t, dtype=bool).copy() for t, _ in limits]
     here, n = visited[-1], 0
     for _ in range(attempts):
         visited = np.vstack([visited, here])
-        touching = np.r_[touching, False]
-        dist, pred = transit_graph(visited, params.plan.link_radius, touching)
-        free = np.flatnonzero(~touching[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
-        if len(free) == 0:
+        masks = [np.r_[m, False] for m in masks]
+        path = None
+        for mask, (_, keepout) in zip(masks, limits):
+            dist, pred = transit_graph(visited, params.plan.link_radius, mask, keepout)
+            free = np.flatnonzero(~mask[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
+            if len(free):
+                path = path_to(pred, visited, int(free[-1]))
+                break
+        if path is None:
             break
-        here, k, contact = retrace(act, here, path_to(pred, visited, int(free[-1])), params.transit_step,
-                                   params.backoff)
+        here, k, contact = retrace(act, here, path, params.transit_step, params.backoff)
         n += k
         if not contact:
             break
-        touching |= np.linalg.norm(visited - here, axis=1) < 0.03
+        near = np.linalg.norm(visited - here, axis=1) < 0.03
+        masks = [m | near for m in masks]
     return n

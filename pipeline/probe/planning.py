@@ -17,16 +17,15 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from pipeline.portable import log
-from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.geometry import Primitive, rotate
 from pipeline.retrieve.evidence import gripper_lattice
+from pipeline.probe.transit import Keepout, path_to, transit_graph
 from pipeline.retrieve.plausible import com_pose, primitive_pose
 
-__all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "transit_graph",
-           "outcome_entropy", "obstacle_travel", "near_target", "hit_points", "choose_probe", "path_to"]
+__all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "outcome_entropy",
+           "obstacle_travel", "hit_points", "choose_probe"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +64,9 @@ class PlanParams:
         Spacing of the gripper outline points (0.01).
     link_radius : float, metres
         Visited positions closer than this are linked for transit (0.02), besides consecutive ones.
+    transit_clearance : float, metres
+        Transit keeps the gripper this far from the target at the set's estimate (0.015: the estimate's error
+        and the gripper's lag behind its command; :class:`pipeline.probe.transit.Keepout`).
     obstacle_radius : float, metres
         A known point of another object blocks the outline within this distance (0.01).
     """
@@ -84,6 +86,7 @@ class PlanParams:
     perturb_shift: float = 0.015
     outline_resolution: float = 0.01
     link_radius: float = 0.02
+    transit_clearance: float = 0.015
     obstacle_radius: float = 0.01
 
 
@@ -178,17 +181,6 @@ def hit_points(prim: Primitive, pose: np.ndarray, origins: np.ndarray, direction
     return hit
 
 
-def near_target(prim: Primitive, pose: np.ndarray, positions: np.ndarray, outline: np.ndarray,
-                margin: float) -> np.ndarray:
-    """Whether the gripper (outline points (G, 2)) at each position (K, 2) would come within ``margin`` (m) of the
-    primitive at a COM pose (3,): bool (K,). Transit avoids them: the target has moved since the gripper was
-    there."""
-    pp = primitive_pose(prim, np.asarray(pose, dtype=np.float64).reshape(3))
-    pts = np.asarray(positions, dtype=np.float64)[:, None, :] + outline[None, :, :]
-    sd, _ = primitive_sdf(prim, rotate(pts - pp[:2], pp[2], inverse=True))
-    return sd.min(axis=1) < margin
-
-
 def obstacle_travel(obstacles: np.ndarray, origins: np.ndarray, directions: np.ndarray, radius: float,
                     max_travel: float) -> np.ndarray:
     """Travel (L,), metres, along each line until the outline comes within ``radius`` of a known point of
@@ -220,38 +212,6 @@ def agreement(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int
         dy = (poses[:, 2] - poses[best, 2] + sym / 2) % sym - sym / 2
         near &= np.abs(dy) <= yaw_tolerance
     return float(np.sum(np.asarray(weights)[near]) / max(np.sum(weights), 1e-300))
-
-
-def transit_graph(visited: np.ndarray, radius: float, touching: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Shortest retraced paths from the last visited position: (distance (K,), predecessor (K,)) over the graph
-    linking consecutive visited positions and any two closer than ``radius`` (the gripper occupied both).
-    Positions flagged in ``touching`` (K,) (reached in contact: pressed against an object) are left out."""
-    v = np.asarray(visited, dtype=np.float64).reshape(-1, 2)
-    k = len(v)
-    i = np.arange(k - 1)
-    d = np.linalg.norm(v[:, None, :] - v[None, :, :], axis=-1)
-    a, b = np.nonzero(np.triu(d < radius, 1))
-    rows = np.concatenate([i, a])
-    cols = np.concatenate([i + 1, b])
-    if touching is not None:
-        t = np.asarray(touching, dtype=bool).copy()
-        t[-1] = False  # where the gripper is now
-        keep = ~t[rows] & ~t[cols]
-        rows, cols = rows[keep], cols[keep]
-    w = np.maximum(d[rows, cols], 1e-9)
-    g = coo_matrix((w, (rows, cols)), shape=(k, k)).tocsr()
-    dist, pred = dijkstra(g, directed=False, indices=k - 1, return_predecessors=True)
-    return dist, pred
-
-
-def path_to(pred: np.ndarray, visited: np.ndarray, node: int) -> np.ndarray:
-    """Visited positions (P, 2) from the last visited one (excluded) to ``node`` (included) along the shortest
-    retraced path (``pred`` of :func:`transit_graph`)."""
-    out = [node]
-    while pred[out[-1]] >= 0:
-        out.append(int(pred[out[-1]]))
-    return visited[out[::-1]][1:] if len(out) > 1 else visited[[node]]
 
 
 def outcome_entropy(travel: np.ndarray, weights: np.ndarray, bin_width: float) -> np.ndarray:
@@ -286,7 +246,7 @@ def _perturbed(prim: Primitive, pose: np.ndarray, params: PlanParams) -> np.ndar
 def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, visited: np.ndarray,
                  outline: np.ndarray, params: PlanParams = PlanParams(), obstacles: np.ndarray | None = None,
                  done: np.ndarray | None = None, spread_from: np.ndarray | None = None,
-                 touching: np.ndarray | None = None) -> ProbePlan | None:
+                 touching: np.ndarray | None = None, keepout: Keepout | None = None) -> ProbePlan | None:
     """The guarded move that best separates the hypotheses, or None if no start can be reached.
 
     Parameters
@@ -303,7 +263,9 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     done : ndarray, shape (D, 4), optional
         Lines already probed (start x, y, direction x, y): not repeated (within 2 cm and 0.3 rad).
     touching : ndarray, shape (K,), bool, optional
-        Visited positions transit must avoid (reached in contact by a probe, or too near the target now).
+        Visited positions transit must avoid (reached in contact by a probe).
+    keepout : Keepout, optional
+        The region around the target's estimate transit stays out of (positions and the moves between them).
     spread_from : ndarray, shape (P, 2), optional
         Instead of the most informative line, the one whose contact the estimate predicts farthest from these
         points (the target's probe contacts): a set that agrees on a few close contacts may rest on another,
@@ -317,7 +279,7 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     all_w = np.r_[w * (1.0 - params.perturb_weight), np.full(len(extra), params.perturb_weight / len(extra))]
     centre = np.sum(prim.centre_world(poses) * w[:, None], axis=0)
     visited = np.asarray(visited, dtype=np.float64).reshape(-1, 2)
-    dist, pred = transit_graph(visited, params.link_radius, touching)
+    dist, pred = transit_graph(visited, params.link_radius, touching, keepout)
     reach = np.linalg.norm(visited - centre, axis=1)
     ok = np.flatnonzero(np.isfinite(dist) & (reach <= params.start_reach))
     if len(ok) == 0:

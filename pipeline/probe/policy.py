@@ -26,7 +26,7 @@ from pipeline.constraints import Constraint, check, integer, number, rule
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explains, misfit,
                                    pose_set)
-from pipeline.probe.moves import Act, blocked_positions, guarded_move, retrace, return_to_start
+from pipeline.probe.moves import Act, first_reaching, guarded_move, retrace, return_to_start, transit_limits
 from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
 from pipeline.retrieve.runs import retrieval_rng
 
@@ -229,7 +229,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan, obstacles,
             np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4),
             mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None,
-            blocked_positions(sensing, target, belief, outline, params.plan.link_radius))
+            *first_reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
+                            params.plan.link_radius))
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
@@ -239,7 +240,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
                 # point is a straight line, which from the far side of the target would sweep it away.
                 log.actions += return_to_start(
-                    act, sensing, params, blocked_positions(sensing, target, belief, outline, params.plan.link_radius))
+                    act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True))
             return log
         here = sensing.visited[-1]
         here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)

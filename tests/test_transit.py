@@ -1,0 +1,127 @@
+"""Transit of the probing policy (pipeline/probe/transit.py, pipeline/probe/moves.py): the graph of visited
+positions and the keep-out around the target's estimate (docs/retrieval.md, "Active retrieval")."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import Primitive
+from pipeline.probe.moves import return_to_start
+from pipeline.probe.planning import PlanParams
+from pipeline.probe.policy import ProbeParams
+from pipeline.probe.transit import Keepout, path_to, transit_graph
+
+BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
+DOT = np.zeros((1, 2))  # a gripper of one outline point: clearances are plain distances
+
+
+def _ring():
+    """Visited positions: a straight line across the box's place (y = 0, x from -0.2 to 0.2 in 4 cm steps), then
+    a detour around it at y = 0.15, ending back at x = -0.2 (the current position, last)."""
+    line = np.column_stack([np.arange(-0.2, 0.2001, 0.04), np.zeros(11)])
+    detour = np.column_stack([np.arange(0.2, -0.2001, -0.04), np.full(11, 0.15)])
+    return np.vstack([line, detour, [[-0.2, 0.0]]])
+
+
+def test_clearance_is_the_distance_to_the_box_and_negative_inside():
+    k = Keepout(BOX, np.zeros(3), DOT, 0.01)
+    c = k.clearance(np.array([[0.1, 0.0], [0.0, 0.0], [0.0, 0.2]]))
+    assert c == pytest.approx([0.07, -0.03, 0.12])
+
+
+def test_a_link_whose_ends_are_clear_but_whose_middle_crosses_the_box_is_not_clear():
+    k = Keepout(BOX, np.zeros(3), DOT, 0.01)
+    lc = k.link_clearance(np.array([[-0.05, 0.0], [-0.05, 0.09]]), np.array([[0.05, 0.0], [0.05, 0.09]]))
+    assert lc[0] == pytest.approx(-0.03)  # through the box's middle
+    assert lc[1] == pytest.approx(0.01)  # 1 cm beyond its long face
+    far = k.link_clearance(np.array([[1.0, 1.0]]), np.array([[1.02, 1.0]]))
+    assert np.isinf(far[0])  # too far to matter: not sampled
+
+
+def test_transit_goes_around_the_target_with_the_keepout_and_straight_without():
+    v = _ring()
+    dist, pred = transit_graph(v, 0.02)
+    # Without a keep-out the far end (x = 0.2, y = 0) is reached straight along the line: 0.4 m.
+    assert dist[10] == pytest.approx(0.4)
+    dist, pred = transit_graph(v, 0.02, keepout=Keepout(BOX, np.zeros(3), DOT, 0.015))
+    # The line's positions and links within 1.5 cm of the box are out (x = -0.04, 0, 0.04): only the detour is left.
+    assert np.isinf(dist[4:7]).all()
+    assert dist[10] == pytest.approx(0.15 + 0.4 + 0.15)
+    path = path_to(pred, v, 10)
+    assert np.all(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(path) >= 0.015)
+
+
+def test_from_within_the_margin_the_gripper_may_move_along_the_target_but_not_closer():
+    # Here: 1 cm from the box's short face x = -0.03 (just backed off from a contact); margin 1.5 cm. Both ends
+    # are clear of the margin; only the second move comes closer on the way (to 5 mm).
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    along = np.array([[-0.04, 0.095], [-0.04, 0.0]])
+    closer = np.array([[-0.035, 0.095], [-0.04, 0.0]])
+    assert np.isfinite(transit_graph(along, 0.001, keepout=keepout)[0][0])
+    assert np.isinf(transit_graph(closer, 0.001, keepout=keepout)[0][0])
+    assert np.isfinite(transit_graph(closer, 0.001)[0][0])
+
+
+class _World:
+    """A stand-in for the collect stage's act: the gripper is a point, the box a wall it cannot enter."""
+
+    def __init__(self, start):
+        self.here = np.asarray(start, dtype=np.float64)
+        self.moves = []
+
+    def act(self, dx, dy):
+        nxt = self.here + [dx, dy]
+        contact = Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(nxt[None, :])[0] < 0.0
+        if not contact:
+            self.here = nxt
+        self.moves.append(nxt)
+        return {"ee_x_m": float(self.here[0]), "ee_y_m": float(self.here[1]), "in_contact": bool(contact)}
+
+
+class _Sensing:
+    def __init__(self, visited, n_scripted):
+        self.visited = visited
+        self.n_scripted = n_scripted
+
+
+def _scripted_around_then_across():
+    """The scripted part went up, around the box's place by y = 0.15, down, and back across y = 0 (the box was
+    elsewhere then) to (-0.2, 0); a probe then left the gripper at (0.21, 0). The box now sits at the origin."""
+    up = np.array([[-0.2, 0.0], [-0.2, 0.05], [-0.2, 0.1]])
+    around = np.column_stack([np.arange(-0.2, 0.2001, 0.04), np.full(11, 0.15)])
+    down = np.array([[0.2, 0.1], [0.2, 0.05]])
+    across = np.column_stack([np.arange(0.2, -0.2001, -0.04), np.zeros(11)])
+    visited = np.vstack([up, around, down, across, [[0.21, 0.0]]])
+    return visited, len(visited) - 2  # the start is not an action
+
+
+@pytest.mark.parametrize("keepout, touches", [(Keepout(BOX, np.zeros(3), DOT, 0.015), False), (None, True)])
+def test_return_to_start_goes_around_the_target_it_was_pushed_into(keepout, touches):
+    visited, n_scripted = _scripted_around_then_across()
+    world = _World(visited[-1])
+    limits = [(np.zeros(len(visited), dtype=bool), keepout)]
+    n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1)
+    assert n > 0
+    touched = np.any(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(world.moves)) < 0.0)
+    assert touched == touches
+    if not touches:
+        assert world.here == pytest.approx([-0.2, 0.0])  # where the scripted part ended, the long way round
+
+
+def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_first():
+    from pipeline.probe.belief import PoseSet
+    from pipeline.probe.moves import first_reaching, transit_limits
+
+    class S:
+        visited = np.array([[0.0, 0.05], [0.0, 0.2], [0.0, 0.3]])  # the first is now inside the box
+        touching = [False, False, False]
+
+    belief = PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=0)
+    probe = transit_limits(S, BOX, belief, DOT, PlanParams())
+    back = transit_limits(S, BOX, belief, DOT, PlanParams(), returning=True)
+    assert [(k.margin, k.links) if k else None for _, k in probe] == [(0.0, False), None]
+    assert [(k.margin, k.links) if k else None for _, k in back] == [(0.015, True), (0.0, True), (0.0, False), None]
+    touching, keepout = first_reaching(S, probe, 0.001)
+    assert keepout is probe[0][1]  # the second position is still reachable
+    dist, _ = transit_graph(S.visited, 0.001, touching, keepout)
+    assert np.isinf(dist[0]) and np.isfinite(dist[1])
