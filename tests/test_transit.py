@@ -84,14 +84,15 @@ class _Sensing:
         self.n_scripted = n_scripted
 
 
-def _scripted_around_then_across():
+def _scripted_around_then_across(end=()):
     """The scripted part went up, around the box's place by y = 0.15, down, and back across y = 0 (the box was
-    elsewhere then) to (-0.2, 0); a probe then left the gripper at (0.21, 0). The box now sits at the origin."""
+    elsewhere then) to (-0.2, 0), then to the positions ``end``; a probe then left the gripper at (0.21, 0).
+    The box now sits at the origin."""
     up = np.array([[-0.2, 0.0], [-0.2, 0.05], [-0.2, 0.1]])
     around = np.column_stack([np.arange(-0.2, 0.2001, 0.04), np.full(11, 0.15)])
     down = np.array([[0.2, 0.1], [0.2, 0.05]])
     across = np.column_stack([np.arange(0.2, -0.2001, -0.04), np.zeros(11)])
-    visited = np.vstack([up, around, down, across, [[0.21, 0.0]]])
+    visited = np.vstack([up, around, down, across, np.reshape(end, (-1, 2)), [[0.21, 0.0]]])
     return visited, len(visited) - 2  # the start is not an action
 
 
@@ -120,8 +121,21 @@ def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_fi
     probe = transit_limits(S, BOX, belief, DOT, PlanParams())
     back = transit_limits(S, BOX, belief, DOT, PlanParams(), returning=True)
     assert [(k.margin, k.links) if k else None for _, k in probe] == [(0.0, False), None]
-    assert [(k.margin, k.links) if k else None for _, k in back] == [(0.015, True), (0.0, True), (0.0, False), None]
+    assert [(round(k.margin, 6), k.links) if k else None for _, k in back] == [
+        (0.015, True), (0.01, True), (0.005, True), (0.0, True), (0.0, False), None]
     touching, keepout = first_reaching(S, probe, 0.001)
     assert keepout is probe[0][1]  # the second position is still reachable
     dist, _ = transit_graph(S.visited, 0.001, touching, keepout)
     assert np.isinf(dist[0]) and np.isfinite(dist[1])
+
+
+def test_return_to_start_stops_short_of_a_scripted_end_pressed_against_the_target():
+    # The scripted part ended 5 mm from the box's short face (it pushed the box there): the return goes to the
+    # last scripted position clear of the keep-out instead, (-0.2, 0), and never touches the box.
+    visited, n_scripted = _scripted_around_then_across(end=[[-0.1, 0.0], [-0.035, 0.0]])
+    world = _World(visited[-1])
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    limits = [(np.zeros(len(visited), dtype=bool), keepout), (np.zeros(len(visited), dtype=bool), None)]
+    return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1)
+    assert not np.any(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(world.moves)) < 0.0)
+    assert world.here == pytest.approx([-0.1, 0.0])

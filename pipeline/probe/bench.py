@@ -46,9 +46,10 @@ def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> 
 
 
 def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: bool, rows: int | None,
-                 root_seed: int, params: ProbeParams) -> tuple:
-    """(grasp result, position error, yaw error) of the set the policy holds at decision ``k``."""
-    belief, _ = active_set(info, root_seed, params.method, None if last else k)
+                 root_seed: int, params: ProbeParams, budget_end: bool) -> tuple:
+    """(grasp result, position error, yaw error) of the set the policy holds at decision ``k`` (with
+    ``budget_end``, the set a policy whose budget ends there grasps)."""
+    belief, _ = active_set(info, root_seed, params.method, None if last else k, params if budget_end else None)
     t = schema.read_run(path)
     poses = info.final_poses if last else np.asarray(t.column("obj_pose")[rows - 1].as_py()).reshape(-1, 3)
     n0 = int(history[0]["rows"])
@@ -72,14 +73,17 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]
     need = required_contacts(info.target, params)
     out = []
-    stopped: dict[int, tuple] = {}  # decision -> its set, grasp outcome and errors: budgets stopping there share it
+    stopped: dict[tuple, tuple] = {}  # (decision, budget end) -> grasp outcome and errors, shared by budgets
     for b in budgets:
         k = stop_decision(history, b, need, params.plan.agree_share)
         last = k == len(history) - 1
         rows = None if last else int(history[k]["rows"])
-        if k not in stopped:
-            stopped[k] = _at_decision(info, path, scene, history, k, last, rows, root_seed, params)
-        res, pe, ye = stopped[k]
+        # A policy still going at its budget's end may give the segment up there (the run's last decision
+        # already records it).
+        end = k == b and not last
+        if (k, end) not in stopped:
+            stopped[(k, end)] = _at_decision(info, path, scene, history, k, last, rows, root_seed, params, end)
+        res, pe, ye = stopped[(k, end)]
         st = run_stats(path, rows)
         dec = np.asarray(st["decision_s"][:k + 1])
         out.append(dict(scene=scene.name, seed=seed, budget=b, probes=k, success=bool(res.success),

@@ -78,17 +78,21 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
 
     Transit to a probe's start only keeps the gripper's positions out of the target (a move that grazes it ends
     the probe as a contact, and starts close to the target are the informative ones: keeping 1.5 cm from it
-    and off the moves between positions lost 5 grasps net on the training seeds, docs/retrieval.md). The
-    return before the grasp keeps ``plan.transit_clearance`` from the target, positions and moves alike, then
-    none, then positions only: a contact there turns the target after the last decision, unseen. Last, no
-    keep-out at all, for a gripper that ended the scripted part pressed against the target."""
+    and off the moves between positions lost 5 grasps net on the training seeds, docs/retrieval.md).
+
+    The return before the grasp must not touch the target at all (a contact there turns it after the last
+    decision, unseen): it keeps ``plan.transit_clearance`` from it, positions and moves alike, else two thirds
+    of that, one third, none (the far side of the target may be linked to the rest by a narrow passage), then
+    positions only, and last no keep-out, for a gripper that ended the scripted part pressed against the
+    target."""
     touching = np.asarray(sensing.touching, dtype=bool)
     pose = np.asarray(belief.poses[belief.best], dtype=np.float64)
     positions = Keepout(target, pose, outline, 0.0, links=False)
     if not returning:
         return [(touching, positions), (touching, None)]
-    return [(touching, Keepout(target, pose, outline, plan.transit_clearance)),
-            (touching, Keepout(target, pose, outline, 0.0)), (touching, positions), (touching, None)]
+    margins = plan.transit_clearance * np.array([1.0, 2 / 3, 1 / 3, 0.0])
+    return [(touching, Keepout(target, pose, outline, float(m))) for m in margins] + \
+        [(touching, positions), (touching, None)]
 
 
 def first_reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | None]], link_radius: float
@@ -104,8 +108,8 @@ def first_reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | No
 def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.ndarray, Keepout | None]],
                     attempts: int = 4) -> int:
     """Retrace visited positions (not those reached in contact, nor through the keep-out) from the current one to
-    the scripted part's last position still reachable under the strictest of ``limits`` (:func:`transit_limits`)
-    that reaches one; a contact on the way (an object now lies where the gripper once passed) backs off and the
+    the scripted part's last position clear of the strictest keep-out (else its last position) still reachable
+    under the strictest of ``limits`` (:func:`transit_limits`) that reaches one; a contact on the way (an object now lies where the gripper once passed) backs off and the
     visited positions within 3 cm of it are left out of the next try. Returns the actions made (none if no
     position can be reached)."""
     visited = sensing.visited.copy()
@@ -114,12 +118,19 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
     for _ in range(attempts):
         visited = np.vstack([visited, here])
         masks = [np.r_[m, False] for m in masks]
+        # The scripted part may have ended pressed against the target: aim for its last position clear of the
+        # strictest keep-out first, then for its last position.
+        strict = limits[0][1]
+        clear = strict.clearance(visited) >= strict.margin if strict is not None else np.ones(len(visited), bool)
         path = None
-        for mask, (_, keepout) in zip(masks, limits):
-            dist, pred = transit_graph(visited, params.plan.link_radius, mask, keepout)
-            free = np.flatnonzero(~mask[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
-            if len(free):
-                path = path_to(pred, visited, int(free[-1]))
+        for want in (clear[:sensing.n_scripted + 1], np.ones(sensing.n_scripted + 1, dtype=bool)):
+            for mask, (_, keepout) in zip(masks, limits):
+                dist, pred = transit_graph(visited, params.plan.link_radius, mask, keepout)
+                free = np.flatnonzero(want & ~mask[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
+                if len(free):
+                    path = path_to(pred, visited, int(free[-1]))
+                    break
+            if path is not None:
                 break
         if path is None:
             break

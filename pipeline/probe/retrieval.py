@@ -17,7 +17,7 @@ from pipeline import schema
 from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
 from pipeline.probe.planning import PlanParams, agreement
-from pipeline.probe.policy import set_from_steps
+from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps
 from pipeline.probe.set_grasp import SetGrasp, choose_grasp, simulate_set_grasp
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
@@ -55,10 +55,13 @@ def _probe_meta(info: RunInfo) -> dict:
     return (schema.read_metadata(info.path).get("params") or {}).get("probe") or {}
 
 
-def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None
-               ) -> tuple[PoseSet, dict]:
+def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
+               budget_end: ProbeParams | None = None) -> tuple[PoseSet, dict]:
     """The policy's last plausible set for a run file, or the one of its ``decision``-th decision (0: after the
     scripted part, before any probe), and the run's ``probe`` metadata ({} if it has none).
+
+    With ``budget_end`` (the policy's parameters), the ``decision``-th decision is where a policy with that
+    budget stops: the segment gives way there as the policy's would (:func:`give_way_at_budget`).
 
     With a tracking method other than the policy's, the segments are that method's and the probes' contacts
     are attributed as the policy attributed them, to the best-ranked segment."""
@@ -78,6 +81,11 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
     choice = next((c for c in choices if c.segment == segment), NO_TARGET)
+    if budget_end is not None and decision is not None:
+        given = give_way_at_budget(choices, choice, info.target, sensing, root_seed, info.run,
+                                   state["target_steps"], budget_end)
+        if given is not None:
+            return given[3], meta
     return set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"]), meta
 
 

@@ -1,0 +1,71 @@
+"""The probing policy's segment giving way at the end of the budget (pipeline/probe/policy.give_way_at_budget;
+docs/retrieval.md, "Active retrieval"): a set that never agreed on contacts bunched on a short stretch gives way
+to the next-ranked segment, whose set re-attributes every probe contact."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import Primitive
+from pipeline.probe import policy as policy_mod
+from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
+from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
+
+BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
+CAN = Primitive(kind="cylinder", half=(0.04,), centre=np.zeros(2), yaw=0.0)
+
+
+def _choice(segment):
+    return TargetChoice(segment, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
+
+
+class _Sensing:
+    """Three probe contacts: two 3 cm apart near (0.3, 0) (on a can, say), one at (0, 0.08) on the box's long face
+    (the box at the origin, yaw 0)."""
+    probe_points = [np.array([0.3, 0.0]), np.array([0.3, 0.03]), np.array([0.0, 0.08])]
+    probe_steps = [10, 20, 30]
+
+
+@pytest.fixture
+def sets(monkeypatch):
+    """set_from_steps stubbed: segment 1's set sits on the can's contacts (wide: share set by the test), segment
+    2's is the box at the origin."""
+    state = {"share": 0.3}
+
+    def fake_set(choice, target, sensing, root_seed, run, target_steps):
+        poses = np.array([[0.3, 0.1, 0.0], [0.3, 0.1, 0.5]]) if choice.segment == 1 else np.zeros((1, 3))
+        return PoseSet(poses=poses, weights=np.full(len(poses), 1.0 / len(poses)), best=0, segment=choice.segment)
+
+    monkeypatch.setattr(policy_mod, "set_from_steps", fake_set)
+    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: state["share"])
+    return state
+
+
+def test_a_wide_set_on_bunched_contacts_gives_way_and_the_contacts_are_attributed_afresh(sets):
+    choices = [_choice(1), _choice(2)]
+    given = give_way_at_budget(choices, choices[0], BOX, _Sensing(), 0, "FB/100", [10, 20], ProbeParams())
+    assert given is not None
+    choice, mine, others, belief = given
+    assert choice.segment == 2 and belief.segment == 2
+    assert mine == [30] and others == [10, 20]  # only the contact on the box's face is the new set's
+
+
+@pytest.mark.parametrize("share, steps, ranked, why", [
+    (0.97, [10, 20], [1, 2], "the set agrees"),
+    (0.3, [10, 30], [1, 2], "the contacts span the box"),
+    (0.3, [10], [1, 2], "one contact is not a stretch"),
+    (0.3, [10, 20], [2, 1], "no segment ranked below"),
+])
+def test_no_giving_way(sets, share, steps, ranked, why):
+    sets["share"] = share
+    choices = [_choice(s) for s in ranked]
+    current = next(c for c in choices if c.segment == 1)
+    assert give_way_at_budget(choices, current, BOX, _Sensing(), 0, "FB/100", steps, ProbeParams()) is None, why
+
+
+def test_no_segment_and_a_can_never_give_way(sets):
+    assert give_way_at_budget([_choice(1)], NO_TARGET, BOX, _Sensing(), 0, "FB/100", [10, 20], ProbeParams()) is None
+    # A can has no length to span: its contacts are never bunched.
+    assert not bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), CAN, ProbeParams())
+    assert bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), BOX, ProbeParams())
+    assert not bunched(np.array([[0.0, 0.0], [0.15, 0.0]]), BOX, ProbeParams())
