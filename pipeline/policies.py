@@ -8,6 +8,13 @@
     gripper would touch anything at either); stop within the goal tolerance; after an action that ends in contact
     take ``walk_length`` uniform random actions, otherwise the best of ``n_candidates`` uniform random actions
     towards the goal. Runs failing the discard rule (paper §V-B) are not written unless asked.
+``rummage``
+    A long run for timing the stages against the number of contacts (docs/evaluation.md, "Scale"): the scene's
+    sequence, then pushes towards one of the scene's objects at a time (a new one drawn after every
+    ``contacts_per_object`` actions in contact, each push's heading turned by a uniform angle within
+    ``heading_noise``), until
+    :attr:`RummageParams.contacts` actions have ended in contact or ``max_actions`` actions were taken. The pushes
+    read where the objects are (the simulator's truth): the policy makes data to time, it retrieves nothing.
 
 A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
 :func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
@@ -19,15 +26,16 @@ the run's ``probe`` column) and returns what the run's metadata records of them.
 from __future__ import annotations
 
 import math
-
-from typing import Any, Protocol
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from pipeline.constraints import Constraint, check, integer, number
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
 
-__all__ = ["Policy", "ScriptedPolicy", "GreedyWalkPolicy"]
+__all__ = ["Policy", "ScriptedPolicy", "GreedyWalkPolicy", "RummageParams", "RummagePolicy"]
 
 
 class Policy(Protocol):
@@ -119,6 +127,81 @@ class GreedyWalkPolicy:
             cand = self.rng.uniform(-1.0, 1.0, (walk.n_candidates, 2))
             u = cand[np.argmin(np.linalg.norm(x + scale * cand - self.goal, axis=1))]
         return np.clip(u + action_noise(self.noise_rng, 1, self.scene.effects.noise_mm, scale)[0], -1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class RummageParams:
+    """Parameters of the ``rummage`` policy; recorded in the run file's metadata (``policy_params``).
+
+    Attributes
+    ----------
+    contacts : int
+        Stop once this many actions have ended in contact (2000).
+    actions_per_contact : int
+        At most ``contacts`` x this many actions in all (10), so a run whose objects end out of reach still
+        stops; ``max_actions`` caps it further.
+    contacts_per_object : int
+        Actions in contact (with anything) before the next object to push is drawn (8).
+    heading_noise : float, radians
+        Half-width of the uniform turn of each push's heading away from the object's centre (0.8).
+    """
+
+    contacts: int = 2000
+    actions_per_contact: int = 10
+    contacts_per_object: int = 8
+    heading_noise: float = 0.8
+    # The upper bounds keep a run's arrays (8 sim steps x 13 floats per action) well within memory.
+    constraints: ClassVar[dict[str, Constraint]] = {"contacts": integer(lo=1, hi=1_000_000),
+                                                    "actions_per_contact": integer(lo=1, hi=1000),
+                                                    "contacts_per_object": integer(lo=1),
+                                                    "heading_noise": number(lo=0, hi=math.pi)}
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
+class RummagePolicy:
+    """The scene's sequence, then pushes towards its objects, until enough actions have ended in contact."""
+
+    discards = False
+    goal = None
+
+    def __init__(self, scene: Scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
+                 max_actions: int | None = None, params: RummageParams | None = None) -> None:
+        self.scene, self.rng, self.noise_rng, self.max_actions = scene, policy_rng, noise_rng, max_actions
+        self.params = params or RummageParams()
+        self.gripper_start = scene.gripper_start
+        self.script = np.asarray(scene.actions, dtype=np.float64)
+        self.n_contact = 0
+        self.target = -1
+
+    def start(self, world) -> None:
+        pass
+
+    def plan(self) -> int:
+        cap = self.params.contacts * self.params.actions_per_contact
+        return cap if self.max_actions is None else min(cap, self.max_actions)
+
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
+        pr = self.params
+        self.n_contact += bool(last_contact)  # whether action k - 1 ended in contact
+        if self.n_contact >= pr.contacts:
+            return None
+        if k < len(self.script):
+            u = self.script[k]
+        else:
+            if self.target < 0 or (last_contact and self.n_contact % pr.contacts_per_object == 0):
+                self.target = int(self.rng.integers(len(self.scene.objects)))
+            # the scene's objects come first among its bodies (walls after them)
+            d = world.object_poses()[self.target, :2] - world.gripper_pose()[0][:2]
+            turn = math.atan2(d[1], d[0]) + self.rng.uniform(-pr.heading_noise, pr.heading_noise)
+            u = np.array([math.cos(turn), math.sin(turn)])
+        eff = self.scene.effects
+        return np.clip(u + action_noise(self.noise_rng, 1, eff.noise_mm, self.scene.action_scale)[0], -1.0, 1.0)
+
+    def metadata(self) -> dict:
+        """What the run's metadata records of the policy (``policy_params``)."""
+        return asdict(self.params)
 
 
 def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
