@@ -10,11 +10,11 @@
     towards the goal. Runs failing the discard rule (paper §V-B) are not written unless asked.
 ``rummage``
     A long run for timing the stages against the number of contacts (docs/evaluation.md, "Scale"): the scene's
-    sequence, then pushes towards one of the scene's objects at a time (a new one drawn after every
-    ``contacts_per_object`` actions in contact, each push's heading turned by a uniform angle within
-    ``heading_noise``), until
-    :attr:`RummageParams.contacts` actions have ended in contact or ``max_actions`` actions were taken. The pushes
-    read where the objects are (the simulator's truth): the policy makes data to time, it retrieves nothing.
+    sequence played again and again, the world put back in the state it started in before each repeat (objects
+    and gripper; the simulator's saved state), each repeat with its own replay noise, until
+    :attr:`RummageParams.contacts` actions have ended in contact, or after ``max_actions`` actions. (Pushing on
+    from where a repeat ends does not keep the contacts coming: the objects are pushed out of reach, through the
+    walled area's open side, within a few hundred actions.)
 
 A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
 :func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
@@ -31,7 +31,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from pipeline.constraints import Constraint, check, integer, number
+from pipeline.constraints import Constraint, check, integer
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
 
@@ -138,66 +138,62 @@ class RummageParams:
     contacts : int
         Stop once this many actions have ended in contact (2000).
     actions_per_contact : int
-        At most ``contacts`` x this many actions in all (10), so a run whose objects end out of reach still
+        At most ``contacts`` x this many actions in all (10), so a scene whose script makes no contact still
         stops; ``max_actions`` caps it further.
-    contacts_per_object : int
-        Actions in contact (with anything) before the next object to push is drawn (8).
-    heading_noise : float, radians
-        Half-width of the uniform turn of each push's heading away from the object's centre (0.8).
     """
 
     contacts: int = 2000
     actions_per_contact: int = 10
-    contacts_per_object: int = 8
-    heading_noise: float = 0.8
     # The upper bounds keep a run's arrays (8 sim steps x 13 floats per action) well within memory.
     constraints: ClassVar[dict[str, Constraint]] = {"contacts": integer(lo=1, hi=1_000_000),
-                                                    "actions_per_contact": integer(lo=1, hi=1000),
-                                                    "contacts_per_object": integer(lo=1),
-                                                    "heading_noise": number(lo=0, hi=math.pi)}
+                                                    "actions_per_contact": integer(lo=1, hi=1000)}
 
     def __post_init__(self) -> None:
         check(self)
 
 
 class RummagePolicy:
-    """The scene's sequence, then pushes towards its objects, until enough actions have ended in contact."""
+    """The scene's sequence repeated from the scene's starting state until enough actions end in contact."""
 
     discards = False
     goal = None
 
     def __init__(self, scene: Scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
                  max_actions: int | None = None, params: RummageParams | None = None) -> None:
-        self.scene, self.rng, self.noise_rng, self.max_actions = scene, policy_rng, noise_rng, max_actions
+        self.scene, self.noise_rng, self.max_actions = scene, noise_rng, max_actions
         self.params = params or RummageParams()
         self.gripper_start = scene.gripper_start
         self.script = np.asarray(scene.actions, dtype=np.float64)
         self.n_contact = 0
-        self.target = -1
+        self.saved: int | None = None
+        self.start_xy = (0.0, 0.0)
 
     def start(self, world) -> None:
-        pass
+        import pybullet as p  # imported here: the world that calls this has loaded it (pipeline.sim)
+
+        # the settled starting state, restored before every repeat of the script
+        self.saved = p.saveState(physicsClientId=world.client)
+        x, y = world.gripper_pose()[0][:2]
+        self.start_xy = (float(x), float(y))
 
     def plan(self) -> int:
         cap = self.params.contacts * self.params.actions_per_contact
         return cap if self.max_actions is None else min(cap, self.max_actions)
 
     def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
-        pr = self.params
         self.n_contact += bool(last_contact)  # whether action k - 1 ended in contact
-        if self.n_contact >= pr.contacts:
+        if self.n_contact >= self.params.contacts:
             return None
-        if k < len(self.script):
-            u = self.script[k]
-        else:
-            if self.target < 0 or (last_contact and self.n_contact % pr.contacts_per_object == 0):
-                self.target = int(self.rng.integers(len(self.scene.objects)))
-            # the scene's objects come first among its bodies (walls after them)
-            d = world.object_poses()[self.target, :2] - world.gripper_pose()[0][:2]
-            turn = math.atan2(d[1], d[0]) + self.rng.uniform(-pr.heading_noise, pr.heading_noise)
-            u = np.array([math.cos(turn), math.sin(turn)])
+        i = k % len(self.script)
+        if i == 0 and k > 0:
+            import pybullet as p  # imported here, as in start
+
+            p.restoreState(stateId=self.saved, physicsClientId=world.client)
+            world.place(*self.start_xy, settle=False)  # the gripper's constraint is not part of the saved state
         eff = self.scene.effects
-        return np.clip(u + action_noise(self.noise_rng, 1, eff.noise_mm, self.scene.action_scale)[0], -1.0, 1.0)
+        # noise drawn per action, so a repeat's noise differs from the last one's
+        return np.clip(self.script[i] + action_noise(self.noise_rng, 1, eff.noise_mm, self.scene.action_scale)[0],
+                       -1.0, 1.0)
 
     def metadata(self) -> dict:
         """What the run's metadata records of the policy (``policy_params``)."""

@@ -2,6 +2,8 @@
 resume is refused (its time would not be a measurement)."""
 import csv
 
+import numpy as np
+
 from click.testing import CliRunner
 
 from stucco_cli.main import cli
@@ -40,7 +42,8 @@ def _in_contact(path):
 
 
 def test_rummage_stops_at_the_requested_contacts_past_the_script_and_gives_the_same_bytes_twice(tmp_path):
-    """TC's 40 scripted actions end fewer than 15 in contact, so 15 needs the pushes after the script."""
+    """TC's 40 scripted actions end fewer than 15 in contact, so 15 needs a second play of the script, from the
+    scene's starting state again."""
     import pyarrow.parquet as pq
 
     from pipeline.collect import collect_file
@@ -55,10 +58,15 @@ def test_rummage_stops_at_the_requested_contacts_past_the_script_and_gives_the_s
     assert _in_contact(a) == 15 == res.n_contact and res.n_actions > len(sc.actions)
     params = read_metadata(a)["params"]
     assert params["policy"] == "rummage" and params["policy_params"]["contacts"] == 15
-    # the first actions are the script's (plus replay noise of at most 0.5 mm on a 30 mm scale)
-    cmd = pq.read_table(a, columns=["cmd_ux", "cmd_uy"]).to_pandas().to_numpy()
-    script = [list(u) for u in sc.actions]
-    assert abs(cmd[:10] - script[:10]).max() < 0.5 / 30 + 1e-12
+    # every action is the script's (plus replay noise of at most 0.5 mm on a 30 mm scale), the noise drawn anew
+    t = pq.read_table(a).to_pandas()
+    n = len(sc.actions)
+    cmd, script = t[["cmd_ux", "cmd_uy"]].to_numpy(), np.array(sc.actions, dtype=float)
+    assert abs(cmd - script[np.arange(len(t)) % n]).max() < 0.5 / 30 + 1e-12
+    assert not np.array_equal(cmd[:len(t) - n], cmd[n:])
+    # the second play starts where the first did
+    start = t[["ee_start_x_m", "ee_start_y_m"]].to_numpy()
+    assert np.allclose(start[n], start[0], atol=1e-9) and not np.allclose(start[n - 1], start[0], atol=1e-3)
 
 
 def test_rummage_is_capped_by_max_actions_and_checks_its_parameters(tmp_path):
@@ -71,7 +79,7 @@ def test_rummage_is_capped_by_max_actions_and_checks_its_parameters(tmp_path):
     _, params, res = collect_run(load_scene("TC"), 0, policy="rummage", max_actions=4,
                                  policy_params={"contacts": 1000})
     assert res.n_actions == 4 and res.n_contact < 1000 and params["max_actions"] == 4
-    for bad in ({"contacts": 0}, {"contacts": 2.5}, {"heading_noise": -1.0}, {"actions_per_contact": 0}):
+    for bad in ({"contacts": 0}, {"contacts": 2.5}, {"contacts": 2_000_000}, {"actions_per_contact": 0}):
         with pytest.raises(ValueError, match="RummageParams"):
             RummageParams(**bad)
 
