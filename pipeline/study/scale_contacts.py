@@ -130,7 +130,7 @@ def write_contact_outputs(rows: list[dict], out: str | Path, png: str | Path | N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter, ScalarFormatter
+    from matplotlib.ticker import FuncFormatter, NullFormatter, ScalarFormatter
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -150,15 +150,21 @@ def write_contact_outputs(rows: list[dict], out: str | Path, png: str | Path | N
         totals[r["contacts"]] = totals.get(r["contacts"], 0.0) + r["wall_s"]
     xs = sorted(totals)
     ax.plot(xs, [totals[x] for x in xs], color="black", ls="--", marker="x", label="all stages, wall")
+    if len(xs) > 1:  # guides through the top total: what linear and quadratic growth would look like
+        top = totals[xs[-1]]
+        for power, style in ((1, ":"), (2, "-.")):
+            ax.plot([xs[0], xs[-1]], [top * (xs[0] / xs[-1]) ** power, top], color="grey", ls=style, lw=0.8,
+                    label=f"~ contacts^{power}")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xticks(xs)
-    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no labels on the minor ticks
-        axis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 0.01, not ScalarFormatter's 0.0
+    for axis in (ax.xaxis, ax.yaxis):  # no labels on the minor ticks
         axis.set_minor_formatter(NullFormatter())
     scene = measured[0]["scene"] if measured else ""
     ax.set_xlabel(f"contacts in the run ({scene}, one run per size)")
-    ax.set_ylabel("CPU seconds per stage")
+    ax.set_ylabel("seconds (stages: CPU; total: wall)")
     ax.legend(loc="upper left", fontsize=7)
     ax.set_title("stucco: stage time against contacts per run")
     fig.tight_layout()
