@@ -12,9 +12,8 @@
     A long run for timing the stages against the number of contacts (docs/evaluation.md, "Scale"): the scene's
     sequence played again and again, the world put back in the state it started in before each repeat (objects
     and gripper; the simulator's saved state), each repeat with its own replay noise, until
-    :attr:`RummageParams.contacts` actions have ended in contact, or after ``max_actions`` actions. (Pushing on
-    from where a repeat ends does not keep the contacts coming: the objects are pushed out of reach, through the
-    walled area's open side, within a few hundred actions.)
+    :attr:`RummageParams.contacts` actions have ended in contact, or after ``max_actions`` actions. Restarting
+    keeps the objects in reach, which pushing on from where a play ends did not (docs/evaluation.md, "Scale").
 
 A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
 :func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
