@@ -312,7 +312,8 @@ def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_di
     for name in ("run_counts", "max_actions", "backend", "scheduler"):
         if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
             opt = next(p.opts[0] for p in ctx.command.params if p.name == name)
-            raise click.BadParameter(f"does not apply to {opt}: one axis per call", param_hint="--contacts")
+            raise click.BadParameter(f"{opt} does not apply to the contacts axis (one axis per call)",
+                                     param_hint="--contacts")
     from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.study.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs

@@ -110,7 +110,8 @@ def test_scale_contacts_refuses_bad_sizes_and_a_second_axis_in_one_line(tmp_path
     for extra, says in ((["--contacts", "0"], "0 is not in [1, 100000]"),
                         (["--contacts", "many"], "expected comma-separated integers, got 'many'"),
                         (["--contacts", ","], "--contacts"),
-                        (["--contacts", "5", "--runs", "3"], "does not apply to --runs"),
+                        (["--contacts", "5", "--runs", "3"], "--runs does not apply to the contacts axis"),
+                        (["--contacts", "5", "--max-actions", "3"], "--max-actions does not apply"),
                         (["--contacts", "5", "--methods", "stucco,birch"], "expected one method")):
         r = CliRunner().invoke(cli, base + extra)
         assert r.exit_code != 0 and says in r.output, (extra, r.output)
