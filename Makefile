@@ -66,7 +66,7 @@ test: setup
 
 # REFERENCE_PYTHON=/path/to/venv/bin/python reruns the authors' tracker side by side (../shared/anchors/README.md).
 bench: setup
-	$(BIN)/stucco bench track --streams $(ANCHORS) --methods stucco,birch,dbscan,kmeans,gmphd \
+	$(BIN)/stucco bench track --streams $(ANCHORS) --T 50,100,200,300,400 --methods stucco,birch,dbscan,kmeans,gmphd \
 	  $(if $(REFERENCE_PYTHON),--reference-python $(REFERENCE_PYTHON)) --json out/bench/track.json
 	$(BIN)/stucco bench sim --scene FB
 

@@ -367,6 +367,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     }
     if extra is not None:
         params["probe"] = extra
+    if hasattr(mover, "metadata"):  # a policy with its own parameters records them (the rummage's contacts)
+        params["policy_params"] = mover.metadata()
     result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),
                        touched=touched, discarded=discarded, wall_s=time.perf_counter() - t0, sim_s=sim_s,

@@ -8,6 +8,12 @@
     gripper would touch anything at either); stop within the goal tolerance; after an action that ends in contact
     take ``walk_length`` uniform random actions, otherwise the best of ``n_candidates`` uniform random actions
     towards the goal. Runs failing the discard rule (paper §V-B) are not written unless asked.
+``rummage``
+    A long run for timing the stages against the number of contacts (docs/evaluation.md, "Scale"): the scene's
+    sequence played again and again, the world put back in the state it started in before each repeat (objects
+    and gripper; the simulator's saved state), each repeat with its own replay noise, until
+    :attr:`RummageParams.contacts` actions have ended in contact, or after ``max_actions`` actions. Restarting
+    keeps the objects in reach, which pushing on from where a play ends did not (docs/evaluation.md, "Scale").
 
 A policy is built per run by its registry factory (:class:`pipeline.registry.PolicySpec`) and driven by
 :func:`pipeline.collect.collect_run`: :attr:`Policy.gripper_start` opens the world, :meth:`Policy.start` places
@@ -19,15 +25,16 @@ the run's ``probe`` column) and returns what the run's metadata records of them.
 from __future__ import annotations
 
 import math
-
-from typing import Any, Protocol
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from pipeline.constraints import Constraint, check, integer
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
 
-__all__ = ["Policy", "ScriptedPolicy", "GreedyWalkPolicy"]
+__all__ = ["Policy", "ScriptedPolicy", "GreedyWalkPolicy", "RummageParams", "RummagePolicy"]
 
 
 class Policy(Protocol):
@@ -119,6 +126,77 @@ class GreedyWalkPolicy:
             cand = self.rng.uniform(-1.0, 1.0, (walk.n_candidates, 2))
             u = cand[np.argmin(np.linalg.norm(x + scale * cand - self.goal, axis=1))]
         return np.clip(u + action_noise(self.noise_rng, 1, self.scene.effects.noise_mm, scale)[0], -1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class RummageParams:
+    """Parameters of the ``rummage`` policy; recorded in the run file's metadata (``policy_params``).
+
+    Attributes
+    ----------
+    contacts : int
+        Stop once this many actions have ended in contact (2000).
+    actions_per_contact : int
+        At most ``contacts`` x this many actions in all (10), so a scene whose script makes no contact still
+        stops; ``max_actions`` caps it further.
+    """
+
+    contacts: int = 2000
+    actions_per_contact: int = 10
+    # The upper bounds keep a run's arrays (8 sim steps x 13 floats per action) well within memory.
+    constraints: ClassVar[dict[str, Constraint]] = {"contacts": integer(lo=1, hi=1_000_000),
+                                                    "actions_per_contact": integer(lo=1, hi=1000)}
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
+class RummagePolicy:
+    """The scene's sequence repeated from the scene's starting state until enough actions end in contact."""
+
+    discards = False
+    goal = None
+
+    def __init__(self, scene: Scene, policy_rng: np.random.Generator, noise_rng: np.random.Generator,
+                 max_actions: int | None = None, params: RummageParams | None = None) -> None:
+        self.scene, self.noise_rng, self.max_actions = scene, noise_rng, max_actions
+        self.params = params or RummageParams()
+        self.gripper_start = scene.gripper_start
+        self.script = np.asarray(scene.actions, dtype=np.float64)
+        self.n_contact = 0
+        self.saved: int | None = None
+        self.start_xy = (0.0, 0.0)
+
+    def start(self, world) -> None:
+        import pybullet as p  # imported here: the world that calls this has loaded it (pipeline.sim)
+
+        # the settled starting state, restored before every repeat of the script
+        self.saved = p.saveState(physicsClientId=world.client)
+        x, y = world.gripper_pose()[0][:2]
+        self.start_xy = (float(x), float(y))
+
+    def plan(self) -> int:
+        cap = self.params.contacts * self.params.actions_per_contact
+        return cap if self.max_actions is None else min(cap, self.max_actions)
+
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
+        self.n_contact += bool(last_contact)  # whether action k - 1 ended in contact
+        if self.n_contact >= self.params.contacts:
+            return None
+        i = k % len(self.script)
+        if i == 0 and k > 0:
+            import pybullet as p  # imported here, as in start
+
+            p.restoreState(stateId=self.saved, physicsClientId=world.client)
+            world.place(*self.start_xy, settle=False)  # the gripper's constraint is not part of the saved state
+        eff = self.scene.effects
+        # noise drawn per action, so a repeat's noise differs from the last one's
+        return np.clip(self.script[i] + action_noise(self.noise_rng, 1, eff.noise_mm, self.scene.action_scale)[0],
+                       -1.0, 1.0)
+
+    def metadata(self) -> dict:
+        """What the run's metadata records of the policy (``policy_params``)."""
+        return asdict(self.params)
 
 
 def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:

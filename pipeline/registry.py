@@ -314,6 +314,11 @@ register(PolicySpec("scripted+probe", "the scripted actions, then probes until t
                                       "grasp for the whole plausible set (active retrieval)",
                     "pipeline.probe.mover:ScriptedProbePolicy", params="pipeline.probe.policy:ProbeParams",
                     needs=(("actions", "action sequence"),), retrieval="pipeline.probe.retrieval:active_row"))
+register(PolicySpec("rummage", "the scene's action sequence played again and again from the scene's starting "
+                               "state until a given number of actions end in contact (long runs for `bench scale "
+                               "--contacts`)",
+                    "pipeline.policies:RummagePolicy", params="pipeline.policies:RummageParams",
+                    needs=(("actions", "action sequence"),)))
 
 #: The pose estimator used when none is named (the first registered).
 DEFAULT_ESTIMATOR: str = estimator_names()[0]

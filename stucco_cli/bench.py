@@ -258,12 +258,22 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
               help="One evaluation folder per grid size, scale.csv and scale.png.")
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also draw the figure here (e.g. docs/img/scale.png).")
+@click.option("--contacts", "contact_counts", default=None,
+              help="Instead of the runs axis: comma-separated contacts per run (e.g. 50,200,500,2000); one run of "
+                   "--scene per size, collected with the rummage policy, each stage timed (wall and CPU s) -> "
+                   "scale_contacts.csv and scale_contacts.png.")
+@click.option("--run-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Run seed of the --contacts runs.")
 @pass_settings
 def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, backend, scheduler, out_dir,
-                png) -> None:
-    """How `stucco evaluate` wall time grows with the number of runs of one task (collection included)."""
+                png, contact_counts, run_seed) -> None:
+    """How `stucco evaluate` wall time grows with the number of runs of one task (collection included), or with
+    --contacts, how each stage's time grows with the contacts of one run."""
     writable_dir("--out", out_dir)
     check_paths({}, {"--png": png})
+    if contact_counts is not None:
+        _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed)
+        return
     from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.study.scale import scale_rows, write_outputs
@@ -293,4 +303,48 @@ def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, b
         eff = "-" if r["efficiency"] is None else f"{r['efficiency']:.2f}"
         click.echo(f"| {r['scene']} | {r['runs']} | {r['jobs']} | {r['workers'] or '-'} | {r['backend']} | "
                    f"{r['wall_s']:.1f} | {r['work_s']:.1f} | {r['wall_per_run_s']:.2f} | {eff} | {r['load_avg']:.1f} |")
+    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
+
+
+def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed) -> None:
+    """`bench scale --contacts`: every stage timed against the contacts of one run (docs/evaluation.md, "Scale")."""
+    ctx = click.get_current_context()
+    for name in ("run_counts", "max_actions", "backend", "scheduler"):
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
+            opt = next(p.opts[0] for p in ctx.command.params if p.name == name)
+            raise click.BadParameter(f"{opt} does not apply to the contacts axis (one axis per call)",
+                                     param_hint="--contacts")
+    from pipeline.evaluate import parse_scenes
+    from pipeline.retrieve.estimators import parse_estimators
+    from pipeline.study.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs
+
+    scene_list = parsed("--scene", parse_scenes, scene)
+    if len(scene_list) != 1:
+        raise click.BadParameter("expected one task", param_hint="--scene")
+    counts = _ints("--contacts", contact_counts, 1, 100_000)
+    if not counts:
+        raise click.BadParameter("expected at least one contact count", param_hint="--contacts")
+    method_list = _methods(methods)
+    if len(method_list) != 1:
+        raise click.BadParameter("expected one method with --contacts", param_hint="--methods")
+    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
+    for tag in ["warmup"] + [f"c{n}" for n in counts]:
+        if (out_dir / f"{scene_list[0]}-{tag}").exists():
+            raise click.BadParameter(f"{out_dir / f'{scene_list[0]}-{tag}'} exists: a rerun stage is not a "
+                                     "measurement; remove it or choose another --out", param_hint="--out")
+    say = None if settings.progress else (lambda text: click.echo(text, err=True))
+    with user_errors("bench scale"):
+        rows = contact_rows(out_dir, scene_list[0], sorted(set(counts)), method_list[0], est,
+                            root_seed=settings.seed, seed=run_seed, progress=say)
+        paths = write_contact_outputs(rows, out_dir, png)
+    click.echo("| task | contacts (asked) | actions | stage | wall s | CPU s | load |")
+    click.echo("|---|---|---|---|---|---|---|")
+    for r in rows:
+        stage = r["stage"] + (f" ({r['estimator']})" if r["estimator"] else "")
+        asked = f"warm-up ({WARMUP_CONTACTS})" if r["warmup"] else str(r["requested"])
+        click.echo(f"| {r['scene']} | {r['contacts']} ({asked}) | {r['actions']} | {stage} | {r['wall_s']:.2f} | "
+                   f"{r['cpu_s']:.2f} | {r['load_avg']:.1f} |")
+    slopes = growth(rows)
+    click.echo("growth, CPU s ~ contacts^b: " + ", ".join(
+        f"{k} b={'-' if v is None else f'{v:.2f}'}" for k, v in slopes.items()))
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)

@@ -3,7 +3,8 @@
 Each point is one ``evaluate`` of one task from scratch (collection included, no figures) over the first ``n``
 seeds, timed from the call to the written report. Beside the wall time it reports the work the jobs booked (the sum
 of the scores' per-stage wall times, seconds in the workers), so the parallel efficiency is work / (wall x
-workers). Measured figures go in docs/, never here.
+workers). The other axis, the contacts of one run, is :mod:`pipeline.study.scale_contacts`. Measured figures go
+in docs/, never here.
 """
 from __future__ import annotations
 
