@@ -215,16 +215,29 @@ def test_effect_off_friction_keeps_defaults():
 
 
 def test_world_uses_its_own_direct_client_and_closes_it():
+    """Each open world has its own DIRECT client; closing empties it (kept as a spare for the next world of the
+    process, at most _MAX_SPARE of them) or disconnects it, and a closed world's client id is -1."""
     import pybullet as p
 
     from pipeline.sim import World
+    from pipeline.sim import world as world_module
 
     scene = load_scene("FB").with_effects(settle_steps=0)
-    with World(scene) as a, World(scene) as b:
-        assert a.client != b.client
-        assert p.getConnectionInfo(a.client)["connectionMethod"] == p.DIRECT
-        ca = a.client
-    assert not p.isConnected(ca)
+    worlds = [World(scene) for _ in range(world_module._MAX_SPARE + 1)]
+    clients = [w.client for w in worlds]
+    assert len(set(clients)) == len(clients)
+    assert all(p.getConnectionInfo(c)["connectionMethod"] == p.DIRECT for c in clients)
+    assert all(p.getNumBodies(physicsClientId=c) > 0 for c in clients)
+    for w in worlds:
+        w.close()
+        w.close()  # idempotent
+        assert w.client == -1
+    kept = [c for c in clients if p.isConnected(c)]
+    assert 0 < len(kept) <= world_module._MAX_SPARE
+    assert all(p.getNumBodies(physicsClientId=c) == 0 for c in kept)
+    with World(scene) as again:
+        assert again.client in kept  # a spare client is reused
+        assert p.getNumBodies(physicsClientId=again.client) == len(again.body_of) + 2  # + plane, gripper
 
 
 # ------------------------------------------------------------------------------------------------ greedy walk

@@ -209,3 +209,69 @@ def test_a_grasp_is_simulated_once_per_process(fb_run, monkeypatch):
     moved[-1, 0] = np.nextafter(moved[-1, 0], 1.0)  # one bit of one body's recorded pose
     grasp_at(fb_run.scene, moved, fb_run.final_ee, est, P)
     assert len(calls) == 3
+
+
+def _grasp_both_ways(run, est, monkeypatch):
+    """The grasp with the early decision (the default) and with the whole script simulated."""
+    import pipeline.grasp as grasp_module
+
+    out = []
+    for early in (True, False):
+        monkeypatch.setattr(grasp_module, "_DECIDE_EARLY", early)
+        monkeypatch.setattr(grasp_module, "_MEMO", type(grasp_module._MEMO)())
+        out.append(grasp_at(run.scene, run.final_poses, run.final_ee, est, P))
+    return out
+
+
+@pytest.mark.parametrize("name, shift, reached", [
+    ("FB-000", (0.4, 0.0, 0.0), True),  # the box 40 cm off: the gripper turns in front of nothing
+    ("FB-000", (0.0, -0.3, 0.0), False),  # blocked on the way: judged where it stopped
+    ("TC-000", (-0.3, 0.0, 0.0), True),  # the can 30 cm behind the pre-grasp point
+])
+def test_a_target_out_of_reach_is_judged_early_with_the_whole_script_s_outcome(name, shift, reached, monkeypatch):
+    """A target farther from every gripper link than the approach, a finger's opening and REACH_MARGIN, at rest,
+    once the hand has turned: judged before opening the fingers, with the outcome the whole script gives."""
+    run = load_run(REGRESSION.parent / f"{name}.parquet")
+    early, whole = _grasp_both_ways(run, run.true_pose + np.array(shift), monkeypatch)
+    assert early.early and not whole.early
+    assert (early.success, early.outcome, early.reached) == (whole.success, whole.outcome, whole.reached)
+    assert early.outcome.startswith("finger 0 does not touch the target") and early.reached is reached
+    assert [len(f.points) for f in early.fingers] == [0, 0] == [len(f.points) for f in whole.fingers]
+
+
+@pytest.mark.parametrize("shift, success", [((0.0, 0.0, 0.0), True), ((0.3, 0.0, 0.0), False)])
+def test_a_target_within_reach_is_simulated_to_the_end_unchanged_to_the_bit(fb_run, shift, success, monkeypatch):
+    """The reach check (collision queries only) does not change the simulation: a grasp it does not decide is the
+    whole script's to the bit, whether it succeeds or misses a target 30 cm off (within reach when the hand has
+    turned)."""
+    early, whole = _grasp_both_ways(fb_run, fb_run.true_pose + np.array(shift), monkeypatch)
+    assert not early.early and early.success is success
+    assert (early.success, early.outcome, early.reached) == (whole.success, whole.outcome, whole.reached)
+    np.testing.assert_array_equal(early.target_pose, whole.target_pose)
+    for a, b in zip(early.fingers, whole.fingers):
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.normals, b.normals)
+        assert a.force == b.force
+
+
+def test_out_of_reach_needs_distance_rest_and_a_turned_hand(fb_run):
+    """World.out_of_reach in the restored state: the box is out of reach at half its distance to the gripper, not at
+    twice it; with the box or another body moving, or the hand still turning toward its commanded orientation,
+    nothing is out of reach."""
+    import pybullet as p
+
+    tid = next(i for i, o in enumerate(fb_run.scene.objects) if o.target)
+    with restore_world(fb_run.scene, fb_run.final_poses, fb_run.final_ee, P.settle_steps) as world:
+        d = world.object_distances()[tid]
+        assert world.out_of_reach(tid, 0.5 * d) and not world.out_of_reach(tid, 2.0 * d + 0.01)
+        q = world.gripper.orientation
+        world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, 0.5)))
+        assert not world.out_of_reach(tid, 0.5 * d)  # the hand has not turned yet
+        world.gripper.orientation = q
+        p.resetBaseVelocity(world.body_of[tid], (0.05, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=world.client)
+        assert not world.out_of_reach(tid, 0.5 * d)
+        p.resetBaseVelocity(world.body_of[tid], (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=world.client)
+        assert world.out_of_reach(tid, 0.5 * d)
+        other = world.body_of[(tid + 1) % len(fb_run.scene.objects)]
+        p.resetBaseVelocity(other, (0.0, 0.0, 0.0), (0.0, 0.0, 0.5), physicsClientId=world.client)
+        assert not world.out_of_reach(tid, 0.5 * d)  # another body still turning

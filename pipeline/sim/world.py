@@ -1,7 +1,7 @@
 """A pybullet world built from a :class:`pipeline.scenes.Scene`, and the action stepping (docs/simulation.md).
 
-One :class:`World` = one ``p.connect(p.DIRECT)`` client (no GUI, no camera), built fresh per run and closed
-after it; every call passes ``physicsClientId``. Only what the scene's effects ask for is built: walls,
+One :class:`World` = one DIRECT physics client (no GUI, no camera), built fresh per run and closed after it (the
+client itself is emptied and reused by the next world of the process); every call passes ``physicsClientId``. Only what the scene's effects ask for is built: walls,
 friction overrides, movable (dynamic) objects, settling steps; the per-step contact wrench and ground truth
 are computed only when asked (:func:`pipeline.sim.effects.read_contacts`).
 
@@ -39,6 +39,36 @@ STEPS_PER_ACTION = MINI_STEPS * STEPS_PER_MINI
 PLANE_LATERAL_FRICTION = 1.0
 #: Where a gripper waits while start positions are being sampled (far from every scene).
 _PARKING = (10.0, 10.0)
+#: Physics clients of closed worlds, emptied with ``resetSimulation`` and kept for the next :class:`World` of this
+#: process: connecting and disconnecting a DIRECT client costs about 12-20 ms, a reset about 0.2 ms, a tenth of a
+#: grasp simulation (docs/evaluation.md, "Where the time goes"). A reset client builds and steps the same world to
+#: the bit as a fresh one (tests/test_sim_reuse.py).
+_SPARE: list[int] = []
+_MAX_SPARE = 2
+
+
+def _connect() -> int:
+    """A DIRECT physics client with an empty world: a spare one if this process has one, else a new one."""
+    while _SPARE:
+        c = _SPARE.pop()
+        if p.isConnected(physicsClientId=c):
+            return c
+    return p.connect(p.DIRECT)
+
+
+def _release(client: int) -> None:
+    """Empty ``client`` and keep it for the next world, or disconnect it if enough are kept."""
+    if len(_SPARE) < _MAX_SPARE:
+        try:
+            p.resetSimulation(physicsClientId=client)
+        except p.error:
+            return
+        _SPARE.append(client)
+        return
+    try:
+        p.disconnect(physicsClientId=client)
+    except p.error:
+        pass
 
 
 @dataclass
@@ -104,7 +134,7 @@ class World:
         self.scene = scene
         self._maximal = bool(maximal_coordinates)
         self.effects = effects if effects is not None else scene.effects
-        self.client = p.connect(p.DIRECT)
+        self.client = _connect()
         if self.client < 0:
             raise RuntimeError("pybullet: could not connect a DIRECT physics client")
         try:
@@ -287,13 +317,29 @@ class World:
                 out[i] = min(pt[8] for pt in pts)
         return out
 
+    def out_of_reach(self, i: int, reach: float, *, max_turn: float = 0.02, max_speed: float = 0.01) -> bool:
+        """Whether scene body ``i`` is beyond ``reach`` (m) of every gripper link, every body is at rest (COM speed
+        below ``max_speed`` m/s, angular speed below 10 ``max_speed`` rad/s: whatever moves later is set moving by
+        the gripper) and the hand is at its commanded orientation (within ``max_turn`` rad); i.e. the gripper
+        cannot come within ``reach`` of body ``i`` by moving each of its points less than that. Queries only:
+        the simulation is not changed (tests/test_grasp.py).
+        """
+        c = self.client
+        g = self.gripper
+        _, q = p.getBasePositionAndOrientation(g.body, physicsClientId=c)
+        if 2.0 * math.acos(min(1.0, abs(sum(a * b for a, b in zip(q, g.orientation))))) > max_turn:
+            return False
+        for b in self.body_of.values():
+            v, w = p.getBaseVelocity(b, physicsClientId=c)
+            if math.hypot(*v) >= max_speed or math.hypot(*w) >= 10.0 * max_speed:
+                return False
+        return not p.getClosestPoints(self.body_of[i], g.body, reach, physicsClientId=c)
+
     def close(self) -> None:
-        """Disconnect the client (idempotent)."""
+        """Give the client back: emptied and kept for the next world of this process, or disconnected
+        (idempotent)."""
         if getattr(self, "client", -1) >= 0:
-            try:
-                p.disconnect(physicsClientId=self.client)
-            except p.error:
-                pass
+            _release(self.client)
             self.client = -1
 
     def __enter__(self) -> "World":
