@@ -421,9 +421,8 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
         # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
         world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
         world.advance(0.0, 0.0)
-        # Decided here if the target is out of reach (docs/evaluation.md, "Where the time goes"): with every body at
-        # rest, what is left moves each gripper point by at most the approach plus a finger's opening, so no finger
-        # can touch a target farther than that and a margin.
+        # Decided here if the target is out of reach (docs/evaluation.md, "Where the time goes"): what is left moves
+        # every point of the gripper by at most the approach plus a finger's opening, so no finger can touch it.
         early = _DECIDE_EARLY and world.out_of_reach(tid, steps * scale + OPEN + REACH_MARGIN)
         if not early:
             world.gripper.set_fingers(OPEN)
