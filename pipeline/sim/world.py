@@ -318,22 +318,21 @@ class World:
         return out
 
     def out_of_reach(self, i: int, reach: float, *, max_turn: float = 0.02, max_speed: float = 0.01) -> bool:
-        """Whether scene body ``i`` is beyond ``reach`` (m) of every gripper link, every body is at rest (COM speed
-        below ``max_speed`` m/s, angular speed below 10 ``max_speed`` rad/s: whatever moves later is set moving by
-        the gripper) and the hand is at its commanded orientation (within ``max_turn`` rad); i.e. the gripper
-        cannot come within ``reach`` of body ``i`` by moving each of its points less than that. Queries only:
-        the simulation is not changed (tests/test_grasp.py).
+        """Whether scene body ``i`` is beyond ``reach`` (m) of every gripper link, at rest (COM speed below
+        ``max_speed`` m/s, angular speed below 10 ``max_speed`` rad/s), and the hand at its commanded orientation
+        (within ``max_turn`` rad), i.e. nothing of the gripper can come within ``reach`` of it by moving each of
+        its points less than that; collision queries only, the simulation is not changed (tests/test_grasp.py).
         """
         c = self.client
         g = self.gripper
+        body = self.body_of[i]
         _, q = p.getBasePositionAndOrientation(g.body, physicsClientId=c)
         if 2.0 * math.acos(min(1.0, abs(sum(a * b for a, b in zip(q, g.orientation))))) > max_turn:
             return False
-        for b in self.body_of.values():
-            v, w = p.getBaseVelocity(b, physicsClientId=c)
-            if math.hypot(*v) >= max_speed or math.hypot(*w) >= 10.0 * max_speed:
-                return False
-        return not p.getClosestPoints(self.body_of[i], g.body, reach, physicsClientId=c)
+        v, w = p.getBaseVelocity(body, physicsClientId=c)
+        if math.hypot(*v) >= max_speed or math.hypot(*w) >= 10.0 * max_speed:
+            return False
+        return not p.getClosestPoints(body, g.body, reach, physicsClientId=c)
 
     def close(self) -> None:
         """Give the client back: emptied and kept for the next world of this process, or disconnected
