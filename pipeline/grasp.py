@@ -33,12 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.geometry import Primitive, dot2, primitive_of, rot2
+from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "grasp_with", "judge_box",
            "judge_can", "restore_world", "FingerContacts", "PLANS"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
+FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
 #: Finger pads along the hand's approach axis (hand z), from the base: joint at 0.0584, mesh z in [0, 0.0538]
 #: (docs/simulation.md, "World, gripper, stepping"), i.e. world x in [0.0585, 0.1122] for the default orientation.
 PAD_FROM_BASE = (0.0585, 0.1122)
@@ -153,9 +154,6 @@ class GraspResult:
         The target's COM pose when judged.
     fingers : list of FingerContacts
     wall_s : float
-    early : bool
-        Judged before opening the fingers, the target being out of their reach (``fingers`` empty, ``target_pose``
-        then); the outcome is what the whole script gives (docs/evaluation.md, "Where the time goes").
     """
 
     success: bool
@@ -166,7 +164,6 @@ class GraspResult:
     target_pose: np.ndarray
     fingers: list[FingerContacts] = field(default_factory=list)
     wall_s: float = 0.0
-    early: bool = False
 
 
 def _wrap_into(yaw: float, low: float, period: float) -> float:
@@ -233,6 +230,14 @@ def _pybullet():
     return pybullet
 
 
+def _set_fingers(world, target: float) -> None:
+    p = _pybullet()
+
+    for j in (0, 1):
+        p.setJointMotorControl2(world.gripper.body, j, p.POSITION_CONTROL, targetPosition=target, force=FINGER_FORCE,
+                                physicsClientId=world.client)
+
+
 def _finger_contacts(world, body: int) -> list[FingerContacts]:
     p = _pybullet()
 
@@ -243,6 +248,13 @@ def _finger_contacts(world, body: int) -> list[FingerContacts]:
         nrm = np.array([cp[7][:2] for cp in cps]).reshape(-1, 2)  # contactNormalOnB: target -> finger
         out.append(FingerContacts(points=pts, normals=nrm, force=float(sum(cp[9] for cp in cps))))
     return out
+
+
+def _body_pose(world, body: int) -> np.ndarray:
+    p = _pybullet()
+
+    pos, q = p.getBasePositionAndOrientation(body, physicsClientId=world.client)
+    return np.array([pos[0], pos[1], quat_yaw(q)])
 
 
 def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray, params: GraspParams
@@ -356,11 +368,6 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
     return grasp_with(scene, poses, ee, yaw, pre, approach, params)
 
 
-#: Beyond the approach and a finger's opening, the margin (m) at which an untouched target is out of reach (the
-#: contact points pybullet reports reach 0.02 m apart), and the switch of that early decision (tests turn it off).
-REACH_MARGIN = 0.1
-_DECIDE_EARLY = True
-
 #: Grasps already simulated in this process (:func:`grasp_with`), most recent last; at most 64.
 _MEMO: "OrderedDict[tuple, GraspResult]" = OrderedDict()
 
@@ -421,19 +428,14 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
         # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
         world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
         world.advance(0.0, 0.0)
-        # Decided here if the target is out of reach (docs/evaluation.md, "Where the time goes"): what is left moves
-        # every point of the gripper by at most the approach plus a finger's opening, so no finger can touch it.
-        early = _DECIDE_EARLY and world.out_of_reach(tid, steps * scale + OPEN + REACH_MARGIN)
-        if not early:
-            world.gripper.set_fingers(OPEN)
-            world.advance(0.0, 0.0)
-            for _ in range(steps):
-                world.advance(float(approach[0] * scale), float(approach[1] * scale))
-            world.gripper.set_fingers(0.0)
-            world.advance(0.0, 0.0)
-        fingers = _finger_contacts(world, body) if not early else [FingerContacts(np.zeros((0, 2)), np.zeros((0, 2)),
-                                                                                  0.0) for _ in (0, 1)]
-        pose = world.object_poses()[tid]
+        _set_fingers(world, OPEN)
+        world.advance(0.0, 0.0)
+        for _ in range(steps):
+            world.advance(float(approach[0] * scale), float(approach[1] * scale))
+        _set_fingers(world, 0.0)
+        world.advance(0.0, 0.0)
+        fingers = _finger_contacts(world, body)
+        pose = _body_pose(world, body)
         base = world.gripper_pose()[0][:2]
         if target.kind == "cylinder":
             ok, why = judge_can(fingers, target, pose, base, approach, params)
@@ -442,4 +444,4 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
     if not ok and not reached:
         why = f"{why}; pre-grasp point not reached"
     return GraspResult(success=ok, outcome=why, yaw=yaw, pregrasp=pre, reached=reached, target_pose=pose,
-                       fingers=fingers, early=early)
+                       fingers=fingers)

@@ -73,12 +73,6 @@ class Gripper:
             p.resetJointState(self.body, j, FINGER_CLOSED, 0.0, physicsClientId=self.client)
         self.move_to(x, y)
 
-    def set_fingers(self, opening: float) -> None:
-        """Command both fingers to ``opening`` (m from closed, each) by position control with FINGER_FORCE."""
-        for j in (0, 1):
-            p.setJointMotorControl2(self.body, j, p.POSITION_CONTROL, targetPosition=opening, force=FINGER_FORCE,
-                                    physicsClientId=self.client)
-
     def pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """Base position (m) and xyzw quaternion."""
         return p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)

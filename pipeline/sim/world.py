@@ -317,23 +317,6 @@ class World:
                 out[i] = min(pt[8] for pt in pts)
         return out
 
-    def out_of_reach(self, i: int, reach: float, *, max_turn: float = 0.02, max_speed: float = 0.01) -> bool:
-        """Whether scene body ``i`` is beyond ``reach`` (m) of every gripper link, at rest (COM speed below
-        ``max_speed`` m/s, angular speed below 10 ``max_speed`` rad/s), and the hand at its commanded orientation
-        (within ``max_turn`` rad), i.e. nothing of the gripper can come within ``reach`` of it by moving each of
-        its points less than that; collision queries only, the simulation is not changed (tests/test_grasp.py).
-        """
-        c = self.client
-        g = self.gripper
-        body = self.body_of[i]
-        _, q = p.getBasePositionAndOrientation(g.body, physicsClientId=c)
-        if 2.0 * math.acos(min(1.0, abs(sum(a * b for a, b in zip(q, g.orientation))))) > max_turn:
-            return False
-        v, w = p.getBaseVelocity(body, physicsClientId=c)
-        if math.hypot(*v) >= max_speed or math.hypot(*w) >= 10.0 * max_speed:
-            return False
-        return not p.getClosestPoints(body, g.body, reach, physicsClientId=c)
-
     def close(self) -> None:
         """Give the client back: emptied and kept for the next world of this process, or disconnected
         (idempotent)."""
