@@ -86,6 +86,18 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
+def write_csv_rows(path: str | os.PathLike, rows: Sequence[dict], fields: Sequence[str]) -> Path:
+    """Write dict rows as CSV (header ``fields``, the csv module's default dialect) to `path` atomically; returns
+    `path`."""
+    import csv  # only the callers that write CSV pay for it
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(fields))
+        w.writeheader()
+        w.writerows(rows)
+    return Path(path)
+
+
 def save_figure(fig, path: str | os.PathLike, dpi: int = 100, image_format: str | None = None) -> Path:
     """Save a matplotlib figure to `path` atomically (format: `image_format`, else from the suffix, else PNG) and
     close it; returns `path`."""

@@ -274,16 +274,10 @@ def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, b
     if contact_counts is not None:
         _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed)
         return
-    from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.study.scale import scale_rows, write_outputs
 
-    scene_list = parsed("--scene", parse_scenes, scene)
-    if len(scene_list) != 1:
-        raise click.BadParameter("expected one task", param_hint="--scene")
-    counts = _ints("--runs", run_counts, 1, 100_000)
-    if not counts:
-        raise click.BadParameter("expected at least one grid size", param_hint="--runs")
+    scene_list, counts = _one_task_and_sizes(scene, "--runs", run_counts, "grid size")
     method_list = _methods(methods)
     est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     if backend == "dask" and not scheduler:
@@ -306,6 +300,19 @@ def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, b
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
 
 
+def _one_task_and_sizes(scene: str, option: str, sizes: str, what: str) -> tuple[list, list[int]]:
+    """`bench scale`'s one task (--scene) and its sizes (``option``: at least one positive integer)."""
+    from pipeline.evaluate import parse_scenes  # imported here: start-up time
+
+    scene_list = parsed("--scene", parse_scenes, scene)
+    if len(scene_list) != 1:
+        raise click.BadParameter("expected one task", param_hint="--scene")
+    counts = _ints(option, sizes, 1, 100_000)
+    if not counts:
+        raise click.BadParameter(f"expected at least one {what}", param_hint=option)
+    return scene_list, counts
+
+
 def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed) -> None:
     """`bench scale --contacts`: every stage timed against the contacts of one run (docs/evaluation.md, "Scale")."""
     ctx = click.get_current_context()
@@ -314,16 +321,10 @@ def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_di
             opt = next(p.opts[0] for p in ctx.command.params if p.name == name)
             raise click.BadParameter(f"{opt} does not apply to the contacts axis (one axis per call)",
                                      param_hint="--contacts")
-    from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.study.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs
 
-    scene_list = parsed("--scene", parse_scenes, scene)
-    if len(scene_list) != 1:
-        raise click.BadParameter("expected one task", param_hint="--scene")
-    counts = _ints("--contacts", contact_counts, 1, 100_000)
-    if not counts:
-        raise click.BadParameter("expected at least one contact count", param_hint="--contacts")
+    scene_list, counts = _one_task_and_sizes(scene, "--contacts", contact_counts, "contact count")
     method_list = _methods(methods)
     if len(method_list) != 1:
         raise click.BadParameter("expected one method with --contacts", param_hint="--methods")

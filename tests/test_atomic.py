@@ -154,3 +154,11 @@ def test_segment_writes_no_table_when_its_plot_fails(tmp_path, monkeypatch):
                             str(tmp_path / "s.png")])
     assert r.exit_code == 1 and "No space left" in r.output, r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # neither the table nor the plot, no temporaries
+
+
+def test_write_csv_rows_writes_header_and_rows_and_leaves_no_temporary(tmp_path):
+    from pipeline.atomic import write_csv_rows
+
+    path = write_csv_rows(tmp_path / "t.csv", [{"a": 1, "b": "x"}, {"a": 2, "b": "y"}], ["a", "b"])
+    assert path.read_text().splitlines() == ["a,b", "1,x", "2,y"]
+    assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]

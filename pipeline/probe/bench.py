@@ -9,7 +9,6 @@ and the grasp is simulated in the state after those probes, the gripper back at 
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
 from pathlib import Path
 from typing import Callable
@@ -17,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from pipeline import schema
-from pipeline.atomic import atomic_path
+from pipeline.atomic import atomic_path, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.parallel import run_calls
 from pipeline.probe.policy import ProbeParams, required_contacts
@@ -140,10 +139,7 @@ def write_outputs(rows: list[dict], summary: list[dict], out: str | Path, png: s
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "probe_budget.csv", out / "probe_budget_summary.csv", Path(png or out / "probe_budget.png")]
     for path, data in ((paths[0], rows), (paths[1], summary)):
-        with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(data[0]) if data else list(FIELDS))
-            w.writeheader()
-            w.writerows(data)
+        write_csv_rows(path, data, list(data[0]) if data else list(FIELDS))
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     for sc in dict.fromkeys(s["scene"] for s in summary):
         sel = [s for s in summary if s["scene"] == sc]

@@ -8,13 +8,12 @@ in docs/, never here.
 """
 from __future__ import annotations
 
-import csv
 import os
 import time
 from pathlib import Path
 from typing import Sequence
 
-from pipeline.atomic import atomic_path, save_figure
+from pipeline.atomic import save_figure, write_csv_rows
 from pipeline.evaluate import EvalConfig, evaluate
 
 __all__ = ["FIELDS", "scale_rows", "write_outputs"]
@@ -82,10 +81,7 @@ def write_outputs(rows: list[dict], out: str | Path, png: str | Path | None = No
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "scale.csv", Path(png or out / "scale.png")]
-    with atomic_path(paths[0]) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(FIELDS))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv_rows(paths[0], rows, FIELDS)
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     for (scene, backend) in dict.fromkeys((r["scene"], r["backend"]) for r in rows):
         sel = sorted((r for r in rows if r["scene"] == scene and r["backend"] == backend), key=lambda r: r["runs"])

@@ -9,7 +9,6 @@ numba's compilation and loading; its row is kept apart. Measured figures go in d
 """
 from __future__ import annotations
 
-import csv
 import math
 import os
 import time
@@ -19,7 +18,7 @@ from typing import Sequence
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pipeline.atomic import atomic_path, save_figure
+from pipeline.atomic import save_figure, write_csv_rows
 from pipeline.collect import collect_file
 from pipeline.evaluate import EvalConfig, Job, single_threaded
 from pipeline.evaluate.stages import run_isolate, run_retrieve, run_score, run_segment, run_track, write_wall
@@ -135,10 +134,7 @@ def write_contact_outputs(rows: list[dict], out: str | Path, png: str | Path | N
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "scale_contacts.csv", Path(png or out / "scale_contacts.png")]
-    with atomic_path(paths[0]) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(CONTACT_FIELDS))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv_rows(paths[0], rows, CONTACT_FIELDS)
     measured = [r for r in rows if not r["warmup"]]
     fig, ax = plt.subplots(figsize=(6.0, 4.0))
     order = {s: i for i, s in enumerate(STAGES)}
