@@ -1,6 +1,6 @@
 """The pushtrack estimator: the pushing model's known answers, and the hard cases of the filter and the estimator
-(never touched, touched once, pushed against a wall, a target that only slides, two segments that both fit, every
-particle inconsistent, the same seed twice)."""
+(never touched, touched once, pushed against a wall, a target that only slides, pushed through another object, two
+segments that both fit, every particle inconsistent, the same seed twice)."""
 from __future__ import annotations
 
 import math
@@ -145,6 +145,38 @@ def test_a_target_that_only_slides_keeps_its_yaw():
     r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, P, np.random.default_rng(2))
     pos, yaw = pose_error(BOX, _best(r), truth[-1])
     assert pos < 0.01 and yaw < 0.05
+
+
+def test_pushed_through_another_object_the_filter_follows():
+    # six contacts round three faces of a still box, then an action that touches another object 1 cm off the
+    # box's -x face and pushes 3 cm along +x through it (the box slides 3 cm, no contact of the target's), then six
+    # contacts at the new pose: the particles pushed from that contact follow; without them (other_push 0) the
+    # filter has no particle near the new pose
+    local, _ = _faces(12)
+    before, after = np.array([0.4, 0.0, 0.0]), np.array([0.43, 0.0, 0.0])
+    truth = np.array([before] * 6 + [after] * 7)
+    contact = np.vstack([apply_pose(truth[:6], local[:6, None, :])[:, 0, :], [[0.36, 0.0]],
+                         apply_pose(truth[7:], local[6:, None, :])[:, 0, :]])
+    push = np.zeros((13, 2))
+    push[6] = [0.03, 0.0]
+    touch = np.ones(13, dtype=bool)
+    touch[6] = False
+    a = Actions(ee_start=contact - push, ee_end=contact, touch=touch, contact=contact, push=push)
+    pos, yaw = pose_error(BOX, _best(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(4))), after)
+    assert pos < 0.003 and yaw < 0.03
+    # up to the push: about other_push of the particles (all near that contact) moved 3 cm along +x on average
+    # (the push noise, turns), the rest not at all
+    cut = Actions(*(np.asarray(v)[:7] for v in (a.ee_start, a.ee_end, a.touch, a.contact, a.push)))
+    for share in (0.5, 0.0):
+        before_push = run_filter(BOX, Actions(*(np.asarray(v)[:6] for v in (cut.ee_start, cut.ee_end, cut.touch,
+                                                                          cut.contact, cut.push))),
+                                 NO_FREE, PushTrackParams(other_push=share), np.random.default_rng(5))
+        r = run_filter(BOX, cut, NO_FREE, PushTrackParams(other_push=share), np.random.default_rng(5))
+        dx = r.poses[:, 0] - before_push.poses[:, 0]
+        moved = r.poses[:, 2] != before_push.poses[:, 2]
+        assert np.mean(moved) == pytest.approx(share, abs=0.1) and np.all(dx[~moved] == 0.0)
+        if share:
+            assert 0.015 < np.mean(dx[moved]) < 0.035
 
 
 def test_every_particle_inconsistent_stays_finite():

@@ -52,6 +52,9 @@ class PushTrackParams:
         (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
     friction : float
         Pusher-target friction coefficient of the pushing model (0.5).
+    limit_scale : float
+        Factor on the limit surface's characteristic length (1.0: uniform pressure over the footprint; larger: the
+        support pressure nearer the footprint's edge, as a rigid box resting on its corners).
     trans_noise : float
         Standard deviation of the position noise per metre pushed (0.3), plus ``noise_floor``.
     yaw_noise : float, rad per metre pushed
@@ -83,6 +86,12 @@ class PushTrackParams:
         as the best particle times the likelihood of the earlier contacts where they were observed (sigma grown
         by ``inject_growth`` per later push): a segment's first contacts may be another object's, and walls or
         other objects may move the target in ways the model does not predict.
+    other_push : float
+        Share of the particles (0.5) pushed by an action whose contact is not the target's but lies within
+        ``other_reach`` of their surface: the pushing model from that contact (another object pushed into the target,
+        or a contact of the target given to another segment); the others stay (docs/retrieval.md).
+    other_reach : float, metres
+        Distance of another segment's contact from a particle's surface within which it may push it (0.03).
     inject_growth : float
         Factor on an earlier contact's sigma per later push when weighting a fresh particle (1.0: every earlier
         contact counts in full, so a fresh particle wins only where the target stayed put, as against a wall).
@@ -93,6 +102,14 @@ class PushTrackParams:
     refine_growth : float
         The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
         recency growth, smaller since the contacts turned with the target).
+    carry : {"model", "model+noise"}
+        How a particle's earlier contacts move with it: by the pushing model's displacement ("model"), or by that
+        plus the push-length noise ("model+noise": a particle that turned differently from the model carries its
+        contacts its own way); never by the noise floors, which only keep the particles diverse.
+    refine_spread : float
+        The refinement's growth of a carried contact's sigma with the length the target was pushed after it (0: none;
+        sigma = hypot(grown sigma, refine_spread x metres pushed since)): a contact followed only by touches that do
+        not push stays at full weight.
     select : {"cost", "posterior"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest
         refinement cost minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
@@ -102,6 +119,7 @@ class PushTrackParams:
     substeps: int = 4
     motion: str = "push"
     friction: float = 0.5
+    limit_scale: float = 1.0
     trans_noise: float = 0.3
     yaw_noise: float = 3.0
     noise_floor: float = 0.001
@@ -115,15 +133,20 @@ class PushTrackParams:
     free_in_contact: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
+    other_push: float = 0.5
+    other_reach: float = 0.03
     inject_growth: float = 1.0
     n_refine: int = 32
     refine_growth: float = 1.5
+    carry: str = "model+noise"
+    refine_spread: float = 0.0
     select: str = "posterior"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
-        "motion": one_of("push", "translate", "static"), "select": one_of("cost", "posterior"),
+        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise"), "select": one_of("cost", "posterior"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
-                                                      "free_resolution", "sweep_spacing")},
+                                                      "free_resolution", "sweep_spacing", "limit_scale")},
+        "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
@@ -292,6 +315,8 @@ class FilterResult:
     local : ndarray, shape (N, T, 2)
         Each touching action's contact point in the particle's COM frame at that action (T touching actions):
         the contacts carried with each particle's own trajectory are ``apply_pose(poses, local)``.
+    pushed : ndarray, shape (T,)
+        Length (m) of the pushes after each touching action's contact (the target's and other segments' near it).
     n_pushes : int
         Actions that touched the target.
     n_resampled : int
@@ -301,6 +326,7 @@ class FilterResult:
     poses: np.ndarray
     log_w: np.ndarray
     local: np.ndarray
+    pushed: np.ndarray
     n_pushes: int
     n_resampled: int
 
@@ -313,6 +339,26 @@ def _normalised(log_w: np.ndarray) -> np.ndarray:
     return log_w - logsumexp(log_w)
 
 
+def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
+          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int) -> np.ndarray:
+    """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
+    ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`). The particles' earlier
+    contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise, so
+    a target that stayed put keeps its contacts where they were observed."""
+    out = pose.copy()
+    a = pose[sel]
+    b = push(prim, a, contact - d, d, c, params)
+    length = math.hypot(d[0], d[1])
+    z = rng.normal(0.0, 1.0, size=b.shape)
+    moved = b + z * np.array([params.trans_noise * length] * 2 + [params.yaw_noise * length])
+    if params.carry == "model+noise":
+        b = moved
+    if j:
+        seen[sel, :j] = rotate(seen[sel, :j] - a[:, None, :2], (b[:, 2] - a[:, 2])[:, None]) + b[:, None, :2]
+    out[sel] = moved + z * np.array([params.noise_floor] * 2 + [params.yaw_floor])
+    return out
+
+
 def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrackParams,
                rng: np.random.Generator) -> FilterResult | None:
     """The particle filter over one run's actions; None when no action touched the target.
@@ -323,35 +369,32 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     touched = np.flatnonzero(actions.touch)
     if len(touched) == 0:
         return None
-    c = limit_surface_length(prim)
+    c = limit_surface_length(prim) * params.limit_scale
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
     log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
     resampled = 0
-    local = np.zeros((len(pose), len(touched), 2))
+    seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
+    pushed = np.zeros(len(touched))
     j = 0
     for t in range(first, len(actions.touch)):
         centre = np.mean(pose[:, :2], axis=0)
+        d = actions.push[t]
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
-                pose, local = pose[ancestors], local[ancestors]
+                pose, seen = pose[ancestors], seen[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
                 resampled += 1
-            d = actions.push[t]
-            pose = push(prim, pose, actions.contact[t] - d, d, c, params)
-            length = math.hypot(d[0], d[1])
-            sig = np.array([params.trans_noise * length + params.noise_floor] * 2
-                           + [params.yaw_noise * length + params.yaw_floor])
-            pose = pose + rng.normal(0.0, 1.0, size=pose.shape) * sig
+            pose = _move(prim, pose, np.ones(len(pose), dtype=bool), actions.contact[t], d, c, params, rng, seen, j)
+            pushed[:j] += math.hypot(d[0], d[1])
             n_new = int(params.inject * len(pose))
             if n_new and j:
                 worst = np.lexsort((np.arange(len(pose)), log_w))[:n_new]
                 pose[worst] = initial_particles(prim, actions.contact[t], d, n_new, rng)
                 # their earlier contacts where they were observed, as if the target had not moved since
-                local[worst, :j] = rotate(actions.contact[touched[:j]][None, :, :] - pose[worst, None, :2],
-                                          pose[worst, 2, None], inverse=True)
+                seen[worst, :j] = actions.contact[touched[:j]][None, :, :]
                 # weighted as the best particle times the likelihood of those contacts, each one's sigma grown
                 # per later push (they were observed before the target moved)
                 sd, _ = primitive_sdf(prim, _local(prim, pose[worst], actions.contact[touched[:j]]))
@@ -360,10 +403,18 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                 log_w[worst] = np.max(log_w) - 0.5 * np.sum(c2 * u2 / (c2 + u2), axis=1)
             ll = contact_loglik(prim, pose, actions.contact[t], params)
             ll = ll + free_loglik(prim, pose, free_points(np.array([t]), centre), params)
-            local[:, j] = rotate(actions.contact[t] - pose[:, :2], pose[:, 2], inverse=True)
+            seen[:, j] = actions.contact[t]
             j += 1
         else:
+            if params.other_push and np.all(np.isfinite(actions.contact[t])) and np.any(d != 0.0):
+                sd, _ = primitive_sdf(prim, _local(prim, pose, actions.contact[t][None, :])[:, 0, :])
+                moved = (np.abs(sd) <= params.other_reach) & (rng.uniform(size=len(pose)) < params.other_push)
+                if moved.any():
+                    pushed[:j] += math.hypot(d[0], d[1])
+                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j)
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
-    return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)
+    local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
+    return FilterResult(poses=pose, log_w=log_w, local=local, pushed=pushed, n_pushes=len(touched),
+                        n_resampled=resampled)

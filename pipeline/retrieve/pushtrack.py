@@ -89,6 +89,7 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
     top = order[np.sort(first)][:own.n_refine]
     T = result.local.shape[1]
     sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    sigma = np.hypot(sigma, own.refine_spread * result.pushed)
     lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
                          free_resolution=own.free_resolution)
     poses, costs = [], []
@@ -134,7 +135,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     target = info.target
     contact, push = observed_actions(info, sdf)
     if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
-        contact = np.full_like(contact, np.nan)
+        # (the other actions keep their isolated contacts: another segment's contact may push the target)
         contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
     touch = np.isin(info.steps, np.asarray(seg.steps)) & np.all(np.isfinite(contact), axis=1)
     actions = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push)
