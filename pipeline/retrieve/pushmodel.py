@@ -143,7 +143,8 @@ class PushTrackParams:
     select: str = "posterior"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
-        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise"), "select": one_of("cost", "posterior"),
+        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise"),
+        "select": one_of("cost", "posterior"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
         "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),
