@@ -149,11 +149,10 @@ def test_a_target_that_only_slides_keeps_its_yaw():
 
 def test_pushed_through_another_object_the_filter_follows():
     # six contacts round three faces of a still box, then an action that touches another object 1 cm off the
-    # box's -x face and pushes 3 cm along +x through it (the box slides 3 cm, no contact of the target's), then six
-    # contacts at the new pose: the particles pushed from that contact follow; without them (other_push 0) the
-    # filter has no particle near the new pose
+    # box's -x face and pushes 3 cm along +x (the gap closes, the box slides 2 cm; no contact of the target's),
+    # then six contacts at the new pose: the particles pushed from that contact follow
     local, _ = _faces(12)
-    before, after = np.array([0.4, 0.0, 0.0]), np.array([0.43, 0.0, 0.0])
+    before, after = np.array([0.4, 0.0, 0.0]), np.array([0.42, 0.0, 0.0])
     truth = np.array([before] * 6 + [after] * 7)
     contact = np.vstack([apply_pose(truth[:6], local[:6, None, :])[:, 0, :], [[0.36, 0.0]],
                          apply_pose(truth[7:], local[6:, None, :])[:, 0, :]])
@@ -164,8 +163,8 @@ def test_pushed_through_another_object_the_filter_follows():
     a = Actions(ee_start=contact - push, ee_end=contact, touch=touch, contact=contact, push=push)
     pos, yaw = pose_error(BOX, _best(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(4))), after)
     assert pos < 0.003 and yaw < 0.03
-    # up to the push: about other_push of the particles (all near that contact) moved 3 cm along +x on average
-    # (the push noise, turns), the rest not at all
+    # up to the push: about other_push of the particles (all near that contact) moved about 2 cm along +x (the
+    # push noise, turns), the rest not at all
     cut = Actions(*(np.asarray(v)[:7] for v in (a.ee_start, a.ee_end, a.touch, a.contact, a.push)))
     for share in (0.5, 0.0):
         before_push = run_filter(BOX, Actions(*(np.asarray(v)[:6] for v in (cut.ee_start, cut.ee_end, cut.touch,
@@ -176,7 +175,7 @@ def test_pushed_through_another_object_the_filter_follows():
         moved = r.poses[:, 2] != before_push.poses[:, 2]
         assert np.mean(moved) == pytest.approx(share, abs=0.1) and np.all(dx[~moved] == 0.0)
         if share:
-            assert 0.015 < np.mean(dx[moved]) < 0.035
+            assert 0.01 < np.mean(dx[moved]) < 0.025
 
 
 def test_every_particle_inconsistent_stays_finite():

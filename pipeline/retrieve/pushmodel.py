@@ -341,17 +341,21 @@ def _normalised(log_w: np.ndarray) -> np.ndarray:
 
 
 def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
-          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int) -> np.ndarray:
+          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int,
+          share: np.ndarray | None = None) -> np.ndarray:
     """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
     ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`). The particles' earlier
-    contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise, so
-    a target that stayed put keeps its contacts where they were observed."""
+    contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise
+    floors (``carry``). ``share`` (N,): the part of the model's displacement each particle gets (default all)."""
     out = pose.copy()
     a = pose[sel]
     b = push(prim, a, contact - d, d, c, params)
     length = math.hypot(d[0], d[1])
+    if share is not None:
+        b = a + (b - a) * share[sel, None]
+        length = length * share[sel, None]
     z = rng.normal(0.0, 1.0, size=b.shape)
-    moved = b + z * np.array([params.trans_noise * length] * 2 + [params.yaw_noise * length])
+    moved = b + z * (np.array([params.trans_noise, params.trans_noise, params.yaw_noise]) * length)
     if params.carry == "model+noise":
         b = moved
     if j:
@@ -412,7 +416,10 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                 moved = (np.abs(sd) <= params.other_reach) & (rng.uniform(size=len(pose)) < params.other_push)
                 if moved.any():
                     pushed[:j] += math.hypot(d[0], d[1])
-                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j)
+                    # the pusher first closes the gap to the particle's surface: the rest of d pushes it
+                    gap = np.maximum(sd, 0.0) / max(math.hypot(d[0], d[1]), 1e-12)
+                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j,
+                                 np.clip(1.0 - gap, 0.0, 1.0))
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
