@@ -1,6 +1,6 @@
 """The pushtrack estimator: the pushing model's known answers, and the hard cases of the filter and the estimator
-(never touched, touched once, pushed against a wall, a target that only slides, pushed through another object, two
-segments that both fit, every particle inconsistent, the same seed twice)."""
+(never touched, touched once, pushed against a wall, a target that only slides, a still target, pushed through
+another object, two segments that both fit, every particle inconsistent, the same seed twice)."""
 from __future__ import annotations
 
 import math
@@ -145,6 +145,19 @@ def test_a_target_that_only_slides_keeps_its_yaw():
     r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, P, np.random.default_rng(2))
     pos, yaw = pose_error(BOX, _best(r), truth[-1])
     assert pos < 0.01 and yaw < 0.05
+
+
+def test_a_still_target_keeps_its_contacts_where_they_were_observed():
+    # twelve touches without a push round three faces: the noise floors keep the particles diverse but do not carry
+    # the contacts, and no push grows their sigma, so the refinement fits all twelve where they were observed
+    local, _ = _faces(12)
+    truth = np.array([[0.43, 0.0, 0.2]] * 12)
+    r = run_filter(BOX, _pushes(truth, local, np.zeros((12, 2))), NO_FREE, P, np.random.default_rng(6))
+    assert np.all(r.pushed == 0.0)
+    seen = apply_pose(r.poses, r.local)  # (N, T, 2): every particle's contacts in world coordinates
+    assert np.allclose(seen, apply_pose(truth, local[:, None, :])[:, 0, :][None], atol=1e-12)
+    pos, yaw = pose_error(BOX, _best(r), truth[-1])
+    assert pos < 0.001 and yaw < 0.005
 
 
 def test_pushed_through_another_object_the_filter_follows():

@@ -100,16 +100,17 @@ class PushTrackParams:
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
         push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.pushtrack.final_pose`).
     refine_growth : float
-        The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
-        recency growth, smaller since the contacts turned with the target).
-    carry : {"model", "model+noise"}
+        The refinement's factor on a carried contact's sigma per later touching action (1.0: none; the plausible
+        estimator's recency growth; it discounted contacts followed only by touches that do not push).
+    carry : {"model", "model+noise", "mixed"}
         How a particle's earlier contacts move with it: by the pushing model's displacement ("model"), or by that
         plus the push-length noise ("model+noise": a particle that turned differently from the model carries its
-        contacts its own way); never by the noise floors, which only keep the particles diverse.
+        contacts its own way, as against a wall), or ("mixed", default) half the particles each way, set at the
+        start and inherited; never by the noise floors, which only keep the particles diverse.
     refine_spread : float
-        The refinement's growth of a carried contact's sigma with the length the target was pushed after it (0: none;
-        sigma = hypot(grown sigma, refine_spread x metres pushed since)): a contact followed only by touches that do
-        not push stays at full weight.
+        The refinement's growth of a carried contact's sigma with the length the target was pushed after it (3.0;
+        sigma = hypot(grown sigma, refine_spread x metres pushed since): 1 cm pushed, 3 cm): a contact followed only
+        by touches that do not push stays at full weight.
     select : {"cost", "posterior"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest
         refinement cost minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
@@ -137,13 +138,13 @@ class PushTrackParams:
     other_reach: float = 0.03
     inject_growth: float = 1.0
     n_refine: int = 32
-    refine_growth: float = 1.5
-    carry: str = "model+noise"
-    refine_spread: float = 0.0
+    refine_growth: float = 1.0
+    carry: str = "mixed"
+    refine_spread: float = 3.0
     select: str = "posterior"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
-        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise"),
+        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
         "select": one_of("cost", "posterior"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
@@ -341,12 +342,13 @@ def _normalised(log_w: np.ndarray) -> np.ndarray:
 
 
 def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
-          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int,
+          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int, noisy: np.ndarray,
           share: np.ndarray | None = None) -> np.ndarray:
     """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
     ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`). The particles' earlier
     contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise
-    floors (``carry``). ``share`` (N,): the part of the model's displacement each particle gets (default all)."""
+    floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part of the model's
+    displacement each particle gets (default all)."""
     out = pose.copy()
     a = pose[sel]
     b = push(prim, a, contact - d, d, c, params)
@@ -356,8 +358,7 @@ def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarra
         length = length * share[sel, None]
     z = rng.normal(0.0, 1.0, size=b.shape)
     moved = b + z * (np.array([params.trans_noise, params.trans_noise, params.yaw_noise]) * length)
-    if params.carry == "model+noise":
-        b = moved
+    b = np.where(noisy[sel, None], moved, b)
     if j:
         seen[sel, :j] = rotate(seen[sel, :j] - a[:, None, :2], (b[:, 2] - a[:, 2])[:, None]) + b[:, None, :2]
     out[sel] = moved + z * np.array([params.noise_floor] * 2 + [params.yaw_floor])
@@ -381,6 +382,9 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
     resampled = 0
     seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
+    noisy = np.full(len(pose), params.carry == "model+noise")
+    if params.carry == "mixed":
+        noisy = np.arange(len(pose)) % 2 == 1
     pushed = np.zeros(len(touched))
     j = 0
     for t in range(first, len(actions.touch)):
@@ -389,10 +393,11 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
-                pose, seen = pose[ancestors], seen[ancestors]
+                pose, seen, noisy = pose[ancestors], seen[ancestors], noisy[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
                 resampled += 1
-            pose = _move(prim, pose, np.ones(len(pose), dtype=bool), actions.contact[t], d, c, params, rng, seen, j)
+            pose = _move(prim, pose, np.ones(len(pose), dtype=bool), actions.contact[t], d, c, params, rng, seen, j,
+                         noisy)
             pushed[:j] += math.hypot(d[0], d[1])
             n_new = int(params.inject * len(pose))
             if n_new and j:
@@ -418,7 +423,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                     pushed[:j] += math.hypot(d[0], d[1])
                     # the pusher first closes the gap to the particle's surface: the rest of d pushes it
                     gap = np.maximum(sd, 0.0) / max(math.hypot(d[0], d[1]), 1e-12)
-                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j,
+                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j, noisy,
                                  np.clip(1.0 - gap, 0.0, 1.0))
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
         log_w = _normalised(log_w + ll)
