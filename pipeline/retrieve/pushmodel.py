@@ -87,7 +87,7 @@ class PushTrackParams:
         by ``inject_growth`` per later push): a segment's first contacts may be another object's, and walls or
         other objects may move the target in ways the model does not predict.
     other_push : float
-        Share of the particles (0.5) pushed by an action whose contact is not the target's but lies within
+        Share of the particles (0: off; 0.5 tried) pushed by an action whose contact is not the target's but lies within
         ``other_reach`` of their surface: the pushing model from that contact (another object pushed into the target,
         or a contact of the target given to another segment); the others stay (docs/retrieval.md).
     other_reach : float, metres
@@ -134,7 +134,7 @@ class PushTrackParams:
     free_in_contact: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
-    other_push: float = 0.5
+    other_push: float = 0.0
     other_reach: float = 0.03
     inject_growth: float = 1.0
     n_refine: int = 32
@@ -317,6 +317,9 @@ class FilterResult:
     local : ndarray, shape (N, T, 2)
         Each touching action's contact point in the particle's COM frame at that action (T touching actions):
         the contacts carried with each particle's own trajectory are ``apply_pose(poses, local)``.
+    choice : ndarray, shape (N,)
+        Log prior of each particle's pushed-or-left choices at other segments' contacts (``other_push``): a pushed
+        particle log(other_push), a left one log(1 - other_push), summed over its trajectory (0 without any).
     pushed : ndarray, shape (T,)
         Length (m) of the pushes after each touching action's contact (the target's and other segments' near it).
     n_pushes : int
@@ -328,6 +331,7 @@ class FilterResult:
     poses: np.ndarray
     log_w: np.ndarray
     local: np.ndarray
+    choice: np.ndarray
     pushed: np.ndarray
     n_pushes: int
     n_resampled: int
@@ -382,6 +386,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
     resampled = 0
     seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
+    choice = np.zeros(len(pose))
     noisy = np.full(len(pose), params.carry == "model+noise")
     if params.carry == "mixed":
         noisy = np.arange(len(pose)) % 2 == 1
@@ -393,7 +398,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
-                pose, seen, noisy = pose[ancestors], seen[ancestors], noisy[ancestors]
+                pose, seen, noisy, choice = pose[ancestors], seen[ancestors], noisy[ancestors], choice[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
                 resampled += 1
             pose = _move(prim, pose, np.ones(len(pose), dtype=bool), actions.contact[t], d, c, params, rng, seen, j,
@@ -416,9 +421,13 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
             seen[:, j] = actions.contact[t]
             j += 1
         else:
-            if params.other_push and np.all(np.isfinite(actions.contact[t])) and np.any(d != 0.0):
+            # (only before the target's last touch: after it no contact can tell a pushed particle from one left)
+            if params.other_push and t < touched[-1] and np.all(np.isfinite(actions.contact[t])) and np.any(d != 0.0):
                 sd, _ = primitive_sdf(prim, _local(prim, pose, actions.contact[t][None, :])[:, 0, :])
-                moved = (np.abs(sd) <= params.other_reach) & (rng.uniform(size=len(pose)) < params.other_push)
+                near = np.abs(sd) <= params.other_reach
+                moved = near & (rng.uniform(size=len(pose)) < params.other_push)
+                lp = (math.log(params.other_push), math.log1p(-params.other_push) if params.other_push < 1.0 else 0.0)
+                choice += np.where(moved, lp[0], np.where(near, lp[1], 0.0))
                 if moved.any():
                     pushed[:j] += math.hypot(d[0], d[1])
                     # the pusher first closes the gap to the particle's surface: the rest of d pushes it
@@ -429,5 +438,5 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
     local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
-    return FilterResult(poses=pose, log_w=log_w, local=local, pushed=pushed, n_pushes=len(touched),
+    return FilterResult(poses=pose, log_w=log_w, local=local, choice=choice, pushed=pushed, n_pushes=len(touched),
                         n_resampled=resampled)

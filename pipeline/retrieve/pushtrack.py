@@ -106,13 +106,14 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
                params: PushTrackParams) -> tuple[np.ndarray, int]:
     """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
     particle without refinement (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of
-    lowest cost minus its log-weight ("posterior"), ``params.select``; ties to the higher weight."""
+    lowest cost minus its log-weight and the log prior of its pushed-or-left choices ("posterior"),
+    ``params.select``; ties to the higher weight."""
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
     if not params.n_refine:
         return result.poses[order[0]], int(order[0])
     top, refined, costs = refine_final(prim, result, free, others, params)
     if params.select == "posterior":
-        costs = costs - result.log_w[top]
+        costs = costs - result.log_w[top] - result.choice[top]
     k = argmin_tolerant(costs, 1e-9)
     return refined[k], int(top[k])
 
