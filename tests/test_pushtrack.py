@@ -1,6 +1,6 @@
 """The pushtrack estimator: the pushing model's known answers, and the hard cases of the filter and the estimator
-(never touched, touched once, pushed against a wall, a target that only slides, two segments that both fit, every
-particle inconsistent, the same seed twice)."""
+(never touched, touched once, pushed against a wall, a target that only slides, a still target, pushed through
+another object, two segments that both fit, every particle inconsistent, the same seed twice)."""
 from __future__ import annotations
 
 import math
@@ -145,6 +145,48 @@ def test_a_target_that_only_slides_keeps_its_yaw():
     r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, P, np.random.default_rng(2))
     pos, yaw = pose_error(BOX, _best(r), truth[-1])
     assert pos < 0.01 and yaw < 0.05
+
+
+def test_a_still_target_keeps_its_contacts_where_they_were_observed():
+    # twelve touches without a push round three faces: the noise floors keep the particles diverse but do not carry
+    # the contacts, and no push grows their sigma, so the refinement fits all twelve where they were observed
+    local, _ = _faces(12)
+    truth = np.array([[0.43, 0.0, 0.2]] * 12)
+    r = run_filter(BOX, _pushes(truth, local, np.zeros((12, 2))), NO_FREE, P, np.random.default_rng(6))
+    assert np.all(r.pushed == 0.0)
+    seen = apply_pose(r.poses, r.local)  # (N, T, 2): every particle's contacts in world coordinates
+    assert np.allclose(seen, apply_pose(truth, local[:, None, :])[:, 0, :][None], atol=1e-12)
+    pos, yaw = pose_error(BOX, _best(r), truth[-1])
+    assert pos < 0.001 and yaw < 0.005
+
+
+def test_pushed_through_another_object_the_filter_follows():
+    # six contacts round three faces of a still box, then an action that touches another object 1 cm off the
+    # box's -x face and pushes 3 cm along +x (the gap closes, the box slides 2 cm; no contact of the target's),
+    # then six contacts at the new pose: the particles pushed from that contact follow
+    local, _ = _faces(12)
+    before, after = np.array([0.4, 0.0, 0.0]), np.array([0.42, 0.0, 0.0])
+    truth = np.array([before] * 6 + [after] * 7)
+    contact = np.vstack([apply_pose(truth[:6], local[:6, None, :])[:, 0, :], [[0.36, 0.0]],
+                         apply_pose(truth[7:], local[6:, None, :])[:, 0, :]])
+    push = np.zeros((13, 2))
+    push[6] = [0.03, 0.0]
+    touch = np.ones(13, dtype=bool)
+    touch[6] = False
+    a = Actions(ee_start=contact - push, ee_end=contact, touch=touch, contact=contact, push=push)
+    on = PushTrackParams(other_push=0.5)  # off by default (docs/retrieval.md)
+    est = final_pose(BOX, run_filter(BOX, a, NO_FREE, on, np.random.default_rng(4)), np.zeros((0, 2)),
+                     np.zeros((0, 2)), on)[0]
+    pos, yaw = pose_error(BOX, est, after)
+    assert pos < 0.003 and yaw < 0.03
+    # a quarter of the particles near that contact are pushed (the prior; the far ones and those injected later
+    # have no choice), but the contacts after the push keep almost only those
+    quarter = PushTrackParams(other_push=0.25)
+    r = run_filter(BOX, a, NO_FREE, quarter, np.random.default_rng(5))
+    assert np.all(np.isin(r.choice, [0.0, math.log(0.25), math.log(0.75)]))
+    assert np.sum(np.exp(r.log_w)[r.choice == math.log(0.25)]) > 0.9
+    # no push without another segment's contact near the particles, or with other_push 0
+    assert np.all(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(5)).choice == 0.0)
 
 
 def test_every_particle_inconsistent_stays_finite():

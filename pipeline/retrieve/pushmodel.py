@@ -52,6 +52,9 @@ class PushTrackParams:
         (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
     friction : float
         Pusher-target friction coefficient of the pushing model (0.5).
+    limit_scale : float
+        Factor on the limit surface's characteristic length (1.0: uniform pressure over the footprint; larger: the
+        support pressure nearer the footprint's edge, as a rigid box resting on its corners).
     trans_noise : float
         Standard deviation of the position noise per metre pushed (0.3), plus ``noise_floor``.
     yaw_noise : float, rad per metre pushed
@@ -83,6 +86,12 @@ class PushTrackParams:
         as the best particle times the likelihood of the earlier contacts where they were observed (sigma grown
         by ``inject_growth`` per later push): a segment's first contacts may be another object's, and walls or
         other objects may move the target in ways the model does not predict.
+    other_push : float
+        Share of the particles (0: off; 0.5 tried) pushed by an action whose contact is not the target's but lies within
+        ``other_reach`` of their surface: the pushing model from that contact (another object pushed into the target,
+        or a contact of the target given to another segment); the others stay (docs/retrieval.md).
+    other_reach : float, metres
+        Distance of another segment's contact from a particle's surface within which it may push it (0.03).
     inject_growth : float
         Factor on an earlier contact's sigma per later push when weighting a fresh particle (1.0: every earlier
         contact counts in full, so a fresh particle wins only where the target stayed put, as against a wall).
@@ -91,8 +100,17 @@ class PushTrackParams:
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
         push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.pushtrack.final_pose`).
     refine_growth : float
-        The refinement's factor on a carried contact's sigma per later push (1.5; the plausible estimator's
-        recency growth, smaller since the contacts turned with the target).
+        The refinement's factor on a carried contact's sigma per later touching action (1.0: none; the plausible
+        estimator's recency growth; it discounted contacts followed only by touches that do not push).
+    carry : {"model", "model+noise", "mixed"}
+        How a particle's earlier contacts move with it: by the pushing model's displacement ("model"), or by that
+        plus the push-length noise ("model+noise": a particle that turned differently from the model carries its
+        contacts its own way, as against a wall), or ("mixed", default) half the particles each way, set at the
+        start and inherited; never by the noise floors, which only keep the particles diverse.
+    refine_spread : float
+        The refinement's growth of a carried contact's sigma with the length the target was pushed after it (3.0;
+        sigma = hypot(grown sigma, refine_spread x metres pushed since): 1 cm pushed, 3 cm): a contact followed only
+        by touches that do not push stays at full weight.
     select : {"cost", "posterior"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest
         refinement cost minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
@@ -102,6 +120,7 @@ class PushTrackParams:
     substeps: int = 4
     motion: str = "push"
     friction: float = 0.5
+    limit_scale: float = 1.0
     trans_noise: float = 0.3
     yaw_noise: float = 3.0
     noise_floor: float = 0.001
@@ -115,15 +134,21 @@ class PushTrackParams:
     free_in_contact: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
+    other_push: float = 0.0
+    other_reach: float = 0.03
     inject_growth: float = 1.0
     n_refine: int = 32
-    refine_growth: float = 1.5
+    refine_growth: float = 1.0
+    carry: str = "mixed"
+    refine_spread: float = 3.0
     select: str = "posterior"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
-        "motion": one_of("push", "translate", "static"), "select": one_of("cost", "posterior"),
+        "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
+        "select": one_of("cost", "posterior"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
-                                                      "free_resolution", "sweep_spacing")},
+                                                      "free_resolution", "sweep_spacing", "limit_scale")},
+        "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
@@ -292,6 +317,11 @@ class FilterResult:
     local : ndarray, shape (N, T, 2)
         Each touching action's contact point in the particle's COM frame at that action (T touching actions):
         the contacts carried with each particle's own trajectory are ``apply_pose(poses, local)``.
+    choice : ndarray, shape (N,)
+        Log prior of each particle's pushed-or-left choices at other segments' contacts (``other_push``): a pushed
+        particle log(other_push), a left one log(1 - other_push), summed over its trajectory (0 without any).
+    pushed : ndarray, shape (T,)
+        Length (m) of the pushes after each touching action's contact (the target's and other segments' near it).
     n_pushes : int
         Actions that touched the target.
     n_resampled : int
@@ -301,6 +331,8 @@ class FilterResult:
     poses: np.ndarray
     log_w: np.ndarray
     local: np.ndarray
+    choice: np.ndarray
+    pushed: np.ndarray
     n_pushes: int
     n_resampled: int
 
@@ -313,6 +345,30 @@ def _normalised(log_w: np.ndarray) -> np.ndarray:
     return log_w - logsumexp(log_w)
 
 
+def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
+          params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int, noisy: np.ndarray,
+          share: np.ndarray | None = None) -> np.ndarray:
+    """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
+    ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`). The particles' earlier
+    contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise
+    floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part of the model's
+    displacement each particle gets (default all)."""
+    out = pose.copy()
+    a = pose[sel]
+    b = push(prim, a, contact - d, d, c, params)
+    length = math.hypot(d[0], d[1])
+    if share is not None:
+        b = a + (b - a) * share[sel, None]
+        length = length * share[sel, None]
+    z = rng.normal(0.0, 1.0, size=b.shape)
+    moved = b + z * (np.array([params.trans_noise, params.trans_noise, params.yaw_noise]) * length)
+    b = np.where(noisy[sel, None], moved, b)
+    if j:
+        seen[sel, :j] = rotate(seen[sel, :j] - a[:, None, :2], (b[:, 2] - a[:, 2])[:, None]) + b[:, None, :2]
+    out[sel] = moved + z * np.array([params.noise_floor] * 2 + [params.yaw_floor])
+    return out
+
+
 def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrackParams,
                rng: np.random.Generator) -> FilterResult | None:
     """The particle filter over one run's actions; None when no action touched the target.
@@ -323,35 +379,37 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     touched = np.flatnonzero(actions.touch)
     if len(touched) == 0:
         return None
-    c = limit_surface_length(prim)
+    c = limit_surface_length(prim) * params.limit_scale
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
     log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
     resampled = 0
-    local = np.zeros((len(pose), len(touched), 2))
+    seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
+    choice = np.zeros(len(pose))
+    noisy = np.full(len(pose), params.carry == "model+noise")
+    if params.carry == "mixed":
+        noisy = np.arange(len(pose)) % 2 == 1
+    pushed = np.zeros(len(touched))
     j = 0
     for t in range(first, len(actions.touch)):
         centre = np.mean(pose[:, :2], axis=0)
+        d = actions.push[t]
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
-                pose, local = pose[ancestors], local[ancestors]
+                pose, seen, noisy, choice = pose[ancestors], seen[ancestors], noisy[ancestors], choice[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
                 resampled += 1
-            d = actions.push[t]
-            pose = push(prim, pose, actions.contact[t] - d, d, c, params)
-            length = math.hypot(d[0], d[1])
-            sig = np.array([params.trans_noise * length + params.noise_floor] * 2
-                           + [params.yaw_noise * length + params.yaw_floor])
-            pose = pose + rng.normal(0.0, 1.0, size=pose.shape) * sig
+            pose = _move(prim, pose, np.ones(len(pose), dtype=bool), actions.contact[t], d, c, params, rng, seen, j,
+                         noisy)
+            pushed[:j] += math.hypot(d[0], d[1])
             n_new = int(params.inject * len(pose))
             if n_new and j:
                 worst = np.lexsort((np.arange(len(pose)), log_w))[:n_new]
                 pose[worst] = initial_particles(prim, actions.contact[t], d, n_new, rng)
                 # their earlier contacts where they were observed, as if the target had not moved since
-                local[worst, :j] = rotate(actions.contact[touched[:j]][None, :, :] - pose[worst, None, :2],
-                                          pose[worst, 2, None], inverse=True)
+                seen[worst, :j] = actions.contact[touched[:j]][None, :, :]
                 # weighted as the best particle times the likelihood of those contacts, each one's sigma grown
                 # per later push (they were observed before the target moved)
                 sd, _ = primitive_sdf(prim, _local(prim, pose[worst], actions.contact[touched[:j]]))
@@ -360,10 +418,25 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                 log_w[worst] = np.max(log_w) - 0.5 * np.sum(c2 * u2 / (c2 + u2), axis=1)
             ll = contact_loglik(prim, pose, actions.contact[t], params)
             ll = ll + free_loglik(prim, pose, free_points(np.array([t]), centre), params)
-            local[:, j] = rotate(actions.contact[t] - pose[:, :2], pose[:, 2], inverse=True)
+            seen[:, j] = actions.contact[t]
             j += 1
         else:
+            # (only before the target's last touch: after it no contact can tell a pushed particle from one left)
+            if params.other_push and t < touched[-1] and np.all(np.isfinite(actions.contact[t])) and np.any(d != 0.0):
+                sd, _ = primitive_sdf(prim, _local(prim, pose, actions.contact[t][None, :])[:, 0, :])
+                near = np.abs(sd) <= params.other_reach
+                moved = near & (rng.uniform(size=len(pose)) < params.other_push)
+                lp = (math.log(params.other_push), math.log1p(-params.other_push) if params.other_push < 1.0 else 0.0)
+                choice += np.where(moved, lp[0], np.where(near, lp[1], 0.0))
+                if moved.any():
+                    pushed[:j] += math.hypot(d[0], d[1])
+                    # the pusher first closes the gap to the particle's surface: the rest of d pushes it
+                    gap = np.maximum(sd, 0.0) / max(math.hypot(d[0], d[1]), 1e-12)
+                    pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j, noisy,
+                                 np.clip(1.0 - gap, 0.0, 1.0))
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
-    return FilterResult(poses=pose, log_w=log_w, local=local, n_pushes=len(touched), n_resampled=resampled)
+    local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
+    return FilterResult(poses=pose, log_w=log_w, local=local, choice=choice, pushed=pushed, n_pushes=len(touched),
+                        n_resampled=resampled)

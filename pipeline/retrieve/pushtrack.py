@@ -89,6 +89,7 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
     top = order[np.sort(first)][:own.n_refine]
     T = result.local.shape[1]
     sigma = own.contact_sigma * own.refine_growth ** (T - 1 - np.arange(T, dtype=np.float64))
+    sigma = np.hypot(sigma, own.refine_spread * result.pushed)
     lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
                          free_resolution=own.free_resolution)
     poses, costs = [], []
@@ -105,13 +106,14 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
                params: PushTrackParams) -> tuple[np.ndarray, int]:
     """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
     particle without refinement (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of
-    lowest cost minus its log-weight ("posterior"), ``params.select``; ties to the higher weight."""
+    lowest cost minus its log-weight and the log prior of its pushed-or-left choices ("posterior"),
+    ``params.select``; ties to the higher weight."""
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
     if not params.n_refine:
         return result.poses[order[0]], int(order[0])
     top, refined, costs = refine_final(prim, result, free, others, params)
     if params.select == "posterior":
-        costs = costs - result.log_w[top]
+        costs = costs - result.log_w[top] - result.choice[top]
     k = argmin_tolerant(costs, 1e-9)
     return refined[k], int(top[k])
 
@@ -134,7 +136,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     target = info.target
     contact, push = observed_actions(info, sdf)
     if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
-        contact = np.full_like(contact, np.nan)
+        # (the other actions keep their isolated contacts: another segment's contact may push the target)
         contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
     touch = np.isin(info.steps, np.asarray(seg.steps)) & np.all(np.isfinite(contact), axis=1)
     actions = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push)
