@@ -14,7 +14,8 @@ from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.estimators import Segment, estimate
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.pushmodel import (Actions, PushTrackParams, contact_loglik, free_loglik, initial_particles,
-                                         limit_surface_length, push, push_step, run_filter)
+                                         push, run_filter)
+from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 from pipeline.retrieve.pushtrack import final_pose, observed_actions
 from pipeline.retrieve.runs import load_run, retrieval_rng
 from pipeline.robot import load_robot
