@@ -77,8 +77,8 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
     :class:`pipeline.probe.planning.PlanParams`; the first pair that leaves transit somewhere to go is used.
 
     Transit to a probe's start only keeps the gripper's positions out of the target (a move that grazes it ends
-    the probe as a contact, and starts close to the target are the informative ones: keeping 1.5 cm from it
-    and off the moves between positions lost 5 grasps net on the training seeds, docs/retrieval.md).
+    the probe as a contact, and starts close to the target are the informative ones: keeping the clearance there
+    as well cost grasps, docs/retrieval.md, "Active retrieval").
 
     The return before the grasp must not touch the target at all (a contact there turns it after the last
     decision, unseen): it keeps ``plan.transit_clearance`` from it, positions and moves alike, else two thirds

@@ -288,8 +288,8 @@ def give_way_at_budget(choices: list[TargetChoice], choice: TargetChoice, target
                        ) -> tuple[TargetChoice, list, list, PoseSet] | None:
     """At the end of the budget, the next-ranked segment when the set of ``choice`` never agreed and its probe
     contacts stayed bunched (:func:`bunched`) although the probes were spread across the target's length: then
-    they lie on another, smaller object (on the training seeds 100-119, 8 of the 9 runs in that state at the end
-    of the budget had the wrong segment, and no run with the right one; docs/retrieval.md). Returns (choice,
+    they lie on another, smaller object (docs/retrieval.md, "Which segment: giving way at the end of the
+    budget", says how well that state tells a wrong segment). Returns (choice,
     target steps, other steps, set) of that segment with every probe contact attributed afresh against its set
     (:func:`current_set`), or None to keep ``choice``."""
     if choice.segment < 0:

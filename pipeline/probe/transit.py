@@ -4,8 +4,8 @@ around the target's estimate that transit respects (docs/retrieval.md, "Active r
 The gripper only moves through space it has occupied before, so transit retraces visited positions: consecutive
 ones, or any two closer than ``link_radius`` (the gripper occupied both). But the target has been pushed since
 the scripted part passed there, so a visited position, or the straight move between two, may now sweep the
-gripper through the target: on the training seeds, the return after the last probe turned the box by 0.05-0.14 rad
-in 8 of the 9 runs lost at yaw or at the grasp rule. A :class:`Keepout` drops those positions and links.
+gripper through the target, and a return that touches it after the last decision turns it unseen (docs/retrieval.md,
+"The return keeps clear of the target"). A :class:`Keepout` drops those positions and links.
 
 Everything is vectorised over (links, samples along a link, outline points); nothing here reads the simulation.
 """
