@@ -41,9 +41,15 @@ def sets(monkeypatch):
     return state
 
 
+def _set(choice):
+    """The current set of ``choice`` (the stubbed set_from_steps of the ``sets`` fixture)."""
+    return policy_mod.set_from_steps(choice, BOX, _Sensing(), 0, "FB/100", [])
+
+
 def test_a_wide_set_on_bunched_contacts_gives_way_and_the_contacts_are_attributed_afresh(sets):
     choices = [_choice(1), _choice(2)]
-    given = give_way_at_budget(choices, choices[0], BOX, _Sensing(), 0, "FB/100", [10, 20], ProbeParams())
+    given = give_way_at_budget(choices, choices[0], _set(choices[0]), BOX, _Sensing(), 0, "FB/100", [10, 20],
+                               ProbeParams())
     assert given is not None
     choice, mine, others, belief = given
     assert choice.segment == 2 and belief.segment == 2
@@ -60,11 +66,13 @@ def test_no_giving_way(sets, share, steps, ranked, why):
     sets["share"] = share
     choices = [_choice(s) for s in ranked]
     current = next(c for c in choices if c.segment == 1)
-    assert give_way_at_budget(choices, current, BOX, _Sensing(), 0, "FB/100", steps, ProbeParams()) is None, why
+    assert give_way_at_budget(choices, current, _set(current), BOX, _Sensing(), 0, "FB/100", steps,
+                              ProbeParams()) is None, why
 
 
 def test_no_segment_and_a_can_never_give_way(sets):
-    assert give_way_at_budget([_choice(1)], NO_TARGET, BOX, _Sensing(), 0, "FB/100", [10, 20], ProbeParams()) is None
+    assert give_way_at_budget([_choice(1)], NO_TARGET, _set(_choice(1)), BOX, _Sensing(), 0, "FB/100", [10, 20],
+                              ProbeParams()) is None
     # A can has no length to span: its contacts are never bunched.
     assert not bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), CAN, ProbeParams())
     assert bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), BOX, ProbeParams())

@@ -109,9 +109,9 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
                     attempts: int = 4) -> int:
     """Retrace visited positions (not those reached in contact, nor through the keep-out) from the current one to
     the scripted part's last position clear of the strictest keep-out (else its last position) still reachable
-    under the strictest of ``limits`` (:func:`transit_limits`) that reaches one; a contact on the way (an object now lies where the gripper once passed) backs off and the
-    visited positions within 3 cm of it are left out of the next try. Returns the actions made (none if no
-    position can be reached)."""
+    under the strictest of ``limits`` (:func:`transit_limits`) that reaches one; a contact on the way (an object
+    now lies where the gripper once passed) backs off and the visited positions within 3 cm of it are left out of
+    the next try. Returns the actions made (none if no position can be reached)."""
     visited = sensing.visited.copy()
     masks = [np.asarray(t, dtype=bool).copy() for t, _ in limits]
     here, n = visited[-1], 0
@@ -122,11 +122,15 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
         # strictest keep-out first, then for its last position.
         strict = limits[0][1]
         clear = strict.clearance(visited) >= strict.margin if strict is not None else np.ones(len(visited), bool)
+        scripted = slice(0, sensing.n_scripted + 1)
+        graphs: dict[int, tuple] = {}  # limit -> (dist, pred): each graph built once per try
         path = None
-        for want in (clear[:sensing.n_scripted + 1], np.ones(sensing.n_scripted + 1, dtype=bool)):
-            for mask, (_, keepout) in zip(masks, limits):
-                dist, pred = transit_graph(visited, params.plan.link_radius, mask, keepout)
-                free = np.flatnonzero(want & ~mask[:sensing.n_scripted + 1] & np.isfinite(dist[:sensing.n_scripted + 1]))
+        for want in (clear[scripted], np.ones(sensing.n_scripted + 1, dtype=bool)):
+            for j, (mask, (_, keepout)) in enumerate(zip(masks, limits)):
+                if j not in graphs:
+                    graphs[j] = transit_graph(visited, params.plan.link_radius, mask, keepout)
+                dist, pred = graphs[j]
+                free = np.flatnonzero(want & ~mask[scripted] & np.isfinite(dist[scripted]))
                 if len(free):
                     path = path_to(pred, visited, int(free[-1]))
                     break

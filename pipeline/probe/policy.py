@@ -200,9 +200,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             seen = rows.num_rows
         belief = current_set(choice, target, sensing, root_seed, run, log, belief, params)
         mine = mine_now(sensing, log)
-        stalled = log.probes - since >= params.stall and agreement(
-            target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
-            params.plan.position_tolerance) < params.plan.agree_share and rank + 1 < len(choices)
+        stalled = log.probes - since >= params.stall and set_share(target, belief, params.plan) < \
+            params.plan.agree_share and rank + 1 < len(choices)
         if choice.segment >= 0 and (stalled or len(mine) >= 2 and misfit(target, belief, mine) >
                                     params.misfit_tolerance):
             # The probes' contacts do not lie on this segment's object, or they leave its set wide: take the
@@ -214,8 +213,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             log.target_steps, log.other_steps = [], []
             belief = current_set(choice, target, sensing, root_seed, run, log,
                                  set_from_steps(choice, target, sensing, root_seed, run, []), params)
-        share = agreement(target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
-                          params.plan.position_tolerance)
+        share = set_share(target, belief, params.plan)
         log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                             "target_steps": list(log.target_steps)})
         settled = share >= params.plan.agree_share and log.probes >= params.min_probes and \
@@ -234,12 +232,12 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None and log.probes >= params.budget:
-            given = give_way_at_budget(choices, choice, target, sensing, root_seed, run, log.target_steps, params)
+            given = give_way_at_budget(choices, choice, belief, target, sensing, root_seed, run, log.target_steps,
+                                       params)
             if given is not None:
                 choice, log.target_steps, log.other_steps, belief = given
                 log.switches += 1
-                share = agreement(target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
-                                  params.plan.position_tolerance)
+                share = set_share(target, belief, params.plan)
                 log.history[-1] = {"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                                    "target_steps": list(log.target_steps)}
                 log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
@@ -266,7 +264,18 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
 
 def mine_now(sensing: Sensing, log: ProbeLog) -> np.ndarray:
     """The probe contacts (P, 2) attributed to the target so far."""
-    return np.asarray(sensing.probe_points).reshape(-1, 2)[np.isin(sensing.probe_steps, log.target_steps)]
+    return probe_points_at(sensing, log.target_steps)
+
+
+def probe_points_at(sensing: Sensing, steps) -> np.ndarray:
+    """The probe contacts (P, 2) of the actions ``steps``, in the order they were sensed."""
+    return np.asarray(sensing.probe_points, dtype=np.float64).reshape(-1, 2)[
+        np.isin(np.asarray(sensing.probe_steps, dtype=np.int64), np.asarray(list(steps), dtype=np.int64))]
+
+
+def set_share(target: Primitive, belief: PoseSet, plan: PlanParams) -> float:
+    """Likelihood share of the set within the grasp's tolerances of its estimate (:func:`agreement`)."""
+    return agreement(target, belief.poses, belief.weights, belief.best, plan.yaw_tolerance, plan.position_tolerance)
 
 
 def _span(points: np.ndarray) -> float:
@@ -283,25 +292,21 @@ def bunched(points: np.ndarray, target: Primitive, params: ProbeParams) -> bool:
         2 * max(target.half[:2]) if target.kind == "box" else 0.0)
 
 
-def give_way_at_budget(choices: list[TargetChoice], choice: TargetChoice, target: Primitive, sensing: Sensing,
-                       root_seed: int, run: str, target_steps, params: ProbeParams
+def give_way_at_budget(choices: list[TargetChoice], choice: TargetChoice, belief: PoseSet, target: Primitive,
+                       sensing: Sensing, root_seed: int, run: str, target_steps, params: ProbeParams
                        ) -> tuple[TargetChoice, list, list, PoseSet] | None:
     """At the end of the budget, the next-ranked segment when the set of ``choice`` never agreed and its probe
     contacts stayed bunched (:func:`bunched`) although the probes were spread across the target's length: then
     they lie on another, smaller object (docs/retrieval.md, "Which segment: giving way at the end of the
-    budget", says how well that state tells a wrong segment). Returns (choice,
-    target steps, other steps, set) of that segment with every probe contact attributed afresh against its set
-    (:func:`current_set`), or None to keep ``choice``."""
+    budget", says how well that state tells a wrong segment). ``belief`` is the set of ``choice`` with the
+    probe contacts of ``target_steps`` (:func:`set_from_steps`). Returns (choice, target steps, other steps, set)
+    of that segment with every probe contact attributed afresh against its set (:func:`current_set`), or None to
+    keep ``choice``."""
     if choice.segment < 0:
         return None
-    belief = set_from_steps(choice, target, sensing, root_seed, run, target_steps)
-    share = agreement(target, belief.poses, belief.weights, belief.best, params.plan.yaw_tolerance,
-                      params.plan.position_tolerance)
-    steps = np.asarray(sensing.probe_steps, dtype=np.int64)
-    mine = np.asarray(sensing.probe_points, dtype=np.float64).reshape(-1, 2)[
-        np.isin(steps, np.asarray(list(target_steps), dtype=np.int64))]
     rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
-    if share >= params.plan.agree_share or not bunched(mine, target, params) or rank + 1 >= len(choices):
+    if set_share(target, belief, params.plan) >= params.plan.agree_share or rank + 1 >= len(choices) or \
+            not bunched(probe_points_at(sensing, target_steps), target, params):
         return None
     nxt = choices[rank + 1]
     fresh = ProbeLog()

@@ -16,8 +16,8 @@ import numpy as np
 from pipeline import schema
 from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
-from pipeline.probe.planning import PlanParams, agreement
-from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps
+from pipeline.probe.planning import PlanParams
+from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, choose_grasp, simulate_set_grasp
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
@@ -81,12 +81,13 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
     choice = next((c for c in choices if c.segment == segment), NO_TARGET)
+    belief = set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"])
     if budget_end is not None and decision is not None:
-        given = give_way_at_budget(choices, choice, info.target, sensing, root_seed, info.run,
+        given = give_way_at_budget(choices, choice, belief, info.target, sensing, root_seed, info.run,
                                    state["target_steps"], budget_end)
         if given is not None:
             return given[3], meta
-    return set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"]), meta
+    return belief, meta
 
 
 def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: GraspParams = GraspParams(),
@@ -96,9 +97,7 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
     belief, meta = active_set(info, root_seed, method)
     g = choose_grasp(info.scene, info.target, belief.poses, belief.weights, belief.best, params)
     res = simulate_set_grasp(info.scene, info.final_poses, info.final_ee, g, params) if grasp else None
-    share = agreement(info.target, belief.poses, belief.weights, belief.best, plan.yaw_tolerance,
-                      plan.position_tolerance)
-    notes = list(belief.notes) + (["wide_set"] if share < plan.agree_share else [])
+    notes = list(belief.notes) + (["wide_set"] if set_share(info.target, belief, plan) < plan.agree_share else [])
     return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g, result=res,
                         probes=int(meta.get("probes", 0)), notes=notes)
 

@@ -100,14 +100,15 @@ def transit_graph(visited: np.ndarray, radius: float, touching: np.ndarray | Non
     cols = np.concatenate([i + 1, b])
     t = np.zeros(k, dtype=bool) if touching is None else np.asarray(touching, dtype=bool).copy()
     if keepout is not None:
-        t |= keepout.clearance(v) < keepout.margin
+        clearance = keepout.clearance(v)
+        t |= clearance < keepout.margin
     t[-1] = False  # where the gripper is now
     keep = ~t[rows] & ~t[cols]
     rows, cols = rows[keep], cols[keep]
     if keepout is not None and keepout.links:
         # Where the gripper is now may be within the margin (it has just backed off from a contact): a move
         # from there may keep its clearance but not come any closer.
-        here = min(float(keepout.clearance(v[-1:])[0]), keepout.margin)
+        here = min(float(clearance[-1]), keepout.margin)
         need = np.where((rows == k - 1) | (cols == k - 1), here - 1e-3, keepout.margin)
         keep = keepout.link_clearance(v[rows], v[cols]) >= need
         rows, cols = rows[keep], cols[keep]
