@@ -1,9 +1,10 @@
 """A pybullet world built from a :class:`pipeline.scenes.Scene`, and the action stepping (docs/simulation.md).
 
 One :class:`World` = one DIRECT physics client (no GUI, no camera), built fresh per run and closed after it (the
-client itself is emptied and reused by the next world of the process); every call passes ``physicsClientId``. Only what the scene's effects ask for is built: walls,
-friction overrides, movable (dynamic) objects, settling steps; the per-step contact wrench and ground truth
-are computed only when asked (:func:`pipeline.sim.effects.read_contacts`).
+client itself is emptied and reused by the next world of the process); every call passes ``physicsClientId``.
+Only what the scene's effects ask for is built: walls, friction overrides, movable (dynamic) objects, settling
+steps; the per-step contact wrench and ground truth are computed only when asked
+(:func:`pipeline.sim.effects.read_contacts`).
 
 Physics (as in the authors' code): time step 1/240 s, gravity (0, 0, -10), a static ground plane (lateral friction 1.0 as in
 pybullet_data's plane.urdf; the retrieval tasks override it). Objects are primitive boxes and cylinders
@@ -15,6 +16,7 @@ and the inertial frame offset from it as the scene says; pybullet reports (and w
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -253,29 +255,23 @@ class World:
             Commanded displacement (the action times 0.03 m, noise included).
         """
         c = self.client
-        g = self.gripper
-        gb = g.body
+        gb = self.gripper.body
         eff = self.effects
         want_w, want_t = eff.wrench, eff.contact_truth
         id_of = self.id_of
-        step = p.stepSimulation
         pose = p.getBasePositionAndOrientation
         (sx, sy, sz), _ = pose(gb, physicsClientId=c)
         pos, quat, wr, txy, tf, tl = [], [], [], [], [], []
         nan6 = (math.nan,) * 6
-        for k in range(MINI_STEPS):
-            f = (k + 1) / MINI_STEPS
-            g.move_to(sx + f * dx, sy + f * dy)
-            for _ in range(STEPS_PER_MINI):
-                step(physicsClientId=c)
-                bp, bq = pose(gb, physicsClientId=c)
-                w, cx, cy, first, last = read_contacts(c, gb, bp, id_of, want_w, want_t)
-                pos.append(bp)
-                quat.append(bq)
-                wr.append(w if w is not None else nan6)
-                txy.append((cx, cy))
-                tf.append(first)
-                tl.append(last)
+        for _ in self._steps(sx, sy, dx, dy):
+            bp, bq = pose(gb, physicsClientId=c)
+            w, cx, cy, first, last = read_contacts(c, gb, bp, id_of, want_w, want_t)
+            pos.append(bp)
+            quat.append(bq)
+            wr.append(w if w is not None else nan6)
+            txy.append((cx, cy))
+            tf.append(first)
+            tl.append(last)
         return ActionTrace(start=np.array((sx, sy, sz)), target=np.array((sx + dx, sy + dy)), pos=np.array(pos),
                            quat=np.array(quat), wrench=np.array(wr, dtype=np.float64), truth_xy=np.array(txy),
                            truth_first=np.array(tf, dtype=np.int64), truth_last=np.array(tl, dtype=np.int64))
@@ -284,15 +280,22 @@ class World:
         """:meth:`act` without observing: the same targets and sim steps (reading the pose and contacts does not
         change the simulation), for scripts that need only the state it ends in (the grasp,
         :mod:`pipeline.grasp`)."""
+        (sx, sy, _), _ = p.getBasePositionAndOrientation(self.gripper.body, physicsClientId=self.client)
+        for _ in self._steps(sx, sy, dx, dy):
+            pass
+
+    def _steps(self, sx: float, sy: float, dx: float, dy: float) -> Iterator[None]:
+        """The sim steps of one displacement from the base position (sx, sy), metres: the pivot goes to
+        start + f (dx, dy) for f = 1/15 .. 15/15, each held for 21 sim steps; yields after every sim step."""
         c = self.client
         g = self.gripper
         step = p.stepSimulation
-        (sx, sy, _), _ = p.getBasePositionAndOrientation(g.body, physicsClientId=c)
         for k in range(MINI_STEPS):
             f = (k + 1) / MINI_STEPS
             g.move_to(sx + f * dx, sy + f * dy)
             for _ in range(STEPS_PER_MINI):
                 step(physicsClientId=c)
+                yield
 
     # -- state ----------------------------------------------------------------------------------------------
 
