@@ -33,9 +33,9 @@ from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, f
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator", "paper_choice",
-           "paper_segment", "plausible_estimator", "needs_every_step", "history_from_final", "retrieval_metadata",
-           "plausible_notes", "parse_estimators"]
+__all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator",
+           "paper_choice", "paper_segment", "plausible_estimator", "needs_every_step", "history_from_final",
+           "retrieval_metadata", "plausible_notes", "parse_estimators"]
 
 DEFAULT_ESTIMATOR = registry.DEFAULT_ESTIMATOR
 

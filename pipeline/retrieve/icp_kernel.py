@@ -5,8 +5,9 @@ of points at every in-contact step; written with numpy over the restarts, nearly
 per-call overhead of small arrays. This kernel runs the same iterations per restart in compiled code and gives
 the same bits, because it repeats numpy's order of every operation:
 
-* a sum over the points of a (restarts, points) array is numpy's pairwise summation (:func:`pipeline.pairwise_sum.pairwise_sum`, eight
-  accumulators per block of at most 128, halves above), started from 0.0 as numpy's ``add.reduce`` is;
+* a sum over the points of a (restarts, points) array is numpy's pairwise summation
+  (:func:`pipeline.pairwise_sum.pairwise_sum`, eight accumulators per block of at most 128, halves above), started
+  from 0.0 as numpy's ``add.reduce`` is;
 * a sum over the points of a (restarts, points, k) array runs point by point from 0.0 (numpy's strided
   reduction);
 * nearest model points by brute force (the model has ~50 points), distances sqrt(dx^2 + dy^2) as scipy's cKDTree
