@@ -34,7 +34,8 @@ $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
 	$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels(); \
 	  from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
-	  from pipeline.retrieve.icp_kernel import warm_up as icp; icp()"
+	  from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
+	  from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"
 	@touch $(KSTAMP)
 
 # FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.

@@ -26,10 +26,11 @@ from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import atan2, exp, logsumexp
 from pipeline.retrieve.model import outline_point
+from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 
-__all__ = ["PushTrackParams", "Actions", "FilterResult", "push",
-           "contact_loglik", "free_loglik", "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
+__all__ = ["PushTrackParams", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik", "free_loglik_numpy",
+           "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
@@ -207,7 +208,26 @@ def contact_loglik(prim: Primitive, pose: np.ndarray, point: np.ndarray, params:
 
 
 def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
-    """Log-likelihood (N,) of gripper points (F, 2) lying outside the target at COM poses (N, 3)."""
+    """Log-likelihood (N,) of gripper points (F, 2) lying outside the target at COM poses (N, 3): -1/2 the sum of
+    the squared depths beyond ``free_tolerance`` over ``free_sigma``, through the compiled loop
+    (:func:`pipeline.retrieve.pushtrack_kernel.free_depth_sums`: the same bits as :func:`free_loglik_numpy`)."""
+    if len(free) == 0:
+        return np.zeros(len(pose))
+    centre = prim.centre_world(pose)
+    yaw = (pose[:, 2] + prim.yaw)[:, None]  # the array rotate() takes its cosines from in _local
+    cos_t, sin_t = np.cos(yaw)[:, 0].copy(), np.sin(yaw)[:, 0].copy()
+    hx, hy = float(prim.half[0]), float(prim.half[1]) if len(prim.half) > 1 else 0.0
+    # outside the circumscribed circle a point is outside the target: its term is exactly 0
+    reach = math.hypot(hx, hy) + 1e-6
+    out = np.empty(len(pose))
+    free_depth_sums(prim.kind == "cylinder", hx, hy, np.ascontiguousarray(centre), cos_t, sin_t,
+                    np.ascontiguousarray(free, dtype=np.float64), float(params.free_tolerance),
+                    float(params.free_sigma), reach, out, np.empty(len(free)))
+    return -0.5 * out
+
+
+def free_loglik_numpy(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
+    """:func:`free_loglik` in numpy, the reference of the compiled loop (it builds (N, F) temporaries)."""
     if len(free) == 0:
         return np.zeros(len(pose))
     sd, _ = primitive_sdf(prim, _local(prim, pose, free))

@@ -17,18 +17,22 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.isolate import isolate_run, isolation_surface
-from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
+from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
+from pipeline.retrieve.plausible import PlausibleParams, Terms, com_pose, primitive_pose
+from pipeline.retrieve.plausible_kernel import FREE, piece_terms
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.retrieve.pushtrack_kernel import contact_terms_each
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
+from pipeline.spd import solve_spd
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "refine_final", "final_pose",
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "terms_each", "refine_each", "refine_final",
+           "final_pose",
            "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
@@ -92,14 +96,82 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
     sigma = np.hypot(sigma, own.refine_spread * result.pushed)
     lm = PlausibleParams(contact_sigma=own.contact_sigma, free_tolerance=own.free_tolerance,
                          free_resolution=own.free_resolution)
-    poses, costs = [], []
-    for i in top:  # one set of carried contacts per particle: H small fits, each vectorised over its points
-        pts = apply_pose(result.poses[i], result.local[i])
-        init = primitive_pose(target, result.poses[i])[None, :]
-        pose, terms = refine(target, init, pts, sigma, free, others, lm)
-        poses.append(com_pose(target, pose[0]))
-        costs.append(float(terms.total[0]))
-    return top, np.array(poses).reshape(-1, 3), np.array(costs)
+    # each particle with its own carried contacts (H, T, 2), all H refined at once
+    pts = apply_pose(result.poses[top], result.local[top])
+    pose, terms = refine_each(target, primitive_pose(target, result.poses[top]), pts, sigma, free, others, lm)
+    return top, com_pose(target, pose), terms.total
+
+
+def terms_each(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
+               others: np.ndarray, params: PlausibleParams, jacobian: bool = False):
+    """:func:`pipeline.retrieve.plausible.compiled_terms` with each pose's own contact points: primitive poses
+    (B, 3), their points (B, P, 2) of sigmas (P,), shared free-space ``free`` (F, 2) and other-segment ``others``
+    (O, 2) points. Returns the :class:`~pipeline.retrieve.plausible.Terms` (B,), with ``jacobian`` also the
+    normal matrix (B, 3, 3) and gradient (B, 3); row b has the bits ``compiled_terms`` gives for pose b and
+    ``points[b]`` alone (the same operations in the same order)."""
+    pose = np.ascontiguousarray(pose, dtype=np.float64)
+    B = len(pose)
+    yaw = pose[:, 2, None]
+    cos_t, sin_t = np.cos(yaw)[:, 0].copy(), np.sin(yaw)[:, 0].copy()
+    c2 = params.outlier_sigmas ** 2
+    s0 = params.contact_sigma
+    cyl, hx = prim.kind == "cylinder", float(prim.half[0])
+    hy = float(prim.half[1]) if len(prim.half) > 1 else 0.0
+    costs, H, grad = [], np.zeros((B, 3, 3)), np.zeros((B, 3))
+    cost, h, g = np.empty(B), np.empty((B, 3, 3)), np.empty((B, 3))
+    if points.shape[1]:
+        contact_terms_each(cyl, hx, hy, pose, cos_t, sin_t, np.ascontiguousarray(points, dtype=np.float64),
+                           np.ascontiguousarray(sigma, dtype=np.float64), 0.5 * c2, c2, jacobian, cost, h, g,
+                           np.empty(points.shape[1]))
+        costs.append(cost.copy())
+        if jacobian:
+            H += h
+            grad += g
+    else:
+        costs.append(np.zeros(B))
+    for pts, tol in ((free, params.free_tolerance), (others, params.other_tolerance)):
+        if len(pts) == 0:
+            costs.append(np.zeros(B))
+            continue
+        piece_terms(cyl, prim.half[0], hy, pose, cos_t, sin_t, np.ascontiguousarray(pts, dtype=np.float64),
+                    np.zeros(0), FREE, 0.5 * c2, c2, tol, s0, 1.0 / s0, params.free_weight, jacobian, cost, h, g,
+                    np.empty(len(pts)))
+        costs.append(params.free_weight * 0.5 * cost)
+        if jacobian:
+            H += h
+            grad += g
+    terms = Terms(*costs)
+    return (terms, H, grad) if jacobian else terms
+
+
+def refine_each(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
+                others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
+    """:func:`pipeline.retrieve.plausible.refine` (batched Levenberg-Marquardt from primitive poses (B, 3), steps
+    capped at 2 cm and 0.2 rad) with each pose's own contact points (B, P, 2) (:func:`terms_each`); row b gives
+    the bits ``refine`` gives for ``init[b]`` and ``points[b]`` alone. Returns the refined poses (B, 3), yaw
+    wrapped to [-pi, pi), and their :class:`~pipeline.retrieve.plausible.Terms`."""
+    pose = np.array(init, dtype=np.float64)
+    lam = np.full(len(pose), 1e-3)
+    terms, H, grad = terms_each(prim, pose, points, sigma, free, others, params, jacobian=True)
+    cost = terms.total
+    eye = np.eye(3)
+    for _ in range(params.iterations):
+        diag = np.maximum(np.diagonal(H, axis1=1, axis2=2), 1e-9)
+        A = H + lam[:, None, None] * (eye * diag[:, None, :]) + 1e-12 * eye
+        step = -solve_spd(A, grad)
+        move = np.linalg.norm(step[:, :2], axis=1)
+        shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
+                                                                                            1e-12)))
+        trial = pose + step * shrink[:, None]
+        t2, H2, g2 = terms_each(prim, trial, points, sigma, free, others, params, jacobian=True)
+        better = np.isfinite(t2.total) & (t2.total < cost)
+        pose = np.where(better[:, None], trial, pose)
+        cost = np.where(better, t2.total, cost)
+        H = np.where(better[:, None, None], H2, H)
+        grad = np.where(better[:, None], g2, grad)
+        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
+    pose[:, 2] = wrap_angle(pose[:, 2])
+    return pose, terms_each(prim, pose, points, sigma, free, others, params)
 
 
 def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,

@@ -1,0 +1,176 @@
+"""Compiled loops of the pushtrack estimator: the free-space likelihood of every particle and the contact term of
+the final refinement, each computing the **same bits** as the numpy form it replaces (tests/test_pushtrack_kernel.py).
+
+* :func:`free_depth_sums`: :func:`pipeline.retrieve.pushmodel.free_loglik`'s sums of squared depths, which in
+  numpy build (particles, free points) temporaries for every action of the filter;
+* :func:`contact_terms_each`: the contact term of the plausible estimator's Levenberg-Marquardt
+  (:func:`pipeline.retrieve.plausible.compiled_terms`) with each pose's own contact points, so that the
+  refinement of :func:`pipeline.retrieve.pushtrack.refine_final` runs over all its particles at once.
+
+As :mod:`pipeline.retrieve.plausible_kernel` does, they repeat numpy's arithmetic operation by operation (the same
+element-wise expressions, no fused multiply-add, the cosines and sines taken from numpy by the caller, numpy's
+pairwise summation over a contiguous axis: :func:`pipeline.pairwise_sum.pairwise_sum`). ``NUMBA_DISABLE_JIT=1``
+runs them as plain Python with the same results. Measured in docs/retrieval.md, "The pushtrack estimator".
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from pipeline.pairwise_sum import pairwise_sum
+
+__all__ = ["free_depth_sums", "contact_terms_each", "warm_up"]
+
+
+@njit(cache=True)
+def _sdf(cylinder, hx, hy, qx, qy):
+    """Signed distance (m) of a point (qx, qy) in the primitive's frame and its gradient there, as
+    :func:`pipeline.geometry.primitive_sdf` computes them (a cylinder's centre and a box's medial axis included)."""
+    if cylinder:
+        r = math.sqrt(qx * qx + qy * qy)
+        if r > 1e-12:
+            return r - hx, qx / r, qy / r
+        return r - hx, 1.0, 0.0
+    ax = abs(qx) - hx
+    ay = abs(qy) - hy
+    sx = 1.0 if qx >= 0.0 else -1.0
+    sy = 1.0 if qy >= 0.0 else -1.0
+    ox = max(ax, 0.0)
+    oy = max(ay, 0.0)
+    out = math.sqrt(ox * ox + oy * oy)
+    first = not (ay > ax)  # np.argmax: the first of equal values
+    sd = out + min(ax if first else ay, 0.0)
+    if out > 0.0:
+        return sd, ox * sx / out, oy * sy / out
+    if first:
+        return sd, sx, 0.0
+    return sd, 0.0, sy
+
+
+@njit(cache=True)
+def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, reach, out, scratch):
+    """Sum over the points of (min(sd + tol, 0) / sigma)^2, for every pose, into ``out`` (N,).
+
+    Parameters
+    ----------
+    cylinder : bool
+        The primitive is a cylinder of radius ``hx``; else a box of half sides (hx, hy), metres.
+    centre : ndarray, shape (N, 2), metres
+        World position of the primitive's centre at each pose; ``cos_t``, ``sin_t`` (N,) the cosines and sines
+        of its axes' yaw (numpy's, as the caller's numpy form takes them).
+    pts : ndarray, shape (F, 2), metres
+        World points.
+    tol, sigma : float, metres
+        Depth that costs nothing and the depth's scale.
+    reach : float, metres
+        A point farther than this from the centre has sd + tol > 0 (its term is exactly 0.0): the caller gives
+        the primitive's circumradius plus ``tol`` plus a margin, so the sdf is skipped there without changing a bit.
+    scratch : ndarray, shape (F,)
+        Work space for the per-point terms (summed in numpy's pairwise order).
+    """
+    N = centre.shape[0]
+    F = pts.shape[0]
+    r2 = reach * reach
+    for n in range(N):
+        c = cos_t[n]
+        s = sin_t[n]
+        px = centre[n, 0]
+        py = centre[n, 1]
+        for p in range(F):
+            dx = pts[p, 0] - px
+            dy = pts[p, 1] - py
+            if dx * dx + dy * dy > r2:
+                scratch[p] = 0.0
+                continue
+            sd, _, _ = _sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
+            r = min(sd + tol, 0.0) / sigma
+            scratch[p] = r * r
+        out[n] = pairwise_sum(scratch, 0, F)
+
+
+@njit(cache=True)
+def contact_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2, c2, jacobian, cost, H, grad,
+                       scratch):
+    """The plausible estimator's contact term (Geman-McClure of sd / sigma) of B primitive poses, pose b with its
+    own points ``pts[b]``: the plain sum over the points into ``cost`` (B,), and with ``jacobian`` its
+    Gauss-Newton normal matrix into ``H`` (B, 3, 3) and gradient into ``grad`` (B, 3) (the contact branch of
+    :func:`pipeline.retrieve.plausible_kernel.piece_terms`, operation by operation).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (B, 3)
+        Primitive poses (centre x, centre y, yaw); ``cos_t``, ``sin_t`` (B,) the cosines and sines of the yaws.
+    pts : ndarray, shape (B, P, 2), metres
+    sigma : ndarray, shape (P,), metres
+    half_c2, c2 : float
+        c^2 / 2 and c^2 for the outlier scale c in sigmas.
+    scratch : ndarray, shape (P,)
+    """
+    B = pose.shape[0]
+    P = pts.shape[1]
+    for b in range(B):
+        c = cos_t[b]
+        s = sin_t[b]
+        px = pose[b, 0]
+        py = pose[b, 1]
+        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+        g0 = g1 = g2 = 0.0
+        for p in range(P):
+            dx = pts[b, p, 0] - px
+            dy = pts[b, p, 1] - py
+            sd, lx, ly = _sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
+            u = sd / sigma[p]
+            scratch[p] = half_c2 * u * u / (c2 + u * u)
+            if jacobian:
+                v = c2 / (c2 + u * u)
+                w = v * v
+                scale = 1.0 / sigma[p]
+                gx = c * lx - s * ly
+                gy = s * lx + c * ly
+                j0 = -gx * scale
+                j1 = -gy * scale
+                j2 = (gx * dy - gy * dx) * scale
+                w0 = j0 * w
+                w1 = j1 * w
+                w2 = j2 * w
+                h00 += w0 * j0
+                h01 += w0 * j1
+                h02 += w0 * j2
+                h10 += w1 * j0
+                h11 += w1 * j1
+                h12 += w1 * j2
+                h20 += w2 * j0
+                h21 += w2 * j1
+                h22 += w2 * j2
+                g0 += w0 * u
+                g1 += w1 * u
+                g2 += w2 * u
+        cost[b] = pairwise_sum(scratch, 0, P)
+        if jacobian:
+            H[b, 0, 0] = h00
+            H[b, 0, 1] = h01
+            H[b, 0, 2] = h02
+            H[b, 1, 0] = h10
+            H[b, 1, 1] = h11
+            H[b, 1, 2] = h12
+            H[b, 2, 0] = h20
+            H[b, 2, 1] = h21
+            H[b, 2, 2] = h22
+            grad[b, 0] = g0
+            grad[b, 1] = g1
+            grad[b, 2] = g2
+
+
+def warm_up() -> None:
+    """Compile the kernels (once per machine: numba caches them on disk), as ``make setup`` does, so that no
+    evaluation job pays for it."""
+    one = np.ones(1)
+    for cylinder in (False, True):
+        free_depth_sums(cylinder, 0.1, 0.1, np.zeros((1, 2)), one, np.zeros(1), np.zeros((1, 2)), 0.004, 0.003,
+                        0.2, np.empty(1), np.empty(1))
+        for jacobian in (False, True):
+            contact_terms_each(cylinder, 0.1, 0.1, np.zeros((1, 3)), one, np.zeros(1), np.zeros((1, 1, 2)), one,
+                               3.125, 6.25, jacobian, np.empty(1), np.empty((1, 3, 3)), np.empty((1, 3)),
+                               np.empty(1))
