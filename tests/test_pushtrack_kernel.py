@@ -1,6 +1,6 @@
 """The pushtrack estimator's compiled loops (pipeline/retrieve/pushtrack_kernel.py) give the numpy forms' bits.
 
-The free-space likelihood of the filter against :func:`~pipeline.retrieve.pushmodel.free_loglik_numpy`, and the
+The free-space likelihood of the filter against the numpy form it replaced (:func:`free_loglik_numpy`), and the
 batched refinement (:func:`~pipeline.retrieve.pushtrack.refine_each`, each particle with its own contacts) against
 the plausible estimator's one-particle :func:`~pipeline.retrieve.plausible.refine` it replaced. Equality is exact
 (``assert_array_equal``): a last-bit difference in a weight or a cost could flip a resampling draw or a near-tie
@@ -11,16 +11,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.geometry import Primitive
+from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.retrieve import pushmodel, pushtrack, pushtrack_kernel
 from pipeline.retrieve.plausible import PlausibleParams, compiled_terms, refine
-from pipeline.retrieve.pushmodel import PushTrackParams, free_loglik, free_loglik_numpy
+from pipeline.retrieve.pushmodel import PushTrackParams, free_loglik
 from pipeline.retrieve.pushtrack import refine_each, terms_each
 
 BOX = Primitive(kind="box", half=(0.05, 0.08), centre=np.array([0.004, -0.002]), yaw=0.3, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")
 P = PushTrackParams()
 LM = PlausibleParams(contact_sigma=P.contact_sigma, free_tolerance=P.free_tolerance)
+
+
+def free_loglik_numpy(prim, pose, free, params):
+    """The numpy form the compiled free-space likelihood replaced, kept as its reference: (N, F) temporaries."""
+    centre = prim.centre_world(pose)
+    q = rotate(free[None, :, :] - centre[:, None, :], (pose[:, 2] + prim.yaw)[:, None], inverse=True)
+    sd, _ = primitive_sdf(prim, q)
+    r = np.minimum(sd + params.free_tolerance, 0.0) / params.free_sigma
+    return -0.5 * np.sum(r * r, axis=1)
 
 
 def _poses(rng, n):
@@ -60,6 +69,20 @@ def test_free_loglik_one_particle_one_point_coincident_points():
         _same_free(prim, np.repeat(one, 3, axis=0), edge)
         far = np.array([[5.0, 5.0], [-5.0, 0.0]])
         np.testing.assert_array_equal(free_loglik(prim, _poses(rng, 4), far, P), np.zeros(4))
+
+
+def test_free_loglik_non_finite_poses_and_points_give_numpys_nans():
+    """A diverged particle (NaN or infinite coordinate) or a NaN point: the compiled loop skips far points, but
+    not infinitely far ones, whose NaNs numpy keeps (the filter then drops the particle's weight)."""
+    pose = np.array([[np.nan, 0.0, 0.0], [0.0, np.nan, 0.0], [0.0, 0.0, np.nan], [np.inf, 0.0, 0.0],
+                     [0.0, -np.inf, 1.0], [0.0, 0.0, 0.0]])
+    free = np.array([[0.0, 0.0], [0.01, 0.02], [1.0, 1.0], [np.nan, 0.0]])
+    with np.errstate(invalid="ignore"):
+        for prim in (BOX, CAN):
+            for pts in (free[:3], free):
+                got = free_loglik(prim, pose, pts, P)
+                np.testing.assert_array_equal(got, free_loglik_numpy(prim, pose, pts, P))
+                assert np.isnan(got[:3]).all() and got[-1] < 0.0 if len(pts) == 3 else np.isnan(got).all()
 
 
 def _contacts(rng, n, t):

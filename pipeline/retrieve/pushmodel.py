@@ -29,7 +29,7 @@ from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 
-__all__ = ["PushTrackParams", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik", "free_loglik_numpy",
+__all__ = ["PushTrackParams", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik",
            "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
@@ -210,7 +210,8 @@ def contact_loglik(prim: Primitive, pose: np.ndarray, point: np.ndarray, params:
 def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
     """Log-likelihood (N,) of gripper points (F, 2) lying outside the target at COM poses (N, 3): -1/2 the sum of
     the squared depths beyond ``free_tolerance`` over ``free_sigma``, through the compiled loop
-    (:func:`pipeline.retrieve.pushtrack_kernel.free_depth_sums`: the same bits as :func:`free_loglik_numpy`)."""
+    (:func:`pipeline.retrieve.pushtrack_kernel.free_depth_sums`: the same bits as the numpy form it replaced,
+    tests/test_pushtrack_kernel.py)."""
     if len(free) == 0:
         return np.zeros(len(pose))
     centre = prim.centre_world(pose)
@@ -224,15 +225,6 @@ def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: Pus
                     np.ascontiguousarray(free, dtype=np.float64), float(params.free_tolerance),
                     float(params.free_sigma), reach, out, np.empty(len(free)))
     return -0.5 * out
-
-
-def free_loglik_numpy(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
-    """:func:`free_loglik` in numpy, the reference of the compiled loop (it builds (N, F) temporaries)."""
-    if len(free) == 0:
-        return np.zeros(len(pose))
-    sd, _ = primitive_sdf(prim, _local(prim, pose, free))
-    r = np.minimum(sd + params.free_tolerance, 0.0) / params.free_sigma
-    return -0.5 * np.sum(r * r, axis=1)
 
 
 def initial_particles(prim: Primitive, point: np.ndarray, normal_hint: np.ndarray, n: int,

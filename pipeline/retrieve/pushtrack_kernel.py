@@ -65,8 +65,9 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
     tol, sigma : float, metres
         Depth that costs nothing and the depth's scale.
     reach : float, metres
-        A point farther than this from the centre has sd + tol > 0 (its term is exactly 0.0): the caller gives
-        the primitive's circumradius plus ``tol`` plus a margin, so the sdf is skipped there without changing a bit.
+        A point farther than this from the centre lies outside the primitive, sd + tol > 0, and its term is
+        exactly 0.0: the caller gives the primitive's circumradius plus a margin, so the sdf is skipped there
+        without changing a bit.
     scratch : ndarray, shape (F,)
         Work space for the per-point terms (summed in numpy's pairwise order).
     """
@@ -81,7 +82,8 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
         for p in range(F):
             dx = pts[p, 0] - px
             dy = pts[p, 1] - py
-            if dx * dx + dy * dy > r2:
+            d2 = dx * dx + dy * dy
+            if r2 < d2 < math.inf:  # (an infinite offset takes numpy's path: its NaNs)
                 scratch[p] = 0.0
                 continue
             sd, _, _ = _sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
