@@ -12,7 +12,8 @@ surface at the pose after that action (robust Geman-McClure term), and the gripp
 action and along every action that did not touch the target lies outside the target at that time's pose (squared
 depth beyond a tolerance, the plausible estimator's free-space term). Weights are kept in log space; the particles
 are resampled (systematic) before a push when the effective sample size is low. Every array holds all particles:
-no loop over particles or points.
+no Python loop over particles or points (the free-space sums run in a compiled loop,
+:mod:`pipeline.retrieve.pushtrack_kernel`).
 """
 from __future__ import annotations
 
