@@ -28,6 +28,8 @@ from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, ch
                                    pose_set)
 from pipeline.probe.moves import Act, first_reaching, guarded_move, retrace, return_to_start, transit_limits
 from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
+from pipeline.probe.set_grasp import choose_grasp
+from pipeline.probe.transit import grasp_transit
 from pipeline.retrieve.runs import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "give_way_at_budget", "bunched",
@@ -163,7 +165,8 @@ class ProbeLog:
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
-              start: np.ndarray, params: ProbeParams = ProbeParams()) -> ProbeLog:
+              start: np.ndarray, params: ProbeParams = ProbeParams(),
+              grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -179,6 +182,10 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         The target's known shape.
     start : ndarray, shape (2,)
         Gripper position before the run's first action.
+    grasp_path : callable, optional
+        The final set -> where the grasp chosen for it will move the gripper to its pre-grasp point from a start
+        (2,) (positions (M, 2)): the return then ends where that move keeps clear of the target
+        (:func:`pipeline.probe.moves.return_to_start`).
 
     Returns
     -------
@@ -253,7 +260,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
                 # point is a straight line, which from the far side of the target would sweep it away.
                 log.actions += return_to_start(
-                    act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True))
+                    act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True),
+                    grasp_path=None if grasp_path is None else grasp_path(belief))
             return log
         here = sensing.visited[-1]
         here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
@@ -393,7 +401,13 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
 
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     start = np.array([rows[0]["ee_start_x_m"], rows[0]["ee_start_y_m"]])
-    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, primitive_of(scene.objects[tid]), start, params)
+    prim = primitive_of(scene.objects[tid])
+
+    def grasp_path(belief: PoseSet) -> Callable[[np.ndarray], np.ndarray]:
+        pre = choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).pregrasp
+        return lambda at: grasp_transit(at, pre, scale)
+
+    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path)
     meta = {"params": params.to_dict(), **log.to_dict()}
     meta.pop("decision_s")  # wall times would make the run file differ between identical runs
     return meta, log.decision_s
