@@ -3,13 +3,18 @@ docs/retrieval.md, "Active retrieval"): a set that never agreed on contacts bunc
 to the next-ranked segment, whose set re-attributes every probe contact."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from pipeline import schema
 from pipeline.geometry import Primitive
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
 from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
+from pipeline.retrieve.model import target_primitive
+from pipeline.scenes import load_scene
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
 CAN = Primitive(kind="cylinder", half=(0.04,), centre=np.zeros(2), yaw=0.0)
@@ -77,3 +82,36 @@ def test_no_segment_and_a_can_never_give_way(sets):
     assert not bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), CAN, ProbeParams())
     assert bunched(np.array([[0.0, 0.0], [0.01, 0.0]]), BOX, ProbeParams())
     assert not bunched(np.array([[0.0, 0.0], [0.15, 0.0]]), BOX, ProbeParams())
+
+
+@pytest.mark.parametrize("switch_probes", [0, 2])
+def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, switch_probes):
+    """The give-way at the end of the budget raises the limit by ``switch_probes`` for the segment taken (here
+    planning finds no reachable line, so the run ends flagged for that instead of for the budget); without
+    switch probes the policy grasps at once. It gives way once only."""
+    table = schema.read_run(Path(__file__).resolve().parents[1] / "data" / "regression" / "TC-000.parquet")
+    start = np.array([table.column("ee_start_x_m")[0].as_py(), table.column("ee_start_y_m")[0].as_py()])
+    prim = target_primitive(load_scene("TC"))[1]
+    calls = {"give_way": 0, "plan": 0}
+
+    def give_way(choices, choice, belief, *a):
+        calls["give_way"] += 1
+        return choices[-1], [], [], belief
+
+    def plan(*a, **k):
+        calls["plan"] += 1
+        return None
+
+    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
+    monkeypatch.setattr(policy_mod, "give_way_at_budget", give_way)
+    monkeypatch.setattr(policy_mod, "choose_probe", plan)
+
+    def no_act(dx, dy):
+        raise AssertionError("no probe was planned")
+
+    log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
+                               ProbeParams(budget=0, switch_probes=switch_probes))
+    assert calls["give_way"] == 1 and log.switches == 1 and log.probes == 0
+    assert calls["plan"] == (1 if switch_probes else 0)
+    assert log.flagged == ("no_reachable_probe" if switch_probes else "budget_spent")
+    assert len(log.history) == 1  # the decision's state is the taken segment's, not a second entry

@@ -9,7 +9,7 @@ from pipeline.geometry import Primitive
 from pipeline.probe.moves import return_to_start
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams
-from pipeline.probe.transit import Keepout, path_to, transit_graph
+from pipeline.probe.transit import Keepout, grasp_transit, path_to, transit_graph
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
 DOT = np.zeros((1, 2))  # a gripper of one outline point: clearances are plain distances
@@ -139,3 +139,39 @@ def test_return_to_start_stops_short_of_a_scripted_end_pressed_against_the_targe
     return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1)
     assert not np.any(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(world.moves)) < 0.0)
     assert world.here == pytest.approx([-0.1, 0.0])
+
+
+def test_grasp_transit_moves_diagonally_then_along_one_axis_as_the_script_commands():
+    way = grasp_transit(np.zeros(2), np.array([0.09, 0.03]), 0.03)
+    assert way == pytest.approx(np.array([[0.0, 0.0], [0.03, 0.03], [0.06, 0.03], [0.09, 0.03]]))
+    assert grasp_transit(np.zeros(2), np.array([0.005, 0.0]), 0.03).shape == (1, 2)  # already within reach
+
+
+def _grasp_from(pre):
+    return lambda at: grasp_transit(at, np.asarray(pre, dtype=np.float64), 0.03)
+
+
+def test_the_return_stops_at_the_nearest_position_whose_grasp_move_keeps_clear_of_the_target():
+    # The grasp will approach from -x (pre-grasp point at (-0.25, 0)): from where the probe left the gripper,
+    # (0.21, 0), its move would cross the box. Going around the top, (0, 0.15) is the first visited position
+    # from which the move passes the box's corner at more than 1.5 cm; the return stops there, short of the
+    # scripted part's end at (-0.2, 0).
+    visited, n_scripted = _scripted_around_then_across()
+    world = _World(visited[-1])
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    limits = [(np.zeros(len(visited), dtype=bool), keepout), (np.zeros(len(visited), dtype=bool), None)]
+    n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
+                        grasp_path=_grasp_from([-0.25, 0.0]))
+    assert n > 0 and world.here == pytest.approx([0.0, 0.15])
+    assert np.min(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(world.moves))) >= 0.015
+    way = grasp_transit(world.here, np.array([-0.25, 0.0]), 0.03)
+    assert np.min(keepout.link_clearance(way[:-1], way[1:])) >= 0.015
+
+
+def test_the_return_stays_put_when_the_grasp_move_from_here_keeps_clear():
+    visited, n_scripted = _scripted_around_then_across()
+    world = _World(visited[-1])
+    limits = [(np.zeros(len(visited), dtype=bool), Keepout(BOX, np.zeros(3), DOT, 0.015))]
+    n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
+                        grasp_path=_grasp_from([0.0, -0.25]))  # from (0.21, 0) down-left, below the box
+    assert n == 0 and world.moves == []

@@ -74,7 +74,8 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     out = []
     stopped: dict[tuple, tuple] = {}  # (decision, budget end) -> grasp outcome and errors, shared by budgets
     for b in budgets:
-        k = stop_decision(history, b, need, params.plan.agree_share)
+        # The run itself is the largest budget's, with the probes of a segment taken at its end.
+        k = len(history) - 1 if b >= params.budget else stop_decision(history, b, need, params.plan.agree_share)
         last = k == len(history) - 1
         rows = None if last else int(history[k]["rows"])
         # A policy still going at its budget's end may give the segment up there (the run's last decision

@@ -106,12 +106,15 @@ def first_reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | No
 
 
 def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.ndarray, Keepout | None]],
-                    attempts: int = 4) -> int:
+                    attempts: int = 4, grasp_path: Callable[[np.ndarray], np.ndarray] | None = None) -> int:
     """Retrace visited positions (not those reached in contact, nor through the keep-out) from the current one to
-    the scripted part's last position clear of the strictest keep-out (else its last position) still reachable
-    under the strictest of ``limits`` (:func:`transit_limits`) that reaches one; a contact on the way (an object
-    now lies where the gripper once passed) backs off and the visited positions within 3 cm of it are left out of
-    the next try. Returns the actions made (none if no position can be reached)."""
+    where the grasp can start: with ``grasp_path`` (a start (2,) -> the positions (M, 2) the grasp's move to its
+    pre-grasp point passes, :func:`pipeline.probe.transit.grasp_transit`), the nearest position from which that
+    move keeps the strictest keep-out's clearance from the target; else (or when none does) the scripted part's
+    last position clear of the strictest keep-out (else its last position). Either is sought under the strictest
+    of ``limits`` (:func:`transit_limits`) that reaches one. A contact on the way (an object now lies where the
+    gripper once passed) backs off and the visited positions within 3 cm of it are left out of the next try.
+    Returns the actions made (none if no position can be reached or the gripper is already there)."""
     visited = sensing.visited.copy()
     masks = [np.asarray(t, dtype=bool).copy() for t, _ in limits]
     here, n = visited[-1], 0
@@ -125,7 +128,11 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
         scripted = slice(0, sensing.n_scripted + 1)
         graphs: dict[int, tuple] = {}  # limit -> (dist, pred): each graph built once per try
         path = None
+        if grasp_path is not None and strict is not None:
+            path = _grasp_start(visited, masks, limits, graphs, params.plan.link_radius, grasp_path, strict)
         for want in (clear[scripted], np.ones(sensing.n_scripted + 1, dtype=bool)):
+            if path is not None:
+                break
             for j, (mask, (_, keepout)) in enumerate(zip(masks, limits)):
                 if j not in graphs:
                     graphs[j] = transit_graph(visited, params.plan.link_radius, mask, keepout)
@@ -134,9 +141,7 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
                 if len(free):
                     path = path_to(pred, visited, int(free[-1]))
                     break
-            if path is not None:
-                break
-        if path is None:
+        if path is None or len(path) == 0:
             break
         here, k, contact = retrace(act, here, path, params.transit_step, params.backoff)
         n += k
@@ -145,3 +150,23 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
         near = np.linalg.norm(visited - here, axis=1) < 0.03
         masks = [m | near for m in masks]
     return n
+
+
+def _grasp_start(visited: np.ndarray, masks: list, limits: list, graphs: dict, link_radius: float,
+                 grasp_path: Callable[[np.ndarray], np.ndarray], strict: Keepout) -> np.ndarray | None:
+    """The retraced path (P, 2; empty: stay) to the nearest visited position, reachable under the strictest of
+    ``limits`` with a keep-out under which one is, from which the grasp's move to its pre-grasp point keeps
+    ``strict.margin`` from the target; None if there is none."""
+    for j, (mask, (_, keepout)) in enumerate(zip(masks, limits)):
+        if keepout is None:
+            break  # transit that may touch the target is no start for a grasp that must not
+        if j not in graphs:
+            graphs[j] = transit_graph(visited, link_radius, mask, keepout)
+        dist, pred = graphs[j]
+        reach = np.flatnonzero(~mask & np.isfinite(dist))
+        # Nearest first, each candidate's grasp move checked only until one keeps clear.
+        for node in reach[np.argsort(dist[reach], kind="stable")]:
+            way = grasp_path(visited[node])
+            if len(way) < 2 or np.min(strict.link_clearance(way[:-1], way[1:])) >= strict.margin:
+                return np.zeros((0, 2)) if node == len(visited) - 1 else path_to(pred, visited, int(node))
+    return None

@@ -28,6 +28,8 @@ from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, ch
                                    pose_set)
 from pipeline.probe.moves import Act, first_reaching, guarded_move, retrace, return_to_start, transit_limits
 from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
+from pipeline.probe.set_grasp import choose_grasp
+from pipeline.probe.transit import grasp_transit
 from pipeline.retrieve.runs import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "give_way_at_budget", "bunched",
@@ -68,6 +70,9 @@ class ProbeParams:
     min_target_contacts : int
         The set agrees only once this many probe contacts are the target's (3 for a box, one fewer for a can):
         the scripted part's points have drifted, so a set resting on them alone is not trusted.
+    switch_probes : int
+        Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
+        the budget: its set rests on the scripted part's drifted points otherwise.
     method : str
         Tracking method of the policy's belief (``stucco``).
     plan : PlanParams
@@ -86,6 +91,7 @@ class ProbeParams:
     stall: int = 99
     min_span: float = 0.6
     min_target_contacts: int = 3
+    switch_probes: int = 3
     method: str = "stucco"
     plan: PlanParams = field(default_factory=PlanParams)
 
@@ -94,7 +100,7 @@ class ProbeParams:
         **{name: number(0, 0.03, lo_open=True) for name in ("coarse_step", "fine_step", "backoff", "transit_step")},
         **{name: number(0) for name in ("slow_zone", "overshoot")},
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
-        "stall": integer(0), "min_span": number(0, 1), "min_target_contacts": integer(0),
+        "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1), "min_target_contacts": integer(0),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
         "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}
 
@@ -159,7 +165,8 @@ class ProbeLog:
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
-              start: np.ndarray, params: ProbeParams = ProbeParams()) -> ProbeLog:
+              start: np.ndarray, params: ProbeParams = ProbeParams(),
+              grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -175,6 +182,10 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         The target's known shape.
     start : ndarray, shape (2,)
         Gripper position before the run's first action.
+    grasp_path : callable, optional
+        The final set -> where the grasp chosen for it will move the gripper to its pre-grasp point from a start
+        (2,) (positions (M, 2)): the return then ends where that move keeps clear of the target
+        (:func:`pipeline.probe.moves.return_to_start`).
 
     Returns
     -------
@@ -192,6 +203,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     need = required_contacts(target, params)
     log = ProbeLog()
     belief = None
+    limit, gave_way = params.budget, False  # the limit is raised once, when the segment gives way
     while True:
         if log.probes:
             t0 = time.perf_counter()
@@ -216,14 +228,24 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         share = set_share(target, belief, params.plan)
         log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                             "target_steps": list(log.target_steps)})
-        settled = share >= params.plan.agree_share and log.probes >= params.min_probes and \
-            len(log.target_steps) >= min(need, params.budget)
-        # Contacts bunched on a short stretch may all be on another, smaller object: probe across the length.
-        short = bunched(mine_now(sensing, log), target, params)
-        done = settled and not short
+        done, short = _stops(target, belief, sensing, log, need, share, params)
+        if not done and log.probes >= limit and not gave_way:
+            given = give_way_at_budget(choices, choice, belief, target, sensing, root_seed, run, log.target_steps,
+                                       params)
+            if given is not None:
+                # The budget is spent on another object: the segment taken gets probes of its own.
+                choice, log.target_steps, log.other_steps, belief = given
+                rank = next(i for i, c in enumerate(choices) if c.segment == choice.segment)
+                since, gave_way = log.probes, True
+                limit = log.probes + params.switch_probes
+                log.switches += 1
+                share = set_share(target, belief, params.plan)
+                log.history[-1] = {"rows": int(seen), "segment": int(choice.segment), "share": float(share),
+                                   "target_steps": list(log.target_steps)}
+                done, short = _stops(target, belief, sensing, log, need, share, params)
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
-        plan = None if done or log.probes >= params.budget else choose_probe(
+        plan = None if done or log.probes >= limit else choose_probe(
             target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan, obstacles,
             np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4),
             mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None,
@@ -231,24 +253,15 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                             params.plan.link_radius))
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
-        if plan is None and log.probes >= params.budget:
-            given = give_way_at_budget(choices, choice, belief, target, sensing, root_seed, run, log.target_steps,
-                                       params)
-            if given is not None:
-                choice, log.target_steps, log.other_steps, belief = given
-                log.switches += 1
-                share = set_share(target, belief, params.plan)
-                log.history[-1] = {"rows": int(seen), "segment": int(choice.segment), "share": float(share),
-                                   "target_steps": list(log.target_steps)}
-                log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
             if not log.agreed:
-                log.flagged = "budget_spent" if log.probes >= params.budget else "no_reachable_probe"
+                log.flagged = "budget_spent" if log.probes >= limit else "no_reachable_probe"
             if log.probes:
                 # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
                 # point is a straight line, which from the far side of the target would sweep it away.
                 log.actions += return_to_start(
-                    act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True))
+                    act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True),
+                    grasp_path=None if grasp_path is None else grasp_path(belief))
             return log
         here = sensing.visited[-1]
         here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
@@ -260,6 +273,17 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         log.contacts.append(bool(contact))
         log.lines.append([*map(float, plan.start), *map(float, plan.direction),
                           *_quantiles(plan.predicted, belief.weights), plan.mode == "spread"])
+
+
+def _stops(target: Primitive, belief: PoseSet, sensing: Sensing, log: ProbeLog, need: int, share: float,
+           params: ProbeParams) -> tuple[bool, bool]:
+    """(whether the policy stops, whether the target's probe contacts are bunched): it stops once the set agrees
+    on enough target contacts (``min_probes`` made) that span the box (:func:`bunched`)."""
+    settled = share >= params.plan.agree_share and log.probes >= params.min_probes and \
+        len(log.target_steps) >= min(need, params.budget)
+    # Contacts bunched on a short stretch may all be on another, smaller object: probe across the length.
+    short = bunched(mine_now(sensing, log), target, params)
+    return settled and not short, short
 
 
 def mine_now(sensing: Sensing, log: ProbeLog) -> np.ndarray:
@@ -377,7 +401,13 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
 
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     start = np.array([rows[0]["ee_start_x_m"], rows[0]["ee_start_y_m"]])
-    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, primitive_of(scene.objects[tid]), start, params)
+    prim = primitive_of(scene.objects[tid])
+
+    def grasp_path(belief: PoseSet) -> Callable[[np.ndarray], np.ndarray]:
+        pre = choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).pregrasp
+        return lambda at: grasp_transit(at, pre, scale)
+
+    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path)
     meta = {"params": params.to_dict(), **log.to_dict()}
     meta.pop("decision_s")  # wall times would make the run file differ between identical runs
     return meta, log.decision_s

@@ -20,9 +20,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.grasp import GraspParams
 from pipeline.retrieve.plausible import primitive_pose
 
-__all__ = ["Keepout", "transit_graph", "path_to"]
+__all__ = ["Keepout", "transit_graph", "path_to", "grasp_transit"]
 
 
 @dataclass(frozen=True)
@@ -125,3 +126,21 @@ def path_to(pred: np.ndarray, visited: np.ndarray, node: int) -> np.ndarray:
     while pred[out[-1]] >= 0:
         out.append(int(pred[out[-1]]))
     return visited[out[::-1]][1:] if len(out) > 1 else visited[[node]]
+
+
+def grasp_transit(start: np.ndarray, pre: np.ndarray, scale: float, params: GraspParams = GraspParams()
+                  ) -> np.ndarray:
+    """Where the grasp script's move to its pre-grasp point takes the gripper, predicted open-loop: from
+    ``start`` (2,) each move is ``pre - here`` clipped to ``scale`` (m) per axis (a diagonal first, then along one
+    axis), until within ``reach_tolerance`` of ``pre`` or after ``max_moves``, as :func:`pipeline.grasp.grasp_with`
+    commands it. Returns the positions (M + 1, 2), metres, ``start`` first."""
+    here = np.asarray(start, dtype=np.float64).reshape(2).copy()
+    pre = np.asarray(pre, dtype=np.float64).reshape(2)
+    out = [here.copy()]
+    for _ in range(params.max_moves):
+        d = pre - here
+        if math.hypot(*d) < params.reach_tolerance:
+            break
+        here = here + np.clip(d / scale, -1.0, 1.0) * scale
+        out.append(here.copy())
+    return np.array(out)
