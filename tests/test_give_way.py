@@ -115,3 +115,17 @@ def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, 
     assert calls["plan"] == (1 if switch_probes else 0)
     assert log.flagged == ("no_reachable_probe" if switch_probes else "budget_spent")
     assert len(log.history) == 1  # the decision's state is the taken segment's, not a second entry
+
+
+def test_a_smaller_budget_stops_where_the_policy_would_have_stopped():
+    from pipeline.probe.bench import stop_decision
+
+    # Decision 1 agrees on 3 target contacts, but they are bunched: the policy went on (stop false) until 3.
+    history = [{"share": 0.2, "target_steps": [], "stop": False},
+               {"share": 0.97, "target_steps": [1, 2, 3], "stop": False},
+               {"share": 0.5, "target_steps": [1, 2, 3, 4], "stop": False},
+               {"share": 0.99, "target_steps": [1, 2, 3, 4, 5], "stop": True}]
+    assert [stop_decision(history, b, 3, 0.95) for b in (0, 1, 2, 4, 8)] == [0, 1, 2, 3, 3]
+    # A run file without the verdict: the first agreeing decision with enough contacts.
+    old = [{k: v for k, v in h.items() if k != "stop"} for h in history]
+    assert [stop_decision(old, b, 3, 0.95) for b in (0, 1, 2, 4, 8)] == [0, 1, 1, 1, 1]

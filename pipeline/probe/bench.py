@@ -35,11 +35,12 @@ FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_e
 
 
 def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> int:
-    """The decision (= probes made) at which the policy with ``budget`` stops: the first whose set agrees
-    (``share`` >= ``agree``) with at least min(``need``, budget) target contacts, else the budget (capped at the
-    decisions recorded)."""
+    """The decision (= probes made) at which the policy with ``budget`` stops: the first the policy marked
+    ``stop`` (its set agrees on enough target contacts that span the box), else the budget (capped at the
+    decisions recorded). Run files written before ``stop`` was recorded: the first decision whose set agrees
+    (``share`` >= ``agree``) with at least min(``need``, budget) target contacts."""
     for k, h in enumerate(history[:budget + 1]):
-        if h["share"] >= agree and len(h["target_steps"]) >= min(need, budget):
+        if h["stop"] if "stop" in h else h["share"] >= agree and len(h["target_steps"]) >= min(need, budget):
             return k
     return min(budget, len(history) - 1)
 

@@ -136,9 +136,10 @@ class ProbeLog:
     target_steps, other_steps : list of int
         Actions whose isolated contact the policy attributed to the target / to something else.
     history : list of dict
-        At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``) and
-        the probe contacts attributed to it, so the set of any decision can be recomputed (the budget curve of
-        ``stucco bench probe``).
+        At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``), the
+        probe contacts attributed to it and whether the policy stops there (``stop``), so the set of any decision
+        can be recomputed and the decision a smaller budget stops at found (the budget curve of ``stucco bench
+        probe``).
     switches : int
         Times the probes showed the chosen segment was not the target's and the next one was taken.
     lines : list of list
@@ -229,6 +230,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                             "target_steps": list(log.target_steps)})
         done, short = _stops(target, belief, sensing, log, need, share, params)
+        log.history[-1]["stop"] = bool(done)
         if not done and log.probes >= limit and not gave_way:
             given = give_way_at_budget(choices, choice, belief, target, sensing, root_seed, run, log.target_steps,
                                        params)
@@ -243,6 +245,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 log.history[-1] = {"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                                    "target_steps": list(log.target_steps)}
                 done, short = _stops(target, belief, sensing, log, need, share, params)
+                log.history[-1]["stop"] = bool(done)
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
         plan = None if done or log.probes >= limit else choose_probe(
