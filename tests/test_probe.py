@@ -333,3 +333,17 @@ def test_active_row_is_computed_once_for_the_estimators_of_a_job(monkeypatch):
     retrieval.active_row(info, "stucco", 1, False, GraspParams())
     retrieval.active_row(info, "stucco", 1, False, GraspParams(settle_steps=239))
     assert len(calls) == 3
+
+
+@pytest.mark.parametrize("held, probes_expected", [(1.0, 0), (0.5, None)])
+def test_a_wide_set_that_one_grasp_holds_stops_the_probing(stored_run, monkeypatch, held, probes_expected):
+    """The poses disagree (agreement 0.2), but the grasp chosen for the set holds ``held`` of it: at 1.0 the
+    policy stops at once, unflagged; at 0.5 it goes on (here the budget is 0, so it stops flagged)."""
+    table, start, prim = stored_run
+    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
+    log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start,
+                    ProbeParams(min_target_contacts=0, budget=0 if probes_expected is None else 8),
+                    grasp_share=lambda belief: held)
+    assert log.probes == 0 and not log.agreed
+    assert log.history[0]["stop"] == (held == 1.0) and log.history[0]["held"] == held
+    assert log.flagged == ("" if held == 1.0 else "budget_spent")

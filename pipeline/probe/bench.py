@@ -36,7 +36,7 @@ FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_e
 
 def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> int:
     """The decision (= probes made) at which the policy with ``budget`` stops: the first the policy marked
-    ``stop`` (its set agrees on enough target contacts that span the box), else the budget (capped at the
+    ``stop`` (its set agrees, or one grasp holds it, on enough target contacts that span the box), else the budget (capped at the
     decisions recorded). Run files written before ``stop`` was recorded: the first decision whose set agrees
     (``share`` >= ``agree``) with at least min(``need``, budget) target contacts."""
     for k, h in enumerate(history[:budget + 1]):
@@ -91,7 +91,8 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
                         outcome=res.outcome, position_error_m=pe, yaw_error_rad=ye,
                         decision_s_median=float(np.median(dec)) if dec.size else None,
                         decision_s_max=float(np.max(dec)) if dec.size else None, moved_m=st["moved_m"],
-                        turned_rad=st["turned_rad"], wide=history[k]["share"] < params.plan.agree_share))
+                        turned_rad=st["turned_rad"],
+                        wide=max(history[k]["share"], history[k].get("held", 0.0)) < params.plan.agree_share))
     return out
 
 

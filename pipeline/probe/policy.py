@@ -130,14 +130,16 @@ class ProbeLog:
     agreed : bool
         The set agrees (share >= ``agree_share``).
     flagged : str
-        Why the grasp goes ahead on a set that does not agree (``budget_spent``, ``no_reachable_probe``), or "".
+        Why the grasp goes ahead without the policy's stop verdict (``budget_spent``, ``no_reachable_probe``), or
+        "".
     segment : int
         Segment of the final set (-1: none fitted).
     target_steps, other_steps : list of int
         Actions whose isolated contact the policy attributed to the target / to something else.
     history : list of dict
         At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``), the
-        probe contacts attributed to it and whether the policy stops there (``stop``), so the set of any decision
+        probe contacts attributed to it, the share of the set its grasp holds (``held``) and whether the policy
+        stops there (``stop``), so the set of any decision
         can be recomputed and the decision a smaller budget stops at found (the budget curve of ``stucco bench
         probe``).
     switches : int
@@ -167,7 +169,8 @@ class ProbeLog:
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
               start: np.ndarray, params: ProbeParams = ProbeParams(),
-              grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None) -> ProbeLog:
+              grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None,
+              grasp_share: Callable[[PoseSet], float] | None = None) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -187,6 +190,10 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         The final set -> where the grasp chosen for it will move the gripper to its pre-grasp point from a start
         (2,) (positions (M, 2)): the return then ends where that move keeps clear of the target
         (:func:`pipeline.probe.moves.return_to_start`).
+    grasp_share : callable, optional
+        A set -> the likelihood share of it that the grasp chosen for it holds
+        (:func:`pipeline.probe.set_grasp.choose_grasp`): the policy also stops once that share reaches
+        ``agree_share``, for what the probes must settle is the grasp, not the pose.
 
     Returns
     -------
@@ -229,8 +236,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         share = set_share(target, belief, params.plan)
         log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                             "target_steps": list(log.target_steps)})
-        done, short = _stops(target, belief, sensing, log, need, share, params)
-        log.history[-1]["stop"] = bool(done)
+        held = grasp_share(belief) if grasp_share is not None else 0.0
+        done, short = _stops(target, belief, sensing, log, need, max(share, held), params)
+        log.history[-1].update(stop=bool(done), held=float(held))
         if not done and log.probes >= limit and not gave_way:
             given = give_way_at_budget(choices, choice, belief, target, sensing, root_seed, run, log.target_steps,
                                        params)
@@ -244,8 +252,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 share = set_share(target, belief, params.plan)
                 log.history[-1] = {"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                                    "target_steps": list(log.target_steps)}
-                done, short = _stops(target, belief, sensing, log, need, share, params)
-                log.history[-1]["stop"] = bool(done)
+                held = grasp_share(belief) if grasp_share is not None else 0.0
+                done, short = _stops(target, belief, sensing, log, need, max(share, held), params)
+                log.history[-1].update(stop=bool(done), held=float(held))
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
         plan = None if done or log.probes >= limit else choose_probe(
@@ -257,7 +266,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
-            if not log.agreed:
+            if not done:
                 log.flagged = "budget_spent" if log.probes >= limit else "no_reachable_probe"
             if log.probes:
                 # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
@@ -280,8 +289,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
 
 def _stops(target: Primitive, belief: PoseSet, sensing: Sensing, log: ProbeLog, need: int, share: float,
            params: ProbeParams) -> tuple[bool, bool]:
-    """(whether the policy stops, whether the target's probe contacts are bunched): it stops once the set agrees
-    on enough target contacts (``min_probes`` made) that span the box (:func:`bunched`)."""
+    """(whether the policy stops, whether the target's probe contacts are bunched): it stops once ``share`` (the
+    set's agreement, or the share of it one grasp holds) reaches ``agree_share`` on enough target contacts
+    (``min_probes`` made) that span the box (:func:`bunched`)."""
     settled = share >= params.plan.agree_share and log.probes >= params.min_probes and \
         len(log.target_steps) >= min(need, params.budget)
     # Contacts bunched on a short stretch may all be on another, smaller object: probe across the length.
@@ -410,7 +420,10 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
         pre = choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).pregrasp
         return lambda at: grasp_transit(at, pre, scale)
 
-    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path)
+    def grasp_share(belief: PoseSet) -> float:
+        return choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).share
+
+    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path, grasp_share)
     meta = {"params": params.to_dict(), **log.to_dict()}
     meta.pop("decision_s")  # wall times would make the run file differ between identical runs
     return meta, log.decision_s

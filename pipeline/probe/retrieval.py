@@ -40,7 +40,8 @@ class ActiveResult:
     probes : int
         Probes the policy made (0 for a run without probes).
     notes : list of str
-        ``wide_set`` when the set does not agree (the grasp went ahead anyway), ``no_segment``.
+        ``wide_set`` when the set does not agree and no grasp holds ``agree_share`` of it (the grasp went ahead
+        anyway), ``no_segment``.
     """
 
     pose: np.ndarray
@@ -97,7 +98,8 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
     belief, meta = active_set(info, root_seed, method)
     g = choose_grasp(info.scene, info.target, belief.poses, belief.weights, belief.best, params)
     res = simulate_set_grasp(info.scene, info.final_poses, info.final_ee, g, params) if grasp else None
-    notes = list(belief.notes) + (["wide_set"] if set_share(info.target, belief, plan) < plan.agree_share else [])
+    wide = set_share(info.target, belief, plan) < plan.agree_share and g.share < plan.agree_share
+    notes = list(belief.notes) + (["wide_set"] if wide else [])
     return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g, result=res,
                         probes=int(meta.get("probes", 0)), notes=notes)
 
