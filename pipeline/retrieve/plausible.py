@@ -235,14 +235,17 @@ def compiled_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
 
 
 def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
-           others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
+           others: np.ndarray, params: PlausibleParams, terms_of=None) -> tuple[np.ndarray, Terms]:
     """Batched Levenberg-Marquardt from primitive poses (B, 3); steps capped at 2 cm and 0.2 rad.
 
-    Returns the refined poses (B, 3), yaw wrapped to [-pi, pi), and their :class:`Terms`.
+    ``terms_of`` evaluates the cost terms (the signature of :func:`compiled_terms`, the default); the pushtrack
+    estimator passes one where every pose has its own contact points. Returns the refined poses (B, 3), yaw
+    wrapped to [-pi, pi), and their :class:`Terms`.
     """
+    evaluate = compiled_terms if terms_of is None else terms_of
     pose = np.array(init, dtype=np.float64)
     lam = np.full(len(pose), 1e-3)
-    terms, H, grad = compiled_terms(prim, pose, points, sigma, free, others, params, jacobian=True)
+    terms, H, grad = evaluate(prim, pose, points, sigma, free, others, params, jacobian=True)
     cost = terms.total
     eye = np.eye(3)
     for _ in range(params.iterations):
@@ -253,7 +256,7 @@ def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndar
         shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
                                                                                             1e-12)))
         trial = pose + step * shrink[:, None]
-        t2, H2, g2 = compiled_terms(prim, trial, points, sigma, free, others, params, jacobian=True)
+        t2, H2, g2 = evaluate(prim, trial, points, sigma, free, others, params, jacobian=True)
         better = np.isfinite(t2.total) & (t2.total < cost)
         pose = np.where(better[:, None], trial, pose)
         cost = np.where(better, t2.total, cost)
@@ -261,7 +264,7 @@ def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndar
         grad = np.where(better[:, None], g2, grad)
         lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
     pose[:, 2] = wrap_angle(pose[:, 2])
-    return pose, compiled_terms(prim, pose, points, sigma, free, others, params)
+    return pose, evaluate(prim, pose, points, sigma, free, others, params)
 
 
 def initial_poses(prim: Primitive, points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

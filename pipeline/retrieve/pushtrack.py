@@ -17,19 +17,18 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.isolate import isolate_run, isolation_surface
-from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate, wrap_angle
+from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, Terms, com_pose, primitive_pose
+from pipeline.retrieve.plausible import PlausibleParams, Terms, com_pose, primitive_pose, refine
 from pipeline.retrieve.plausible_kernel import FREE, piece_terms
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.pushtrack_kernel import contact_terms_each
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
-from pipeline.spd import solve_spd
 
 __all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "terms_each", "refine_each", "refine_final",
            "final_pose",
@@ -146,32 +145,11 @@ def terms_each(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma: np.
 
 def refine_each(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
                 others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
-    """:func:`pipeline.retrieve.plausible.refine` (batched Levenberg-Marquardt from primitive poses (B, 3), steps
-    capped at 2 cm and 0.2 rad) with each pose's own contact points (B, P, 2) (:func:`terms_each`); row b gives
-    the bits ``refine`` gives for ``init[b]`` and ``points[b]`` alone. Returns the refined poses (B, 3), yaw
-    wrapped to [-pi, pi), and their :class:`~pipeline.retrieve.plausible.Terms`."""
-    pose = np.array(init, dtype=np.float64)
-    lam = np.full(len(pose), 1e-3)
-    terms, H, grad = terms_each(prim, pose, points, sigma, free, others, params, jacobian=True)
-    cost = terms.total
-    eye = np.eye(3)
-    for _ in range(params.iterations):
-        diag = np.maximum(np.diagonal(H, axis1=1, axis2=2), 1e-9)
-        A = H + lam[:, None, None] * (eye * diag[:, None, :]) + 1e-12 * eye
-        step = -solve_spd(A, grad)
-        move = np.linalg.norm(step[:, :2], axis=1)
-        shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
-                                                                                            1e-12)))
-        trial = pose + step * shrink[:, None]
-        t2, H2, g2 = terms_each(prim, trial, points, sigma, free, others, params, jacobian=True)
-        better = np.isfinite(t2.total) & (t2.total < cost)
-        pose = np.where(better[:, None], trial, pose)
-        cost = np.where(better, t2.total, cost)
-        H = np.where(better[:, None, None], H2, H)
-        grad = np.where(better[:, None], g2, grad)
-        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
-    pose[:, 2] = wrap_angle(pose[:, 2])
-    return pose, terms_each(prim, pose, points, sigma, free, others, params)
+    """:func:`pipeline.retrieve.plausible.refine` (batched Levenberg-Marquardt from primitive poses (B, 3)) with
+    each pose's own contact points (B, P, 2) (:func:`terms_each`); row b gives the bits ``refine`` gives for
+    ``init[b]`` and ``points[b]`` alone. Returns the refined poses (B, 3), yaw wrapped to [-pi, pi), and their
+    :class:`~pipeline.retrieve.plausible.Terms`."""
+    return refine(prim, init, points, sigma, free, others, params, terms_of=terms_each)
 
 
 def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
