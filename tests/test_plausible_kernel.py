@@ -72,6 +72,7 @@ def test_plain_python_kernel_gives_the_compiled_bits(monkeypatch):
     params = PlausibleParams()
     compiled = [compiled_terms(prim, pose, pts, sigma, free, others, params, jacobian=True) for prim in (BOX, CAN)]
     monkeypatch.setattr(plausible_kernel, "pairwise_sum", plausible_kernel.pairwise_sum.py_func)
+    monkeypatch.setattr(plausible_kernel, "local_sdf", plausible_kernel.local_sdf.py_func)
     monkeypatch.setattr(plausible, "piece_terms", plausible_kernel.piece_terms.py_func)
     for prim, (t, H, g) in zip((BOX, CAN), compiled):
         t2, H2, g2 = compiled_terms(prim, pose, pts, sigma, free, others, params, jacobian=True)

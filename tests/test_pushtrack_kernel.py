@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import Primitive, primitive_sdf, rotate
-from pipeline.retrieve import pushmodel, pushtrack, pushtrack_kernel
+from pipeline.retrieve import plausible_kernel, pushmodel, pushtrack, pushtrack_kernel
 from pipeline.retrieve.plausible import PlausibleParams, compiled_terms, refine
 from pipeline.retrieve.pushmodel import PushTrackParams, free_loglik
 from pipeline.retrieve.pushtrack import refine_each, terms_each
@@ -138,7 +138,10 @@ def test_plain_python_kernels_give_the_compiled_bits(monkeypatch):
     compiled = [(free_loglik(prim, pose, free, P), terms_each(prim, pose, pts, sigma, free, free, LM, True))
                 for prim in (BOX, CAN)]
     monkeypatch.setattr(pushtrack_kernel, "pairwise_sum", pushtrack_kernel.pairwise_sum.py_func)
-    monkeypatch.setattr(pushtrack_kernel, "_sdf", pushtrack_kernel._sdf.py_func)
+    monkeypatch.setattr(pushtrack_kernel, "local_sdf", pushtrack_kernel.local_sdf.py_func)
+    monkeypatch.setattr(pushtrack_kernel, "piece_terms", pushtrack_kernel.piece_terms.py_func)
+    monkeypatch.setattr(plausible_kernel, "local_sdf", plausible_kernel.local_sdf.py_func)
+    monkeypatch.setattr(plausible_kernel, "pairwise_sum", plausible_kernel.pairwise_sum.py_func)
     monkeypatch.setattr(pushmodel, "free_depth_sums", pushtrack_kernel.free_depth_sums.py_func)
     monkeypatch.setattr(pushtrack, "contact_terms_each", pushtrack_kernel.contact_terms_each.py_func)
     for prim, (ll, (t, H, g)) in zip((BOX, CAN), compiled):

@@ -23,10 +23,35 @@ from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
 
-__all__ = ["pairwise_sum", "piece_terms", "warm_up", "CONTACT", "FREE"]
+__all__ = ["pairwise_sum", "piece_terms", "local_sdf", "warm_up", "CONTACT", "FREE"]
 
 #: Kinds of a term (the ``kind`` argument of :func:`piece_terms`).
 CONTACT, FREE = 0, 1
+
+
+@njit(cache=True)
+def local_sdf(cylinder, hx, hy, qx, qy):
+    """Signed distance (m) of a point (qx, qy) in the primitive's frame and its gradient there, as
+    :func:`pipeline.geometry.primitive_sdf` computes them (a cylinder's centre and a box's medial axis included)."""
+    if cylinder:
+        r = math.sqrt(qx * qx + qy * qy)
+        if r > 1e-12:
+            return r - hx, qx / r, qy / r
+        return r - hx, 1.0, 0.0
+    ax = abs(qx) - hx
+    ay = abs(qy) - hy
+    sx = 1.0 if qx >= 0.0 else -1.0
+    sy = 1.0 if qy >= 0.0 else -1.0
+    ox = max(ax, 0.0)
+    oy = max(ay, 0.0)
+    out = math.sqrt(ox * ox + oy * oy)
+    first = not (ay > ax)  # np.argmax: the first of equal values
+    sd = out + min(ax if first else ay, 0.0)
+    if out > 0.0:
+        return sd, ox * sx / out, oy * sy / out
+    if first:
+        return sd, sx, 0.0
+    return sd, 0.0, sy
 
 
 @njit(cache=True)
@@ -64,37 +89,7 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
         for p in range(P):
             dx = pts[p, 0] - px
             dy = pts[p, 1] - py
-            qx = c * dx + s * dy
-            qy = -s * dx + c * dy
-            if cylinder:
-                r = math.sqrt(qx * qx + qy * qy)
-                if r > 1e-12:
-                    lx = qx / r
-                    ly = qy / r
-                else:
-                    lx = 1.0
-                    ly = 0.0
-                sd = r - hx
-            else:
-                ax = abs(qx) - hx
-                ay = abs(qy) - hy
-                sx = 1.0 if qx >= 0.0 else -1.0
-                sy = 1.0 if qy >= 0.0 else -1.0
-                ox = max(ax, 0.0)
-                oy = max(ay, 0.0)
-                out = math.sqrt(ox * ox + oy * oy)
-                first = not (ay > ax)  # np.argmax: the first of equal values
-                inside = min(ax if first else ay, 0.0)
-                sd = out + inside
-                if out > 0.0:
-                    lx = ox * sx / out
-                    ly = oy * sy / out
-                elif first:
-                    lx = sx
-                    ly = 0.0
-                else:
-                    lx = 0.0
-                    ly = sy
+            sd, lx, ly = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
             if kind == CONTACT:
                 u = sd / sigma[p]
                 scratch[p] = half_c2 * u * u / (c2 + u * u)

@@ -20,33 +20,9 @@ import numpy as np
 from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
+from pipeline.retrieve.plausible_kernel import CONTACT, local_sdf, piece_terms
 
 __all__ = ["free_depth_sums", "contact_terms_each", "warm_up"]
-
-
-@njit(cache=True)
-def _sdf(cylinder, hx, hy, qx, qy):
-    """Signed distance (m) of a point (qx, qy) in the primitive's frame and its gradient there, as
-    :func:`pipeline.geometry.primitive_sdf` computes them (a cylinder's centre and a box's medial axis included)."""
-    if cylinder:
-        r = math.sqrt(qx * qx + qy * qy)
-        if r > 1e-12:
-            return r - hx, qx / r, qy / r
-        return r - hx, 1.0, 0.0
-    ax = abs(qx) - hx
-    ay = abs(qy) - hy
-    sx = 1.0 if qx >= 0.0 else -1.0
-    sy = 1.0 if qy >= 0.0 else -1.0
-    ox = max(ax, 0.0)
-    oy = max(ay, 0.0)
-    out = math.sqrt(ox * ox + oy * oy)
-    first = not (ay > ax)  # np.argmax: the first of equal values
-    sd = out + min(ax if first else ay, 0.0)
-    if out > 0.0:
-        return sd, ox * sx / out, oy * sy / out
-    if first:
-        return sd, sx, 0.0
-    return sd, 0.0, sy
 
 
 @njit(cache=True)
@@ -86,7 +62,7 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
             if r2 < d2 < math.inf:  # (an infinite offset takes numpy's path: its NaNs)
                 scratch[p] = 0.0
                 continue
-            sd, _, _ = _sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
+            sd, _, _ = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
             r = min(sd + tol, 0.0) / sigma
             scratch[p] = r * r
         out[n] = pairwise_sum(scratch, 0, F)
@@ -97,8 +73,8 @@ def contact_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2
                        scratch):
     """The plausible estimator's contact term (Geman-McClure of sd / sigma) of B primitive poses, pose b with its
     own points ``pts[b]``: the plain sum over the points into ``cost`` (B,), and with ``jacobian`` its
-    Gauss-Newton normal matrix into ``H`` (B, 3, 3) and gradient into ``grad`` (B, 3) (the contact branch of
-    :func:`pipeline.retrieve.plausible_kernel.piece_terms`, operation by operation).
+    Gauss-Newton normal matrix into ``H`` (B, 3, 3) and gradient into ``grad`` (B, 3): the contact branch of
+    :func:`pipeline.retrieve.plausible_kernel.piece_terms`, called once per pose.
 
     Parameters
     ----------
@@ -110,59 +86,9 @@ def contact_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2
         c^2 / 2 and c^2 for the outlier scale c in sigmas.
     scratch : ndarray, shape (P,)
     """
-    B = pose.shape[0]
-    P = pts.shape[1]
-    for b in range(B):
-        c = cos_t[b]
-        s = sin_t[b]
-        px = pose[b, 0]
-        py = pose[b, 1]
-        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
-        g0 = g1 = g2 = 0.0
-        for p in range(P):
-            dx = pts[b, p, 0] - px
-            dy = pts[b, p, 1] - py
-            sd, lx, ly = _sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
-            u = sd / sigma[p]
-            scratch[p] = half_c2 * u * u / (c2 + u * u)
-            if jacobian:
-                v = c2 / (c2 + u * u)
-                w = v * v
-                scale = 1.0 / sigma[p]
-                gx = c * lx - s * ly
-                gy = s * lx + c * ly
-                j0 = -gx * scale
-                j1 = -gy * scale
-                j2 = (gx * dy - gy * dx) * scale
-                w0 = j0 * w
-                w1 = j1 * w
-                w2 = j2 * w
-                h00 += w0 * j0
-                h01 += w0 * j1
-                h02 += w0 * j2
-                h10 += w1 * j0
-                h11 += w1 * j1
-                h12 += w1 * j2
-                h20 += w2 * j0
-                h21 += w2 * j1
-                h22 += w2 * j2
-                g0 += w0 * u
-                g1 += w1 * u
-                g2 += w2 * u
-        cost[b] = pairwise_sum(scratch, 0, P)
-        if jacobian:
-            H[b, 0, 0] = h00
-            H[b, 0, 1] = h01
-            H[b, 0, 2] = h02
-            H[b, 1, 0] = h10
-            H[b, 1, 1] = h11
-            H[b, 1, 2] = h12
-            H[b, 2, 0] = h20
-            H[b, 2, 1] = h21
-            H[b, 2, 2] = h22
-            grad[b, 0] = g0
-            grad[b, 1] = g1
-            grad[b, 2] = g2
+    for b in range(pose.shape[0]):
+        piece_terms(cylinder, hx, hy, pose[b:b + 1], cos_t[b:b + 1], sin_t[b:b + 1], pts[b], sigma, CONTACT,
+                    half_c2, c2, 0.0, 1.0, 1.0, 0.0, jacobian, cost[b:b + 1], H[b:b + 1], grad[b:b + 1], scratch)
 
 
 def warm_up() -> None:
