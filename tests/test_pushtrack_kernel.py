@@ -1,8 +1,8 @@
 """The pushtrack estimator's compiled loops (pipeline/retrieve/pushtrack_kernel.py) give the numpy forms' bits.
 
 The free-space likelihood of the filter against the numpy form it replaced (:func:`free_loglik_numpy`), and the
-batched refinement (:func:`~pipeline.retrieve.pushtrack.refine_each`, each particle with its own contacts) against
-the plausible estimator's one-particle :func:`~pipeline.retrieve.plausible.refine` it replaced. Equality is exact
+batched refinement (:func:`~pipeline.retrieve.plausible.refine` with (B, P, 2) points, each particle with its own
+contacts) against the one-particle refinement it replaced. Equality is exact
 (``assert_array_equal``): a last-bit difference in a weight or a cost could flip a resampling draw or a near-tie
 and so change a reported pose.
 """
@@ -12,10 +12,9 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import Primitive, primitive_sdf, rotate
-from pipeline.retrieve import plausible_kernel, pushmodel, pushtrack, pushtrack_kernel
+from pipeline.retrieve import plausible, plausible_kernel, pushmodel, pushtrack_kernel
 from pipeline.retrieve.plausible import PlausibleParams, compiled_terms, refine
 from pipeline.retrieve.pushmodel import PushTrackParams, free_loglik
-from pipeline.retrieve.pushtrack import refine_each, terms_each
 
 BOX = Primitive(kind="box", half=(0.05, 0.08), centre=np.array([0.004, -0.002]), yaw=0.3, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")
@@ -101,8 +100,8 @@ def test_each_particles_terms_and_refinement_are_its_own_one_particle_fit(prim, 
     pose = _poses(rng, n)
     pts, sigma = _contacts(rng, n, t)
     free, others = rng.normal(0.0, 0.08, (n_free, 2)), rng.normal(0.0, 0.08, (n_others, 2))
-    terms, H, g = terms_each(prim, pose, pts, sigma, free, others, LM, jacobian=True)
-    refined, rterms = refine_each(prim, pose, pts, sigma, free, others, LM)
+    terms, H, g = compiled_terms(prim, pose, pts, sigma, free, others, LM, jacobian=True)
+    refined, rterms = refine(prim, pose, pts, sigma, free, others, LM)
     for b in range(n):
         t1, H1, g1 = compiled_terms(prim, pose[b:b + 1], pts[b], sigma, free, others, LM, jacobian=True)
         for name in ("contact", "free", "others"):
@@ -121,7 +120,7 @@ def test_coincident_contacts_and_a_contact_at_the_centre():
         pts = np.zeros((3, 6, 2))
         pts[1] = [0.07, 0.01]
         sigma = np.full(6, 0.004)
-        refined, terms = refine_each(prim, pose, pts, sigma, np.zeros((0, 2)), np.zeros((0, 2)), LM)
+        refined, terms = refine(prim, pose, pts, sigma, np.zeros((0, 2)), np.zeros((0, 2)), LM)
         for b in range(3):
             r1, t1 = refine(prim, pose[b:b + 1], pts[b], sigma, np.zeros((0, 2)), np.zeros((0, 2)), LM)
             np.testing.assert_array_equal(refined[b:b + 1], r1)
@@ -135,18 +134,18 @@ def test_plain_python_kernels_give_the_compiled_bits(monkeypatch):
     pose = _poses(rng, 4)
     free = rng.normal(0.0, 0.06, (20, 2))
     pts, sigma = _contacts(rng, 4, 5)
-    compiled = [(free_loglik(prim, pose, free, P), terms_each(prim, pose, pts, sigma, free, free, LM, True))
+    compiled = [(free_loglik(prim, pose, free, P), compiled_terms(prim, pose, pts, sigma, free, free, LM, True))
                 for prim in (BOX, CAN)]
     monkeypatch.setattr(pushtrack_kernel, "pairwise_sum", pushtrack_kernel.pairwise_sum.py_func)
     monkeypatch.setattr(pushtrack_kernel, "local_sdf", pushtrack_kernel.local_sdf.py_func)
-    monkeypatch.setattr(pushtrack_kernel, "piece_terms", pushtrack_kernel.piece_terms.py_func)
     monkeypatch.setattr(plausible_kernel, "local_sdf", plausible_kernel.local_sdf.py_func)
     monkeypatch.setattr(plausible_kernel, "pairwise_sum", plausible_kernel.pairwise_sum.py_func)
     monkeypatch.setattr(pushmodel, "free_depth_sums", pushtrack_kernel.free_depth_sums.py_func)
-    monkeypatch.setattr(pushtrack, "contact_terms_each", pushtrack_kernel.contact_terms_each.py_func)
+    monkeypatch.setattr(plausible, "piece_terms_each", plausible_kernel.piece_terms_each.py_func)
+    monkeypatch.setattr(plausible_kernel, "piece_terms", plausible_kernel.piece_terms.py_func)
     for prim, (ll, (t, H, g)) in zip((BOX, CAN), compiled):
         np.testing.assert_array_equal(free_loglik(prim, pose, free, P), ll)
-        t2, H2, g2 = terms_each(prim, pose, pts, sigma, free, free, LM, True)
+        t2, H2, g2 = compiled_terms(prim, pose, pts, sigma, free, free, LM, True)
         np.testing.assert_array_equal(t2.total, t.total)
         np.testing.assert_array_equal(H2, H)
         np.testing.assert_array_equal(g2, g)

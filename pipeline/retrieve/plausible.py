@@ -35,7 +35,7 @@ from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.spd import solve_spd
 from pipeline.retrieve.model import outline_point
-from pipeline.retrieve.plausible_kernel import CONTACT, FREE, piece_terms
+from pipeline.retrieve.plausible_kernel import CONTACT, FREE, piece_terms, piece_terms_each
 
 __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
            "fit_segment", "consensus", "com_pose", "primitive_pose"]
@@ -206,7 +206,8 @@ def evaluate_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
 def compiled_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
                    others: np.ndarray, params: PlausibleParams, jacobian: bool = False):
     """:func:`evaluate_terms` through the compiled kernel (:mod:`pipeline.retrieve.plausible_kernel`): the same
-    bits, without the (B, P, 3, 3) temporaries."""
+    bits, without the (B, P, 3, 3) temporaries. ``points`` may also be (B, P, 2), each pose with its own contact
+    points (the pushtrack estimator's particles): row b then has the bits of pose b with ``points[b]`` alone."""
     pose = np.ascontiguousarray(pose, dtype=np.float64)
     B = len(pose)
     yaw = pose[:, 2, None]  # the view rotate() takes its cosines from in evaluate_terms: the same numpy call
@@ -216,16 +217,21 @@ def compiled_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
     hy = prim.half[1] if len(prim.half) > 1 else 0.0
     costs, H, grad = [], np.zeros((B, 3, 3)), np.zeros((B, 3))
     for pts, kind in ((points, "contact"), (free, "free"), (others, "others")):
-        if len(pts) == 0:
+        if len(pts) == 0 or np.shape(pts)[-2] == 0:
             costs.append(np.zeros(B))
             continue
         cost, h, g = np.empty(B), np.empty((B, 3, 3)), np.empty((B, 3))
-        tol = params.free_tolerance if kind == "free" else params.other_tolerance
-        piece_terms(prim.kind == "cylinder", prim.half[0], hy, pose, cos_t, sin_t,
-                    np.ascontiguousarray(pts, dtype=np.float64),
-                    np.ascontiguousarray(sigma if kind == "contact" else np.zeros(0), dtype=np.float64),
-                    CONTACT if kind == "contact" else FREE, 0.5 * c2, c2, tol, s0, 1.0 / s0, params.free_weight,
-                    jacobian, cost, h, g, np.empty(len(pts)))
+        pts = np.ascontiguousarray(pts, dtype=np.float64)
+        if pts.ndim == 3:
+            piece_terms_each(prim.kind == "cylinder", prim.half[0], hy, pose, cos_t, sin_t, pts,
+                             np.ascontiguousarray(sigma, dtype=np.float64), 0.5 * c2, c2, jacobian, cost, h, g,
+                             np.empty(pts.shape[1]))
+        else:
+            tol = params.free_tolerance if kind == "free" else params.other_tolerance
+            piece_terms(prim.kind == "cylinder", prim.half[0], hy, pose, cos_t, sin_t, pts,
+                        np.ascontiguousarray(sigma if kind == "contact" else np.zeros(0), dtype=np.float64),
+                        CONTACT if kind == "contact" else FREE, 0.5 * c2, c2, tol, s0, 1.0 / s0, params.free_weight,
+                        jacobian, cost, h, g, np.empty(len(pts)))
         costs.append(cost if kind == "contact" else params.free_weight * 0.5 * cost)
         if jacobian:
             H += h
@@ -235,17 +241,15 @@ def compiled_terms(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma:
 
 
 def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
-           others: np.ndarray, params: PlausibleParams, terms_of=None) -> tuple[np.ndarray, Terms]:
+           others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
     """Batched Levenberg-Marquardt from primitive poses (B, 3); steps capped at 2 cm and 0.2 rad.
 
-    ``terms_of`` evaluates the cost terms (the signature of :func:`compiled_terms`, the default); the pushtrack
-    estimator passes one where every pose has its own contact points. Returns the refined poses (B, 3), yaw
-    wrapped to [-pi, pi), and their :class:`Terms`.
+    ``points`` (P, 2), or (B, P, 2) with each pose's own (:func:`compiled_terms`). Returns the refined poses (B, 3),
+    yaw wrapped to [-pi, pi), and their :class:`Terms`.
     """
-    evaluate = compiled_terms if terms_of is None else terms_of
     pose = np.array(init, dtype=np.float64)
     lam = np.full(len(pose), 1e-3)
-    terms, H, grad = evaluate(prim, pose, points, sigma, free, others, params, jacobian=True)
+    terms, H, grad = compiled_terms(prim, pose, points, sigma, free, others, params, jacobian=True)
     cost = terms.total
     eye = np.eye(3)
     for _ in range(params.iterations):
@@ -256,7 +260,7 @@ def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndar
         shrink = np.minimum(1.0, np.minimum(0.02 / np.maximum(move, 1e-12), 0.2 / np.maximum(np.abs(step[:, 2]),
                                                                                             1e-12)))
         trial = pose + step * shrink[:, None]
-        t2, H2, g2 = evaluate(prim, trial, points, sigma, free, others, params, jacobian=True)
+        t2, H2, g2 = compiled_terms(prim, trial, points, sigma, free, others, params, jacobian=True)
         better = np.isfinite(t2.total) & (t2.total < cost)
         pose = np.where(better[:, None], trial, pose)
         cost = np.where(better, t2.total, cost)
@@ -264,7 +268,7 @@ def refine(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndar
         grad = np.where(better[:, None], g2, grad)
         lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
     pose[:, 2] = wrap_angle(pose[:, 2])
-    return pose, evaluate(prim, pose, points, sigma, free, others, params)
+    return pose, compiled_terms(prim, pose, points, sigma, free, others, params)
 
 
 def initial_poses(prim: Primitive, points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -23,7 +23,7 @@ from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
 
-__all__ = ["pairwise_sum", "piece_terms", "local_sdf", "warm_up", "CONTACT", "FREE"]
+__all__ = ["pairwise_sum", "piece_terms", "piece_terms_each", "local_sdf", "warm_up", "CONTACT", "FREE"]
 
 #: Kinds of a term (the ``kind`` argument of :func:`piece_terms`).
 CONTACT, FREE = 0, 1
@@ -139,6 +139,30 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
             grad[b, 2] = g2
 
 
+@njit(cache=True)
+def piece_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2, c2, jacobian, cost, H, grad,
+                       scratch):
+    """The plausible estimator's contact term (Geman-McClure of sd / sigma) of B primitive poses, pose b with its
+    own points ``pts[b]``: the plain sum over the points into ``cost`` (B,), and with ``jacobian`` its
+    Gauss-Newton normal matrix into ``H`` (B, 3, 3) and gradient into ``grad`` (B, 3): the contact branch of
+    :func:`piece_terms`, called once per pose (the pushtrack estimator's particles, each with the contacts it
+    carried, :func:`pipeline.retrieve.pushtrack.refine_final`).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (B, 3)
+        Primitive poses (centre x, centre y, yaw); ``cos_t``, ``sin_t`` (B,) the cosines and sines of the yaws.
+    pts : ndarray, shape (B, P, 2), metres
+    sigma : ndarray, shape (P,), metres
+    half_c2, c2 : float
+        c^2 / 2 and c^2 for the outlier scale c in sigmas.
+    scratch : ndarray, shape (P,)
+    """
+    for b in range(pose.shape[0]):
+        piece_terms(cylinder, hx, hy, pose[b:b + 1], cos_t[b:b + 1], sin_t[b:b + 1], pts[b], sigma, CONTACT,
+                    half_c2, c2, 0.0, 1.0, 1.0, 0.0, jacobian, cost[b:b + 1], H[b:b + 1], grad[b:b + 1], scratch)
+
+
 def warm_up() -> None:
     """Compile the kernels (about 1.5 s, once per machine: numba caches them on disk), as ``make setup`` does, so
     that no evaluation job pays for it."""
@@ -147,3 +171,5 @@ def warm_up() -> None:
     out = np.empty(1), np.empty((1, 3, 3)), np.empty((1, 3))
     piece_terms(False, 0.1, 0.1, pose, np.ones(1), np.zeros(1), pts, np.ones(1), CONTACT, 4.5, 9.0, 0.0, 0.003,
                 1.0 / 0.003, 1.0, True, *out, np.empty(1))
+    piece_terms_each(False, 0.1, 0.1, pose, np.ones(1), np.zeros(1), pts[None], np.ones(1), 4.5, 9.0, True, *out,
+                     np.empty(1))

@@ -23,16 +23,12 @@ from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segm
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, Terms, com_pose, primitive_pose, refine
-from pipeline.retrieve.plausible_kernel import FREE, piece_terms
+from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
-from pipeline.retrieve.pushtrack_kernel import contact_terms_each
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "terms_each", "refine_each", "refine_final",
-           "final_pose",
-           "PLAUSIBLE_SET"]
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "refine_final", "final_pose", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
@@ -97,59 +93,8 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
                          free_resolution=own.free_resolution)
     # each particle with its own carried contacts (H, T, 2), all H refined at once
     pts = apply_pose(result.poses[top], result.local[top])
-    pose, terms = refine_each(target, primitive_pose(target, result.poses[top]), pts, sigma, free, others, lm)
+    pose, terms = refine(target, primitive_pose(target, result.poses[top]), pts, sigma, free, others, lm)
     return top, com_pose(target, pose), terms.total
-
-
-def terms_each(prim: Primitive, pose: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
-               others: np.ndarray, params: PlausibleParams, jacobian: bool = False):
-    """:func:`pipeline.retrieve.plausible.compiled_terms` with each pose's own contact points: primitive poses
-    (B, 3), their points (B, P, 2) of sigmas (P,), shared free-space ``free`` (F, 2) and other-segment ``others``
-    (O, 2) points. Returns the :class:`~pipeline.retrieve.plausible.Terms` (B,), with ``jacobian`` also the
-    normal matrix (B, 3, 3) and gradient (B, 3); row b has the bits ``compiled_terms`` gives for pose b and
-    ``points[b]`` alone (the same operations in the same order)."""
-    pose = np.ascontiguousarray(pose, dtype=np.float64)
-    B = len(pose)
-    yaw = pose[:, 2, None]
-    cos_t, sin_t = np.cos(yaw)[:, 0].copy(), np.sin(yaw)[:, 0].copy()
-    c2 = params.outlier_sigmas ** 2
-    s0 = params.contact_sigma
-    cyl, hx = prim.kind == "cylinder", float(prim.half[0])
-    hy = float(prim.half[1]) if len(prim.half) > 1 else 0.0
-    costs, H, grad = [], np.zeros((B, 3, 3)), np.zeros((B, 3))
-    cost, h, g = np.empty(B), np.empty((B, 3, 3)), np.empty((B, 3))
-    if points.shape[1]:
-        contact_terms_each(cyl, hx, hy, pose, cos_t, sin_t, np.ascontiguousarray(points, dtype=np.float64),
-                           np.ascontiguousarray(sigma, dtype=np.float64), 0.5 * c2, c2, jacobian, cost, h, g,
-                           np.empty(points.shape[1]))
-        costs.append(cost.copy())
-        if jacobian:
-            H += h
-            grad += g
-    else:
-        costs.append(np.zeros(B))
-    for pts, tol in ((free, params.free_tolerance), (others, params.other_tolerance)):
-        if len(pts) == 0:
-            costs.append(np.zeros(B))
-            continue
-        piece_terms(cyl, prim.half[0], hy, pose, cos_t, sin_t, np.ascontiguousarray(pts, dtype=np.float64),
-                    np.zeros(0), FREE, 0.5 * c2, c2, tol, s0, 1.0 / s0, params.free_weight, jacobian, cost, h, g,
-                    np.empty(len(pts)))
-        costs.append(params.free_weight * 0.5 * cost)
-        if jacobian:
-            H += h
-            grad += g
-    terms = Terms(*costs)
-    return (terms, H, grad) if jacobian else terms
-
-
-def refine_each(prim: Primitive, init: np.ndarray, points: np.ndarray, sigma: np.ndarray, free: np.ndarray,
-                others: np.ndarray, params: PlausibleParams) -> tuple[np.ndarray, Terms]:
-    """:func:`pipeline.retrieve.plausible.refine` (batched Levenberg-Marquardt from primitive poses (B, 3)) with
-    each pose's own contact points (B, P, 2) (:func:`terms_each`); row b gives the bits ``refine`` gives for
-    ``init[b]`` and ``points[b]`` alone. Returns the refined poses (B, 3), yaw wrapped to [-pi, pi), and their
-    :class:`~pipeline.retrieve.plausible.Terms`."""
-    return refine(prim, init, points, sigma, free, others, params, terms_of=terms_each)
 
 
 def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,

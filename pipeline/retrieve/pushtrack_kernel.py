@@ -3,9 +3,8 @@ the final refinement, each computing the **same bits** as the numpy form it repl
 
 * :func:`free_depth_sums`: :func:`pipeline.retrieve.pushmodel.free_loglik`'s sums of squared depths, which in
   numpy build (particles, free points) temporaries for every action of the filter;
-* :func:`contact_terms_each`: the contact term of the plausible estimator's Levenberg-Marquardt
-  (:func:`pipeline.retrieve.plausible.compiled_terms`) with each pose's own contact points, so that the
-  refinement of :func:`pipeline.retrieve.pushtrack.refine_final` runs over all its particles at once.
+* the contact term with each pose's own contact points, for the refinement of
+  :func:`pipeline.retrieve.pushtrack.refine_final`, is :func:`pipeline.retrieve.plausible_kernel.piece_terms_each`.
 
 As :mod:`pipeline.retrieve.plausible_kernel` does, they repeat numpy's arithmetic operation by operation (the same
 element-wise expressions, no fused multiply-add, the cosines and sines taken from numpy by the caller, numpy's
@@ -20,9 +19,9 @@ import numpy as np
 from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
-from pipeline.retrieve.plausible_kernel import CONTACT, local_sdf, piece_terms
+from pipeline.retrieve.plausible_kernel import local_sdf
 
-__all__ = ["free_depth_sums", "contact_terms_each", "warm_up"]
+__all__ = ["free_depth_sums", "warm_up"]
 
 
 @njit(cache=True)
@@ -68,29 +67,6 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
         out[n] = pairwise_sum(scratch, 0, F)
 
 
-@njit(cache=True)
-def contact_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2, c2, jacobian, cost, H, grad,
-                       scratch):
-    """The plausible estimator's contact term (Geman-McClure of sd / sigma) of B primitive poses, pose b with its
-    own points ``pts[b]``: the plain sum over the points into ``cost`` (B,), and with ``jacobian`` its
-    Gauss-Newton normal matrix into ``H`` (B, 3, 3) and gradient into ``grad`` (B, 3): the contact branch of
-    :func:`pipeline.retrieve.plausible_kernel.piece_terms`, called once per pose.
-
-    Parameters
-    ----------
-    pose : ndarray, shape (B, 3)
-        Primitive poses (centre x, centre y, yaw); ``cos_t``, ``sin_t`` (B,) the cosines and sines of the yaws.
-    pts : ndarray, shape (B, P, 2), metres
-    sigma : ndarray, shape (P,), metres
-    half_c2, c2 : float
-        c^2 / 2 and c^2 for the outlier scale c in sigmas.
-    scratch : ndarray, shape (P,)
-    """
-    for b in range(pose.shape[0]):
-        piece_terms(cylinder, hx, hy, pose[b:b + 1], cos_t[b:b + 1], sin_t[b:b + 1], pts[b], sigma, CONTACT,
-                    half_c2, c2, 0.0, 1.0, 1.0, 0.0, jacobian, cost[b:b + 1], H[b:b + 1], grad[b:b + 1], scratch)
-
-
 def warm_up() -> None:
     """Compile the kernels (once per machine: numba caches them on disk), as ``make setup`` does, so that no
     evaluation job pays for it."""
@@ -98,7 +74,3 @@ def warm_up() -> None:
     for cylinder in (False, True):
         free_depth_sums(cylinder, 0.1, 0.1, np.zeros((1, 2)), one, np.zeros(1), np.zeros((1, 2)), 0.004, 0.003,
                         0.2, np.empty(1), np.empty(1))
-        for jacobian in (False, True):
-            contact_terms_each(cylinder, 0.1, 0.1, np.zeros((1, 3)), one, np.zeros(1), np.zeros((1, 1, 2)), one,
-                               3.125, 6.25, jacobian, np.empty(1), np.empty((1, 3, 3)), np.empty((1, 3)),
-                               np.empty(1))
