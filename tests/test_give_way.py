@@ -129,3 +129,13 @@ def test_a_smaller_budget_stops_where_the_policy_would_have_stopped():
     # A run file without the verdict: the first agreeing decision with enough contacts.
     old = [{k: v for k, v in h.items() if k != "stop"} for h in history]
     assert [stop_decision(old, b, 3, 0.95) for b in (0, 1, 2, 4, 8)] == [0, 1, 1, 1, 1]
+
+
+def test_the_largest_budget_is_the_run_itself_but_only_the_budget_it_was_collected_with():
+    from pipeline.probe.bench import decision_at
+
+    # Collected with budget 8; the segment gave way at 8 and made 3 probes of its own (decisions 9-11).
+    history = [{"share": 0.2, "target_steps": [], "stop": False} for _ in range(12)]
+    assert decision_at(history, 8, 8, 3, 0.95) == 11
+    assert decision_at(history, 10, 8, 3, 0.95) == 11
+    assert decision_at(history, 4, 8, 3, 0.95) == 4  # a smaller budget is a cut, even if it is the largest asked

@@ -272,6 +272,9 @@ def test_collect_scripted_plus_probe_marks_probe_actions_and_records_the_log():
     again, params2, _ = collect_run(sc, 104, policy="scripted+probe", max_actions=20,
                                     policy_params=dataclasses.replace(ProbeParams(), budget=1))
     assert _parquet_bytes(again) == _parquet_bytes(table) and params2 == params  # the same run, byte for byte
+    from pipeline.schema.validate import validate_spec
+
+    validate_spec(table, schema.SIM_RUN)  # the probe column is the run table's optional column
 
 
 def _parquet_bytes(table) -> bytes:
@@ -282,9 +285,6 @@ def _parquet_bytes(table) -> bytes:
     buf = io.BytesIO()
     pq.write_table(table, buf)
     return buf.getvalue()
-    from pipeline.schema.validate import validate_spec
-
-    validate_spec(table, schema.SIM_RUN)  # the probe column is the run table's optional column
 
 
 def test_bench_probe_refuses_a_bad_budget(tmp_path):

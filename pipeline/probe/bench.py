@@ -27,7 +27,7 @@ from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import load_run
 from pipeline.scenes import load_scene
 
-__all__ = ["BUDGETS", "stop_decision", "budget_rows", "summarise", "write_outputs"]
+__all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]
 
 BUDGETS = (0, 1, 2, 4, 8)
 FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_error_m", "yaw_error_rad",
@@ -43,6 +43,13 @@ def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> 
         if h["stop"] if "stop" in h else h["share"] >= agree and len(h["target_steps"]) >= min(need, budget):
             return k
     return min(budget, len(history) - 1)
+
+
+def decision_at(history: list[dict], budget: int, collected: int, need: int, agree: float) -> int:
+    """The decision whose set a policy with ``budget`` grasps, in a run collected with budget ``collected``: the
+    run's last one for its own budget or more (the probes of a segment taken at its end included), else
+    :func:`stop_decision`."""
+    return len(history) - 1 if budget >= collected else stop_decision(history, budget, need, agree)
 
 
 def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: bool, rows: int | None,
@@ -70,13 +77,13 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
                                       policy_params=params).probe_s)
     info = load_run(path)
     meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
+    collected = int((meta.get("params") or {}).get("budget", params.budget))
     history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]
     need = required_contacts(info.target, params)
     out = []
     stopped: dict[tuple, tuple] = {}  # (decision, budget end) -> grasp outcome and errors, shared by budgets
     for b in budgets:
-        # The run itself is the largest budget's, with the probes of a segment taken at its end.
-        k = len(history) - 1 if b >= params.budget else stop_decision(history, b, need, params.plan.agree_share)
+        k = decision_at(history, b, collected, need, params.plan.agree_share)
         last = k == len(history) - 1
         rows = None if last else int(history[k]["rows"])
         # A policy still going at its budget's end may give the segment up there (the run's last decision
