@@ -24,7 +24,7 @@ import pyarrow as pa
 
 from pipeline import registry
 from pipeline.geometry import gripper_yaw
-from pipeline.isolate import DetectionParams, residual, step_in_contact, window_in_contact
+from pipeline.detection import DetectionParams, residual, step_in_contact, window_in_contact
 from pipeline.parallel import map_jobs
 from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_digest, scene_hash

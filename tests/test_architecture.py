@@ -166,7 +166,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                     "pipeline.retrieve.estimators", "pipeline.retrieve.runs", "pipeline.retrieve.tables",
                     "pipeline.grasp", "pipeline.sim", "pipeline.robot", "pipeline.policies", "pipeline.components",
                     "pipeline.metrics", "pipeline.labels",
-                    "pipeline.retrieve.plausible_kernel")),
+                    "pipeline.retrieve.plausible_kernel", "pipeline.retrieve.resistance", "pipeline.detection")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
                             "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum", "pipeline.spd",

@@ -139,3 +139,20 @@ def test_the_largest_budget_is_the_run_itself_but_only_the_budget_it_was_collect
     assert decision_at(history, 8, 8, 3, 0.95) == 11
     assert decision_at(history, 10, 8, 3, 0.95) == 11
     assert decision_at(history, 4, 8, 3, 0.95) == 4  # a smaller budget is a cut, even if it is the largest asked
+
+
+def test_an_agreeing_set_on_bunched_contacts_at_the_budgets_end_is_flagged_not_stopped(monkeypatch):
+    # the set agrees but the target's contacts are bunched: the policy does not stop on it, so the budget's end
+    # flags the run (budget spent without a stop) while ``agreed`` records the agreement
+    table = schema.read_run(Path(__file__).resolve().parents[1] / "data" / "regression" / "TC-000.parquet")
+    start = np.array([table.column("ee_start_x_m")[0].as_py(), table.column("ee_start_y_m")[0].as_py()])
+    prim = target_primitive(load_scene("TC"))[1]
+    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 1.0)
+    monkeypatch.setattr(policy_mod, "bunched", lambda *a, **k: True)
+
+    def no_act(dx, dy):
+        raise AssertionError("no probe")
+
+    log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
+                               ProbeParams(budget=0, min_target_contacts=0))
+    assert log.agreed and log.flagged == "budget_spent" and log.probes == 0

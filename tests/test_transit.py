@@ -175,3 +175,34 @@ def test_the_return_stays_put_when_the_grasp_move_from_here_keeps_clear():
     n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
                         grasp_path=_grasp_from([0.0, -0.25]))  # from (0.21, 0) down-left, below the box
     assert n == 0 and world.moves == []
+def test_grasp_start_is_not_bought_with_a_return_through_the_target():
+    # Scripted part: (0.2, 0.1) -> (0.21, 0.015) (its end); a probe then left the gripper at (-0.1, 0) and it is now
+    # at (0.21, 0), the move between crossing the box's place. The scripted end is reachable with the full 1.5 cm
+    # clearance, but no position reachable that way gives a clear grasp move to (-0.25, 0); (-0.1, 0) does, but only
+    # through the positions-only keep-out (links not checked), i.e. straight through the box.
+    visited = np.array([[0.2, 0.1], [0.21, 0.015], [-0.1, 0.0], [0.21, 0.0]])
+    n_scripted = 1
+    none = np.zeros(len(visited), dtype=bool)
+    limits = [(none, Keepout(BOX, np.zeros(3), DOT, 0.015)), (none, Keepout(BOX, np.zeros(3), DOT, 0.0, links=False)),
+              (none, None)]
+    pre = np.array([-0.25, 0.0])
+    base = _World(visited[-1])
+    return_to_start(base.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1)
+    assert not np.any(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(base.moves)) < 0.0)  # without: clean
+    world = _World(visited[-1])
+    return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
+                    grasp_path=lambda at: grasp_transit(at, pre, 0.03))
+    # a grasp start reachable only through the positions-only keep-out (a move across the box) is not taken
+    assert not np.any(Keepout(BOX, np.zeros(3), DOT, 0.0).clearance(np.array(world.moves)) < 0.0)
+
+
+
+def test_no_visited_position_gives_a_clear_grasp_move_falls_back_to_the_scripted_end():
+    # the pre-grasp point is inside the keep-out, so no start qualifies: the return ends at the scripted end
+    visited, n_scripted = _scripted_around_then_across()
+    world = _World(visited[-1])
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    limits = [(np.zeros(len(visited), dtype=bool), keepout), (np.zeros(len(visited), dtype=bool), None)]
+    n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
+                        grasp_path=lambda at: grasp_transit(at, np.array([0.0, 0.09]), 0.03))
+    assert n > 0 and np.allclose(world.here, [-0.2, 0.0])

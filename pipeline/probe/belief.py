@@ -24,13 +24,14 @@ import pyarrow as pa
 
 from pipeline.portable import exp
 from pipeline.geometry import Primitive, primitive_sdf, rotate
-from pipeline.isolate import IsolationParams, isolate_run, isolation_surface
+from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
 from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
+from pipeline.retrieve.resistance import resisting_choice
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
@@ -73,6 +74,7 @@ class Sensing:
         self.ee = [np.asarray(start, dtype=np.float64)[:2].copy()]
         self.touching = [False]  # per visited position: reached in contact by a probe
         self.steps: list[int] = []
+        self.forces: list[float] = []  # contact force (N) each action met, NaN without
         self.point_steps: list[int] = []
         self.probe_points: list[np.ndarray] = []
         self.probe_steps: list[int] = []
@@ -80,6 +82,7 @@ class Sensing:
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order)."""
         cols, _, _ = isolate_run(table, *self.surface)
+        self.forces += contact_forces(table).tolist()
         for i, step in enumerate(cols["step"]):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
             scripted = len(self.steps) < self.n_scripted
@@ -164,17 +167,22 @@ class TargetChoice:
 
 
 def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray, sdf,
-                  rngs: Sequence[np.random.Generator], params: RetrievalParams = RetrievalParams()
+                  rngs: Sequence[np.random.Generator], params: RetrievalParams = RetrievalParams(),
+                  steps: np.ndarray | None = None, force: np.ndarray | None = None, mass: float = float("nan")
                   ) -> list[TargetChoice]:
-    """The scripted part's segments ranked as the target's: the paper's choice first (ICP restarts, lowest
-    position variance, §V-C), then the other segments whose best ICP error passes the fit gate by position
-    variance, then the rest by the same. Empty without segments."""
+    """The scripted part's segments ranked as the target's: the estimators' choice first (the paper's, §V-C, or
+    for a heavy target the segment that resisted the pushes most: ``steps``, ``force`` (N) per action and the
+    target's ``mass`` (kg), :func:`~pipeline.retrieve.resistance.resisting_choice`), then the paper's if it
+    differs, then the other segments whose best ICP error passes the fit gate by position variance, then the
+    rest by the same. Empty without segments."""
     paper = estimate_run([(s.id, s.points) for s in segments], target, np.asarray(ee).reshape(-1, 2), sdf, params,
                          rngs[0], rngs[1])
     none = np.zeros((0, 2))
     if paper.segment < 0:
         return []
     icp = paper.candidates
+    first = resisting_choice(segments, paper.segment, icp, np.zeros(0, np.int64) if steps is None else steps, force,
+                             mass, params)
     ranked = []
     for seg in segments:
         m = icp["segment"] == seg.id
@@ -182,8 +190,9 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
             continue
         var = np.nan_to_num(np.nanmin(np.r_[icp["position_var_m2"][m], np.inf]), nan=np.inf)
         gate = np.min(np.where(icp["valid"][m], icp["icp_rmse_m"][m], np.inf)) > params.segment_fit_gate
-        ranked.append((seg.id != paper.segment, bool(gate), float(var), seg.id, seg, m & icp["valid"]))
-    ranked.sort(key=lambda r: r[:4])
+        ranked.append((seg.id != first, seg.id != paper.segment, bool(gate), float(var), seg.id, seg,
+                       m & icp["valid"]))
+    ranked.sort(key=lambda r: r[:5])
     return [TargetChoice(seg.id, np.asarray(seg.points, dtype=np.float64).reshape(-1, 2), np.asarray(seg.steps),
                          np.vstack([s.points for s in segments if s.id != seg.id] or [none]),
                          np.column_stack([icp["x_m"][mine], icp["y_m"][mine], icp["yaw_rad"][mine]]))

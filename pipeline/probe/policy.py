@@ -30,6 +30,7 @@ from pipeline.probe.moves import Act, first_reaching, guarded_move, retrace, ret
 from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
+from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "give_way_at_budget", "bunched",
@@ -170,7 +171,7 @@ class ProbeLog:
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
               start: np.ndarray, params: ProbeParams = ProbeParams(),
               grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None,
-              grasp_share: Callable[[PoseSet], float] | None = None) -> ProbeLog:
+              grasp_share: Callable[[PoseSet], float] | None = None, mass: float = float("nan")) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -194,6 +195,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         A set -> the likelihood share of it that the grasp chosen for it holds
         (:func:`pipeline.probe.set_grasp.choose_grasp`): the policy also stops once that share reaches
         ``agree_share``, for what the probes must settle is the grasp, not the pose.
+    mass : float, kg
+        The target's known mass: a heavy target's segment is the one that resisted the pushes
+        (:func:`pipeline.probe.belief.choose_target`).
 
     Returns
     -------
@@ -204,7 +208,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     sensing.observe(rows)
     seen = rows.num_rows
     t0 = time.perf_counter()  # the first decision includes the segment choice
-    choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run))
+    choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
+                            steps=np.array(sensing.steps), force=np.array(sensing.forces), mass=mass)
     rank = since = 0
     choice = choices[0] if choices else NO_TARGET
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
@@ -269,8 +274,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             if not done:
                 log.flagged = "budget_spent" if log.probes >= limit else "no_reachable_probe"
             if log.probes:
-                # Back where the scripted part ended, through visited space: the grasp's move to its pre-grasp
-                # point is a straight line, which from the far side of the target would sweep it away.
+                # Back through visited space to where the grasp's move to its pre-grasp point (straight lines) keeps
+                # clear of the target, else where the scripted part ended: from the far side it would sweep it.
                 log.actions += return_to_start(
                     act, sensing, params, transit_limits(sensing, target, belief, outline, params.plan, returning=True),
                     grasp_path=None if grasp_path is None else grasp_path(belief))
@@ -423,7 +428,8 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
     def grasp_share(belief: PoseSet) -> float:
         return choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).share
 
-    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path, grasp_share)
+    log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path, grasp_share,
+                    mass=target_mass(scene))
     meta = {"params": params.to_dict(), **log.to_dict()}
     meta.pop("decision_s")  # wall times would make the run file differ between identical runs
     return meta, log.decision_s

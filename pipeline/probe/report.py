@@ -77,7 +77,7 @@ def probe_lines(out: str | Path, jobs) -> list[str]:
             f"active protocol {sc}: {len(st)} runs, probes per run {np.mean([s['probes'] for s in st]):.2f}, "
             f"decision {np.median(dec) if dec.size else float('nan'):.3f} s median "
             f"({np.max(dec) if dec.size else float('nan'):.3f} s max), "
-            f"set still wide in {sum(bool(s['flagged']) for s in st)}, target moved by probing "
+            f"budget spent without a stop in {sum(bool(s['flagged']) for s in st)}, target moved by probing "
             f"{1000 * np.median([s['moved_m'] for s in st]):.1f} mm / "
             f"{np.median([s['turned_rad'] for s in st]):.3f} rad (median)")
     return lines

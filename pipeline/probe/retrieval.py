@@ -20,6 +20,7 @@ from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, choose_grasp, simulate_set_grasp
 from pipeline.retrieve.model import pose_error
+from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row"]
@@ -78,7 +79,8 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method)
     sensing.observe(table.slice(0, int(state["rows"])))
     choices = choose_target(sensing.segments(), info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
-                            retrieval_rng(root_seed, info.run))
+                            retrieval_rng(root_seed, info.run), steps=np.array(sensing.steps),
+                            force=np.array(sensing.forces), mass=target_mass(info.scene))
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
     choice = next((c for c in choices if c.segment == segment), NO_TARGET)

@@ -30,6 +30,7 @@ from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.portable import tie_key
 from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, SegmentFit, fit_segment
+from pipeline.retrieve.resistance import resisting_choice, target_mass
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
@@ -166,13 +167,17 @@ def paper_choice(segments: Sequence[Segment], info: RunInfo, sdf, params: Retrie
 
 def paper_segment(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
                   rngs: Sequence[np.random.Generator], t0: float) -> tuple[Estimate, Segment | None]:
-    """The paper's choice (:func:`paper_choice`) and its segment, or (the paper's estimate, its ``icp_s`` counted
-    from ``t0``, None) when no segment fits: the start of every estimator that refines the paper's choice."""
+    """The paper's choice (:func:`paper_choice`) and the target's segment (the paper's, or the one that resisted
+    the pushes most for a heavy target: :func:`~pipeline.retrieve.resistance.resisting_choice`), or (the paper's
+    estimate, its ``icp_s`` counted from ``t0``, None) when no segment fits: the start of every estimator that
+    refines the paper's choice."""
     paper = paper_choice(segments, info, sdf, params, rngs)
     if paper.segment < 0:
         paper.icp_s = time.perf_counter() - t0
         return paper, None
-    return paper, next(s for s in segments if s.id == paper.segment)
+    chosen = resisting_choice(segments, paper.segment, paper.candidates, info.steps, info.contact_force,
+                              target_mass(info.scene), params)
+    return paper, next(s for s in segments if s.id == chosen)
 
 
 def plausible_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],

@@ -65,6 +65,10 @@ class RetrievalParams:
         A segment whose best restart has an ICP error above this cannot be the target while another segment
         fits (0.02). Not in the paper: a straight run of points (a wall, a segment far from the target) fits
         one side of a box the same way from every restart, so its position variance is the lowest.
+    heavy_target_kg : float or None, kg
+        The estimators that refine the paper's choice (``plausible``, ``pushtrack``, the probing policy) take the
+        segment whose contacts met the largest median force when the target's known mass is at least this (1.0;
+        None: the paper's choice always; :mod:`pipeline.retrieve.resistance`). The ``paper`` estimator ignores it.
     robot : str
         Gripper grid for pxpen (:func:`pipeline.robot.load_robot`).
     min_points : int
@@ -89,6 +93,7 @@ class RetrievalParams:
     penetration_tolerance: float = 0.01
     agreement_tolerance: float | None = 0.002
     segment_fit_gate: float = 0.02
+    heavy_target_kg: float | None = 1.0
     robot: str = "panda"
     min_points: int = 3
     collinear_tolerance: float = 0.002
@@ -100,7 +105,7 @@ class RetrievalParams:
         "estimation": one_of("point_to_plane", "point_to_point"), "box_sampling": one_of("perimeter", "tester"),
         **{name: number(0, lo_open=True) for name in ("tester_sigma", "max_correspondence_distance", "max_rmse",
                                                       "segment_fit_gate", "max_point_distance")},
-        "agreement_tolerance": number(0, nullable=True),
+        "agreement_tolerance": number(0, nullable=True), "heavy_target_kg": number(0, nullable=True),
         **{name: number(0) for name in ("min_separation", "penetration_tolerance", "collinear_tolerance")}}
 
     def __post_init__(self) -> None:

@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 
 from pipeline import schema
 from pipeline.geometry import Primitive
+from pipeline.detection import contact_forces
 from pipeline.retrieve.model import target_primitive
 from pipeline.seeds import run_key
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
@@ -42,6 +43,8 @@ class RunInfo:
     policy : str
         The collection policy that made the run (``params.policy``; ``scripted`` when not recorded): a policy of
         the active protocol has its own retrieval (:attr:`pipeline.registry.PolicySpec.retrieval`).
+    contact_force : ndarray, shape (K,), N, or None
+        The contact force each action met (:func:`pipeline.isolate.contact_forces`; NaN without contact).
     """
 
     run: str
@@ -54,6 +57,7 @@ class RunInfo:
     target_id: int
     target: Primitive
     policy: str = "scripted"
+    contact_force: np.ndarray | None = None
 
     @property
     def final_ee(self) -> np.ndarray:
@@ -85,7 +89,8 @@ def load_run(path: str | Path) -> RunInfo:
     tid, prim = target_primitive(scene)
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=final, target_id=tid, target=prim, policy=str(params.get("policy") or "scripted"))
+                   final_poses=final, target_id=tid, target=prim, policy=str(params.get("policy") or "scripted"),
+                   contact_force=contact_forces(t))
 
 
 def run_scene(path: Path, params: dict) -> Scene:
