@@ -156,3 +156,20 @@ def test_an_agreeing_set_on_bunched_contacts_at_the_budgets_end_is_flagged_not_s
     log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
                                ProbeParams(budget=0, min_target_contacts=0))
     assert log.agreed and log.flagged == "budget_spent" and log.probes == 0
+
+
+def test_a_budget_larger_than_a_spent_collected_one_is_refused(tmp_path, monkeypatch):
+    # a run whose policy spent its budget of 2 says nothing of what a budget of 4 would have done
+    from pipeline.collect import output_path
+    from pipeline.probe import bench as bench_mod
+
+    path = output_path(tmp_path, "TC", 0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"")
+    info = bench_mod.load_run(Path(__file__).resolve().parents[1] / "data" / "regression" / "TC-000.parquet")
+    monkeypatch.setattr(bench_mod, "load_run", lambda p: info)
+    spent = {"params": {"probe": {"params": {"budget": 2}, "flagged": "budget_spent",
+                                  "history": [{"rows": 40, "share": 0.1, "target_steps": [], "stop": False}] * 3}}}
+    monkeypatch.setattr(bench_mod.schema, "read_metadata", lambda p: spent)
+    with pytest.raises(ValueError, match="collected with a probe budget of 2, spent"):
+        bench_mod._one("TC", 0, tmp_path, (0, 4), 0, ProbeParams(budget=4))

@@ -13,8 +13,8 @@ from pipeline.detection import contact_forces
 from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.estimators import Segment, estimate, paper_choice, paper_segment
 from pipeline.retrieve.pushtrack import observed_actions
-from pipeline.retrieve.resistance import (resisting_choice, resisting_segment, segment_fits, segment_resistance,
-                                          target_mass)
+from pipeline.retrieve.resistance import (resisting_choice, resisting_segment, segment_fits,
+                                          segment_resistance, target_mass)
 from pipeline.retrieve.runs import load_run, retrieval_rng
 from pipeline.robot import load_robot
 
@@ -115,3 +115,4 @@ def test_the_estimators_start_from_the_resisting_segment_and_the_paper_estimate_
         plausible = estimate("plausible", segs, dataclasses.replace(info, contact_force=f), sdf,
                              retrieval_rng(0, info.run), params)
         assert plausible.segment == want and set(plausible.candidates["segment"]) == {want}
+

@@ -181,8 +181,8 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
     if paper.segment < 0:
         return []
     icp = paper.candidates
-    first = resisting_choice(segments, paper.segment, icp, np.zeros(0, np.int64) if steps is None else steps, force,
-                             mass, params)
+    steps = np.zeros(0, np.int64) if steps is None else np.asarray(steps, dtype=np.int64)
+    first = resisting_choice(segments, paper.segment, icp, steps, force, mass, params)
     ranked = []
     for seg in segments:
         m = icp["segment"] == seg.id

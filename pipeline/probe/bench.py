@@ -36,9 +36,9 @@ FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_e
 
 def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> int:
     """The decision (= probes made) at which the policy with ``budget`` stops: the first the policy marked
-    ``stop`` (its set agrees, or one grasp holds it, on enough target contacts that span the box), else the budget (capped at the
-    decisions recorded). Run files written before ``stop`` was recorded: the first decision whose set agrees
-    (``share`` >= ``agree``) with at least min(``need``, budget) target contacts."""
+    ``stop`` (its set agrees, or one grasp holds it, on enough target contacts that span the box), else the
+    budget (capped at the decisions recorded). Run files written before ``stop`` was recorded: the first decision
+    whose set agrees (``share`` >= ``agree``) with at least min(``need``, budget) target contacts."""
     for k, h in enumerate(history[:budget + 1]):
         if h["stop"] if "stop" in h else h["share"] >= agree and len(h["target_steps"]) >= min(need, budget):
             return k
@@ -80,6 +80,10 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     collected = int((meta.get("params") or {}).get("budget", params.budget))
     history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]
     need = required_contacts(info.target, params)
+    if max(budgets) > collected and meta.get("flagged") == "budget_spent":
+        # the run stands for a larger budget only where its policy stopped by itself before its own budget
+        raise ValueError(f"{path}: collected with a probe budget of {collected}, spent before the policy stopped; "
+                         f"a budget of {max(budgets)} needs runs collected with it (another --runs directory)")
     out = []
     stopped: dict[tuple, tuple] = {}  # (decision, budget end) -> grasp outcome and errors, shared by budgets
     for b in budgets:

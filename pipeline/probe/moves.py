@@ -155,8 +155,8 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
 def _grasp_start(visited: np.ndarray, masks: list, limits: list, graphs: dict, link_radius: float,
                  grasp_path: Callable[[np.ndarray], np.ndarray], strict: Keepout) -> np.ndarray | None:
     """The retraced path (P, 2; empty: stay) to the nearest visited position, reachable under the strictest of
-    ``limits`` with a keep-out that checks moves (``links``) under which one is, from which the grasp's move to its pre-grasp point keeps
-    ``strict.margin`` from the target; None if there is none."""
+    ``limits`` with a keep-out that checks moves (``links``) under which one is, from which the grasp's move to
+    its pre-grasp point keeps ``strict.margin`` from the target; None if there is none."""
     for j, (mask, (_, keepout)) in enumerate(zip(masks, limits)):
         if keepout is None or not keepout.links:
             break  # transit that may touch or cross the target is no start for a grasp that must not

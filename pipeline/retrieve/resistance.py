@@ -20,12 +20,19 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["target_mass", "segment_resistance", "resisting_segment", "segment_fits", "resisting_choice"]
+__all__ = ["target_mass", "applies", "segment_resistance", "resisting_segment", "segment_fits",
+           "resisting_choice"]
 
 
 def target_mass(scene) -> float:
     """The known mass (kg) of a scene's target object (NaN if the scene has none)."""
     return next((float(o.mass) for o in scene.objects if o.target), float("nan"))
+
+
+def applies(force: np.ndarray | None, mass: float, heavy_target_kg: float | None) -> bool:
+    """Whether the resistance rule applies: forces known and the target's ``mass`` (kg) at least
+    ``heavy_target_kg`` (None: never)."""
+    return force is not None and heavy_target_kg is not None and bool(mass >= heavy_target_kg)
 
 
 def segment_resistance(segment_steps: Sequence[np.ndarray], steps: np.ndarray, force: np.ndarray) -> np.ndarray:
@@ -74,7 +81,7 @@ def resisting_segment(ids: Sequence[int], segment_steps: Sequence[np.ndarray], f
     heavy_target_kg : float or None, kg
         The rule applies when ``mass`` is at least this; None: never.
     """
-    if heavy_target_kg is None or force is None or not len(ids) or not (mass >= heavy_target_kg):
+    if not applies(force, mass, heavy_target_kg) or not len(ids):
         return None
     score = segment_resistance(segment_steps, steps, force)
     fits = np.asarray(fits, dtype=bool)

@@ -1,0 +1,143 @@
+"""The probing policy's parameters and its record of one run (docs/retrieval.md, "Active retrieval"): what
+:mod:`pipeline.probe.policy` is asked to do and what it did, both serialised into the run file's metadata."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import ClassVar
+
+from pipeline.constraints import Constraint, check, integer, number, rule
+from pipeline.probe.planning import PlanParams
+
+__all__ = ["ProbeParams", "ProbeLog"]
+
+
+@dataclass(frozen=True)
+class ProbeParams:
+    """Parameters of the probing policy; serialised into the run file's metadata.
+
+    Attributes
+    ----------
+    budget : int
+        Most probes per run (8).
+    min_probes : int
+        Probes made even if the set agrees from the start (0): a confident set can be confidently wrong.
+    coarse_step, fine_step : float, metres
+        Step of the guarded move far from and near the predicted contacts (0.02, 0.004).
+    slow_zone : float, metres
+        Fine steps from this far before the earliest predicted contact (0.03).
+    overshoot : float, metres
+        Give up this far past the latest predicted contact (0.04).
+    backoff : float, metres
+        Retreat after a contact (0.015).
+    transit_step : float, metres
+        Longest action of a transit (0.03, the scripted actions' scale).
+    attribute_tolerance : float, metres
+        A probe contact is the target's if some hypothesis's surface passes this close (0.025).
+    misfit_tolerance : float, metres
+        When the probe contacts attributed to the target lie farther than this (median) from the set's estimate,
+        the segment is not the target's: the next-ranked one is taken (0.006).
+    stall : int
+        Probes after which a segment whose set still does not agree gives way to the next-ranked one (99: never;
+        4 switched right segments away on the training seeds, docs/retrieval.md).
+    min_span : float
+        For a box, the set is trusted only once the target's probe contacts span this share of its long side
+        (0.6); until then the next probe goes where the estimate predicts contact farthest from them.
+    min_target_contacts : int
+        The set agrees only once this many probe contacts are the target's (3 for a box, one fewer for a can):
+        the scripted part's points have drifted, so a set resting on them alone is not trusted.
+    switch_probes : int
+        Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
+        the budget: its set rests on the scripted part's drifted points otherwise.
+    method : str
+        Tracking method of the policy's belief (``stucco``).
+    plan : PlanParams
+    """
+
+    budget: int = 8
+    min_probes: int = 0
+    coarse_step: float = 0.02
+    fine_step: float = 0.004
+    slow_zone: float = 0.03
+    overshoot: float = 0.04
+    backoff: float = 0.015
+    transit_step: float = 0.03
+    attribute_tolerance: float = 0.025
+    misfit_tolerance: float = 0.006
+    stall: int = 99
+    min_span: float = 0.6
+    min_target_contacts: int = 3
+    switch_probes: int = 3
+    method: str = "stucco"
+    plan: PlanParams = field(default_factory=PlanParams)
+
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "budget": integer(0, 64), "min_probes": integer(0, 64),
+        **{name: number(0, 0.03, lo_open=True) for name in ("coarse_step", "fine_step", "backoff", "transit_step")},
+        **{name: number(0) for name in ("slow_zone", "overshoot")},
+        **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
+        "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
+        "min_target_contacts": integer(0),
+        "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
+        "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ProbeLog:
+    """What the policy did in one run (recorded in the run file's metadata under ``probe``).
+
+    Attributes
+    ----------
+    probes : int
+        Guarded moves made.
+    actions : int
+        Actions recorded by the policy (transits, steps, back-offs).
+    decision_s : list of float, seconds
+        Wall time of each decision (belief update + planning), the last one deciding to stop.
+    contacts : list of bool
+        Whether each probe ended in a detected contact.
+    share : float
+        Likelihood share of the final set agreeing with its estimate (:func:`planning.agreement`).
+    agreed : bool
+        The set agrees (share >= ``agree_share``).
+    flagged : str
+        Why the grasp goes ahead without the policy's stop verdict (``budget_spent``, ``no_reachable_probe``), or
+        "".
+    segment : int
+        Segment of the final set (-1: none fitted).
+    target_steps, other_steps : list of int
+        Actions whose isolated contact the policy attributed to the target / to something else.
+    history : list of dict
+        At each decision: the rows sensed (``rows``), the target's segment, the set's agreement (``share``), the
+        probe contacts attributed to it, the share of the set its grasp holds (``held``) and whether the policy
+        stops there (``stop``), so the set of any decision
+        can be recomputed and the decision a smaller budget stops at found (the budget curve of ``stucco bench
+        probe``).
+    switches : int
+        Times the probes showed the chosen segment was not the target's and the next one was taken.
+    lines : list of list
+        Each probe's start (x, y), direction (x, y), the weighted 10, 50 and 90 % quantiles of the travel its
+        set predicted (metres; None: no contact predicted), and whether it was a spread probe.
+    """
+
+    probes: int = 0
+    actions: int = 0
+    decision_s: list = field(default_factory=list)
+    contacts: list = field(default_factory=list)
+    share: float = 0.0
+    agreed: bool = False
+    flagged: str = ""
+    segment: int = -1
+    lines: list = field(default_factory=list)
+    target_steps: list = field(default_factory=list)
+    other_steps: list = field(default_factory=list)
+    switches: int = 0
+    history: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
