@@ -75,6 +75,13 @@ def test_no_giving_way(sets, share, steps, ranked, why):
                               ProbeParams()) is None, why
 
 
+def test_a_segment_that_resisted_never_gives_way(sets):
+    # the same state that gives way above, but segment 1 was chosen because its contacts resisted the pushes
+    resisted = TargetChoice(1, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), True)
+    assert give_way_at_budget([resisted, _choice(2)], resisted, _set(resisted), BOX, _Sensing(), 0, "FB/100",
+                              [10, 20], ProbeParams()) is None
+
+
 def test_no_segment_and_a_can_never_give_way(sets):
     assert give_way_at_budget([_choice(1)], NO_TARGET, _set(_choice(1)), BOX, _Sensing(), 0, "FB/100", [10, 20],
                               ProbeParams()) is None

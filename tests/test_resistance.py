@@ -87,12 +87,14 @@ def test_a_heavy_targets_segment_wins_over_a_light_object_that_fits_as_well(fb):
     force[np.isin(info.steps, halves[1])] = 30.0
     force[np.isin(info.steps, halves[0])] = 3.0
     params = RetrievalParams()
-    assert resisting_choice(segs, 0, cand, info.steps, force, 10.0, params) == 1
-    assert resisting_choice(segs, 1, cand, info.steps, force, 10.0, params) == 1
-    assert resisting_choice(segs, 0, cand, info.steps, 33.0 - force, 10.0, params) == 0
-    assert resisting_choice(segs, 0, cand, info.steps, force, 0.4, params) == 0  # a light target: the paper's
+    assert resisting_choice(segs, 0, cand, info.steps, force, 10.0, params) == (1, True)
+    assert resisting_choice(segs, 1, cand, info.steps, force, 10.0, params) == (1, True)
+    assert resisting_choice(segs, 0, cand, info.steps, 33.0 - force, 10.0, params) == (0, True)
+    assert resisting_choice(segs, 0, cand, info.steps, force, 0.4, params) == (0, False)  # a light target
     off = RetrievalParams(heavy_target_kg=None)
-    assert resisting_choice(segs, 0, cand, info.steps, force, 10.0, off) == 0
+    assert resisting_choice(segs, 0, cand, info.steps, force, 10.0, off) == (0, False)
+    nothing = np.full(len(info.steps), np.nan)  # no force measured at any of their steps: the paper's, undecided
+    assert resisting_choice(segs, 1, cand, info.steps, nothing, 10.0, params) == (1, False)
 
 
 def test_the_estimators_start_from_the_resisting_segment_and_the_paper_estimate_is_unchanged(fb):

@@ -157,6 +157,9 @@ class TargetChoice:
         The other segments' points.
     seeds : ndarray, shape (S, 3)
         The paper's valid ICP poses on the segment (COM), extra starts of the fit.
+    resisted : bool
+        The segment was chosen because its contacts resisted the pushes most, the target being heavy
+        (:mod:`pipeline.retrieve.resistance`).
     """
 
     segment: int
@@ -164,6 +167,7 @@ class TargetChoice:
     steps: np.ndarray
     others: np.ndarray
     seeds: np.ndarray
+    resisted: bool = False
 
 
 def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray, sdf,
@@ -182,7 +186,7 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
         return []
     icp = paper.candidates
     steps = np.zeros(0, np.int64) if steps is None else np.asarray(steps, dtype=np.int64)
-    first = resisting_choice(segments, paper.segment, icp, steps, force, mass, params)
+    first, resisted = resisting_choice(segments, paper.segment, icp, steps, force, mass, params)
     ranked = []
     for seg in segments:
         m = icp["segment"] == seg.id
@@ -195,7 +199,8 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
     ranked.sort(key=lambda r: r[:5])
     return [TargetChoice(seg.id, np.asarray(seg.points, dtype=np.float64).reshape(-1, 2), np.asarray(seg.steps),
                          np.vstack([s.points for s in segments if s.id != seg.id] or [none]),
-                         np.column_stack([icp["x_m"][mine], icp["y_m"][mine], icp["yaw_rad"][mine]]))
+                         np.column_stack([icp["x_m"][mine], icp["y_m"][mine], icp["yaw_rad"][mine]]),
+                         resisted and seg.id == first)
             for *_, seg, mine in ranked]
 
 

@@ -210,8 +210,10 @@ def give_way_at_budget(choices: list[TargetChoice], choice: TargetChoice, belief
     budget", says how well that state tells a wrong segment). ``belief`` is the set of ``choice`` with the
     probe contacts of ``target_steps`` (:func:`set_from_steps`). Returns (choice, target steps, other steps, set)
     of that segment with every probe contact attributed afresh against its set (:func:`current_set`), or None to
-    keep ``choice``."""
-    if choice.segment < 0:
+    keep ``choice``. A segment that resisted the pushes as a heavy target does (``choice.resisted``) never gives
+    way: its probe contacts are bunched because the set they were attributed with had drifted, not because they
+    lie on a smaller object (docs/retrieval.md, "Which segment: the one that resisted")."""
+    if choice.segment < 0 or choice.resisted:
         return None
     rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
     if set_share(target, belief, params.plan) >= params.plan.agree_share or rank + 1 >= len(choices) or \

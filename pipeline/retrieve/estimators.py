@@ -175,8 +175,8 @@ def paper_segment(segments: Sequence[Segment], info: RunInfo, sdf, params: Retri
     if paper.segment < 0:
         paper.icp_s = time.perf_counter() - t0
         return paper, None
-    chosen = resisting_choice(segments, paper.segment, paper.candidates, info.steps, info.contact_force,
-                              target_mass(info.scene), params)
+    chosen, _ = resisting_choice(segments, paper.segment, paper.candidates, info.steps, info.contact_force,
+                                 target_mass(info.scene), params)
     return paper, next(s for s in segments if s.id == chosen)
 
 

@@ -102,12 +102,13 @@ def segment_fits(candidates, ids: Sequence[int], gate: float) -> np.ndarray:
 
 
 def resisting_choice(segments: Sequence, paper_segment: int, candidates, steps: np.ndarray,
-                     force: np.ndarray | None, mass: float, params) -> int:
-    """The target's segment: :func:`resisting_segment` among ``segments`` (objects with ``id`` and ``steps``),
-    the paper's choice ``paper_segment`` first in the ranking, its ICP ``candidates`` for the fit gate; the
-    paper's choice when the rule does not apply (``params``: :class:`~pipeline.retrieve.params.RetrievalParams`)."""
+                     force: np.ndarray | None, mass: float, params) -> tuple[int, bool]:
+    """The target's segment and whether the resistance decided it: :func:`resisting_segment` among ``segments``
+    (objects with ``id`` and ``steps``), the paper's choice ``paper_segment`` first in the ranking, its ICP
+    ``candidates`` for the fit gate; (the paper's choice, False) when the rule does not apply or nothing was
+    measured (``params``: :class:`~pipeline.retrieve.params.RetrievalParams`)."""
     ranked = sorted(segments, key=lambda s: s.id != paper_segment)  # stable: the paper's choice first
     ids = [int(s.id) for s in ranked]
     chosen = resisting_segment(ids, [s.steps for s in ranked], segment_fits(candidates, ids, params.segment_fit_gate),
                                steps, force, mass, params.heavy_target_kg)
-    return paper_segment if chosen is None else chosen
+    return (paper_segment, False) if chosen is None else (chosen, True)
