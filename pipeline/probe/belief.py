@@ -31,7 +31,7 @@ from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
-from pipeline.retrieve.resistance import resisting_choice
+from pipeline.retrieve.resistance import resisting_choice, segment_fits
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
@@ -187,14 +187,14 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
     icp = paper.candidates
     steps = np.zeros(0, np.int64) if steps is None else np.asarray(steps, dtype=np.int64)
     first, resisted = resisting_choice(segments, paper.segment, icp, steps, force, mass, params)
+    fits = segment_fits(icp, [s.id for s in segments], params.segment_fit_gate)
     ranked = []
-    for seg in segments:
+    for seg, fit in zip(segments, fits):
         m = icp["segment"] == seg.id
         if not m.any():
             continue
         var = np.nan_to_num(np.nanmin(np.r_[icp["position_var_m2"][m], np.inf]), nan=np.inf)
-        gate = np.min(np.where(icp["valid"][m], icp["icp_rmse_m"][m], np.inf)) > params.segment_fit_gate
-        ranked.append((seg.id != first, seg.id != paper.segment, bool(gate), float(var), seg.id, seg,
+        ranked.append((seg.id != first, seg.id != paper.segment, not fit, float(var), seg.id, seg,
                        m & icp["valid"]))
     ranked.sort(key=lambda r: r[:5])
     return [TargetChoice(seg.id, np.asarray(seg.points, dtype=np.float64).reshape(-1, 2), np.asarray(seg.steps),

@@ -6,7 +6,7 @@ What the gripper *felt* does tell them apart when the target is heavy, as in eve
 authors raised the target's mass; docs/retrieval.md, "Which segment resisted"): pushing an object takes a force
 that grows with its mass, up to what the gripper's controller can exert, so the target's contacts meet large
 forces while the household clutter moves away at a few newtons. The force of a contact is the sensed wrench's
-in-plane magnitude over the sim steps isolation uses (:func:`pipeline.isolate.contact_forces`), a measurement the
+in-plane magnitude over the sim steps isolation uses (:func:`pipeline.detection.contact_forces`), a measurement the
 robot has, never the simulation's ground truth; the target's mass is part of its known model, like its shape.
 
 :func:`resisting_segment` is the choice: among the segments that fit the target's shape (the paper's fit gate),
@@ -75,7 +75,7 @@ def resisting_segment(ids: Sequence[int], segment_steps: Sequence[np.ndarray], f
         Whether each segment passes the paper's fit gate (best ICP error below ``segment_fit_gate``); only those
         compete while one does (a wall pushed against resists too, and fits no box).
     steps, force : ndarray, shape (K,)
-        The run's action steps and contact forces (N; :func:`pipeline.isolate.contact_forces`); None: not known.
+        The run's action steps and contact forces (N; :func:`pipeline.detection.contact_forces`); None: not known.
     mass : float, kg
         The target's known mass.
     heavy_target_kg : float or None, kg

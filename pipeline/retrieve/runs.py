@@ -44,7 +44,7 @@ class RunInfo:
         The collection policy that made the run (``params.policy``; ``scripted`` when not recorded): a policy of
         the active protocol has its own retrieval (:attr:`pipeline.registry.PolicySpec.retrieval`).
     contact_force : ndarray, shape (K,), N, or None
-        The contact force each action met (:func:`pipeline.isolate.contact_forces`; NaN without contact).
+        The contact force each action met (:func:`pipeline.detection.contact_forces`; NaN without contact).
     """
 
     run: str
