@@ -22,23 +22,26 @@ syslibs:
 
 # Reinstall only when the package metadata or the lock changes. requirements.lock pins every distribution (the
 # full transitive set), so every machine runs the same numpy/scipy/Open3D/numba and computes the same numbers.
+# --no-compile: Python byte-compiles a module when it is first imported instead of pip compiling every module of
+# every distribution (about 50 s of a fresh set-up on 2 cores; docs/evaluation.md, "Where CI's time goes").
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c requirements.lock -e '.[dev]'
+	$(BIN)/pip install -q --no-compile -c requirements.lock -e '.[dev]'
 	@touch $(STAMP)
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
-# compilation as its own time (about 40 s; never inside a timed update or estimate).
+# compilation as its own time (never inside a timed update or estimate). The tracker's kernels (about 60 s on a
+# 2-core EPYC) and the estimators' (about 20 s) compile in two processes side by side.
 $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
-	$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels(); \
-	  from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
-	  from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
-	  from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"
+	@$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()" & tracker=$$!; \
+	  $(BIN)/python -c "from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
+	    from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
+	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"; estimators=$$?; \
+	  wait $$tracker && test $$estimators = 0
 	@touch $(KSTAMP)
 
-# FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
 # Refresh the lock: resolve pyproject.toml's ranges afresh in a throw-away venv and pin what was installed.
 lock:
 	rm -rf .lock-venv && $(PYTHON) -m venv .lock-venv
@@ -47,6 +50,7 @@ lock:
 	mv requirements.lock.new requirements.lock && rm -rf .lock-venv
 	@echo "requirements.lock refreshed; 'make setup' installs it (review the diff, rerun make test)"
 
+# FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
 quick: setup
 	$(BIN)/stucco --seed 0 evaluate --quick --jobs 2
 
@@ -62,8 +66,11 @@ reproduce-active: setup
 	$(BIN)/stucco --seed 0 -j 2 bench probe --scenes FB,BC,IB,TC --seeds 0-19 --runs out/reproduce-active/runs \
 	  --out out/bench/probe --png docs/img/probe_budget.png
 
+# The test files run in PYTEST_WORKERS processes (pytest-xdist); each file stays in one process, so its module
+# fixtures are built once. PYTEST_WORKERS=0 runs everything in this process.
+PYTEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
 
 # REFERENCE_PYTHON=/path/to/venv/bin/python reruns the authors' tracker side by side (../shared/anchors/README.md).
 bench: setup

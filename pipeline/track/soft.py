@@ -191,14 +191,16 @@ class SoftTracker:
         p : array_like, shape (K, D) or (D,), or None
             Contact points at the end of the step; None in free space.
         """
-        x = np.asarray(x, dtype=np.float64).reshape(self.dim)
+        # Fresh writable copies: numba compiles one specialisation per array flag, so read-only input (zero-copy
+        # from Parquet) and writable input would each pay a compilation of the parallel kernels.
+        x = np.array(x, dtype=np.float64).reshape(self.dim)
         if not np.all(np.isfinite(x)):
             raise ValueError(f"x must be finite, got {x}")
         if (dx is None) != (p is None):
             raise ValueError("dx and p must both be given (contact) or both be None (free space)")
         if dx is not None:
-            dx = np.asarray(dx, dtype=np.float64).reshape(-1, self.dim)
-            p = np.asarray(p, dtype=np.float64).reshape(-1, self.dim)
+            dx = np.array(dx, dtype=np.float64).reshape(-1, self.dim)
+            p = np.array(p, dtype=np.float64).reshape(-1, self.dim)
             if dx.shape != p.shape:
                 raise ValueError(f"dx {dx.shape} and p {p.shape} must have the same shape (K, {self.dim})")
             if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(p))):
