@@ -56,7 +56,7 @@ def _default_threads() -> int:
         return 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res, lo, hi, tol):
     """Penetration term of point j against config i of particle n, as it was before a motion.
 
@@ -133,7 +133,7 @@ def predict_and_update(P, C, order, u, prev_points, dx, x, p, m_old, length, col
         _merge_order(P, n, counts, gorder, xs, order, m_old, K)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
     """Alg. 1's prediction on particle n: each old point joins its nearest new point with probability
     exp(-d^2 / l) and moves with it; the K new points are appended. Returns each old point's displacement group
@@ -166,7 +166,7 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
     return group
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides, origin,
                         inv_res, lo, hi, tol):
     """Re-evaluate, on particle n, every (config, point) pair of old points whose groups moved by different
@@ -228,7 +228,7 @@ def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen,
                         n_hit += 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _add_change(colpen, npen, n, j, new, old):
     """Point j's term against one config changed from ``old`` to ``new``."""
     colpen[n, j] += new - old
@@ -238,7 +238,7 @@ def _add_change(colpen, npen, n, j, new, old):
         colpen[n, j] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _add_new_pairs(P, C, n, m_old, m_new, counts, order, xs, ys, zero, colpen, npen, values, shape, strides, origin,
                    inv_res, lo, hi, tol):
     """On particle n: the new points against every config, and the new configs against the old points (only

@@ -21,7 +21,7 @@ EXP_TABLE = np.array([math.exp(-k / EXP_STEPS) for k in range(EXP_STEPS * EXP_SP
 EXP_SLACK = 1e-13
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _below_exp(u, t):
     """``u < math.exp(t)`` for t <= 0, the same decision, with exp computed only when u falls within the table's
     bounds of exp(t): t lies in [-(k + 1), -k] / EXP_STEPS, where exp is between two tabulated values (to within
@@ -36,7 +36,7 @@ def _below_exp(u, t):
     return u < math.exp(t)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _first_at_least(xs, start, stop, v):
     """First index in [start, stop) with xs[index] >= v (stop if none), xs sorted there: ``start +
     np.searchsorted(xs[start:stop], v)``, by a branch-free bisection."""
@@ -51,7 +51,7 @@ def _first_at_least(xs, start, stop, v):
     return base + 1 if xs[base] < v else base
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _first_above(xs, start, stop, v):
     """First index in [start, stop) with xs[index] > v (stop if none): ``side="right"`` of searchsorted."""
     n = stop - start
@@ -65,7 +65,7 @@ def _first_above(xs, start, stop, v):
     return base + 1 if xs[base] <= v else base
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
     """Particle n's old points by displacement group, each group sorted by its points' first coordinate, so that
     each config only scans the window of points that can lie inside the robot's interior box.
@@ -119,7 +119,7 @@ def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
     return counts, gorder, xs, ys, dup
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _same_position(P, n, i, j):
     for d in range(P.shape[2]):
         if P[n, i, d] != P[n, j, d]:
@@ -127,7 +127,7 @@ def _same_position(P, n, i, j):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _same_config(C, n, i, k):
     """Configs i and k of particle n are equal: they add equal terms to any point."""
     for d in range(C.shape[2]):
@@ -154,7 +154,7 @@ def _sort_group(P, n, group, a, counts, gorder, xs):
         xs[c0 + t] = key[srt[t]]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _merge_order(P, n, counts, gorder, xs, order, m_old, K):
     """``order[n, :m_old + K]``: every point of particle n by first coordinate after the step, merged from the
     sorted groups, the K new points inserted (ties in any order: see :func:`_groups_by_first_coordinate`)."""
@@ -214,7 +214,7 @@ def take_rows(ancestors, m, P, C, colpen, npen, order):
             _copy_row(ancestors[i], i, m, P, C, colpen, npen, order)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _copy_row(src, dst, m, P, C, colpen, npen, order):
     for j in range(m):
         for d in range(P.shape[2]):
