@@ -377,24 +377,25 @@ def _bits(a) -> bytes:
 
 
 def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.ndarray, approach: np.ndarray,
-               params: GraspParams = GraspParams(), approach_steps: int | None = None) -> GraspResult:
+               params: GraspParams = GraspParams(), approach_steps: int | None = None,
+               via: np.ndarray | None = None) -> GraspResult:
     """The grasp script of :func:`grasp_at` for a given grasp yaw, pre-grasp point (2,) and unit approach
     direction (2,), advancing ``approach_steps`` actions of the action scale (default ``params.approach_steps``);
-    the success rule is the same.
+    the success rule is the same. ``via`` (V, 2), metres: points moved to first, in order, as to the pre-grasp point.
 
     A grasp is simulated once per process: the same run, pose and parameters again (two estimators that give
     the same pose, the active protocol's set grasp under each estimator) return a copy of the first result, whose
     ``wall_s`` is then the time of the look-up (docs/evaluation.md, "Where the time goes")."""
     t0 = time.perf_counter()
     steps = params.approach_steps if approach_steps is None else int(approach_steps)
-    # Everything the outcome depends on, to the bit: the scene (every field, its file's text), the restored state,
-    # the grasp's yaw, pre-grasp point and approach, the parameters.
+    # Everything the outcome depends on, to the bit: scene (fields, file text), restored state, grasp, parameters.
+    via = np.zeros((0, 2)) if via is None else np.asarray(via, dtype=np.float64).reshape(-1, 2)
     key = (repr(scene), hashlib.sha256(scene.source.encode()).digest(), _bits(poses), _bits(ee), _bits([yaw]),
-           _bits(pre), _bits(approach), params, steps)
+           _bits(pre), _bits(approach), params, steps) + ((_bits(via),) if len(via) else ())
     if key in _MEMO:
         _MEMO.move_to_end(key)
         return dataclasses.replace(copy.deepcopy(_MEMO[key]), wall_s=time.perf_counter() - t0)
-    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps)
+    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps, via)
     result.wall_s = time.perf_counter() - t0
     _MEMO[key] = copy.deepcopy(result)
     while len(_MEMO) > 64:
@@ -402,7 +403,17 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
     return result
 
 
-def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int) -> GraspResult:
+def _move_to(world, goal: np.ndarray, params: GraspParams, scale: float) -> bool:
+    """The script's move to ``goal`` (2,) (``goal - here`` clipped per axis); whether it got within reach."""
+    for _ in range(params.max_moves):
+        d = goal - world.gripper_pose()[0][:2]
+        if math.hypot(*d) < params.reach_tolerance:
+            return True
+        world.advance(*(float(u * scale) for u in np.clip(d / scale, -1.0, 1.0)))
+    return bool(math.hypot(*(goal - world.gripper_pose()[0][:2])) < params.reach_tolerance)
+
+
+def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int, via) -> GraspResult:
     """The simulation of :func:`grasp_with` (``wall_s`` left at 0)."""
     p = _pybullet()
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
@@ -414,17 +425,9 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
                           params.settle_steps)
     with world:
         body = world.body_of[tid]
-        reached = False
-        for _ in range(params.max_moves):
-            cur = world.gripper_pose()[0][:2]
-            d = pre - cur
-            if math.hypot(*d) < params.reach_tolerance:
-                reached = True
-                break
-            u = np.clip(d / scale, -1.0, 1.0)
-            world.advance(float(u[0] * scale), float(u[1] * scale))
-        else:
-            reached = bool(math.hypot(*(pre - world.gripper_pose()[0][:2])) < params.reach_tolerance)
+        for point in via:
+            _move_to(world, point, params, scale)
+        reached = _move_to(world, pre, params, scale)
         # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
         world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
         world.advance(0.0, 0.0)

@@ -209,3 +209,23 @@ def test_a_grasp_is_simulated_once_per_process(fb_run, monkeypatch):
     moved[-1, 0] = np.nextafter(moved[-1, 0], 1.0)  # one bit of one body's recorded pose
     grasp_at(fb_run.scene, moved, fb_run.final_ee, est, P)
     assert len(calls) == 3
+
+
+def test_a_waypoint_is_visited_before_the_pre_grasp_point(fb_run, monkeypatch):
+    """``via``: the gripper goes to each waypoint first, as it goes to the pre-grasp point. A waypoint at the start
+    changes nothing (it is already there), to the bit; one elsewhere is simulated afresh (its own memo entry) and
+    the move through it is made."""
+    import pipeline.grasp as grasp_module
+
+    monkeypatch.setattr(grasp_module, "_MEMO", type(grasp_module._MEMO)())
+    yaw, pre, approach = pregrasp(plan_for(fb_run.scene), _box(), fb_run.true_pose)
+    goals = []
+    real = grasp_module._move_to
+    monkeypatch.setattr(grasp_module, "_move_to", lambda w, g, *a: goals.append(np.array(g)) or real(w, g, *a))
+    a = grasp_module.grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, approach, P)
+    b = grasp_module.grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, approach, P,
+                                via=fb_run.final_ee[None, :])
+    assert (b.success, b.outcome, b.reached) == (a.success, a.outcome, a.reached)
+    np.testing.assert_array_equal(b.target_pose, a.target_pose)
+    assert len(goals) == 3  # a: pre; b: the waypoint, then pre
+    np.testing.assert_array_equal(goals[1], fb_run.final_ee)

@@ -9,7 +9,7 @@ from pipeline.geometry import Primitive
 from pipeline.probe.moves import return_to_start
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams
-from pipeline.probe.transit import Keepout, grasp_transit, path_to, transit_graph
+from pipeline.probe.transit import Keepout, grasp_transit, grasp_via, path_to, transit_graph
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
 DOT = np.zeros((1, 2))  # a gripper of one outline point: clearances are plain distances
@@ -206,3 +206,63 @@ def test_no_visited_position_gives_a_clear_grasp_move_falls_back_to_the_scripted
     n = return_to_start(world.act, _Sensing(visited, n_scripted), ProbeParams(), limits, attempts=1,
                         grasp_path=lambda at: grasp_transit(at, np.array([0.0, 0.09]), 0.03))
     assert n > 0 and np.allclose(world.here, [-0.2, 0.0])
+
+
+def _crosses(keepout, way) -> bool:
+    return bool(np.min(keepout.link_clearance(way[:-1], way[1:])) < keepout.margin)
+
+
+def test_grasp_via_is_empty_when_the_straight_move_keeps_clear():
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    assert grasp_via(np.array([-0.2, 0.0]), np.array([-0.2, 0.25]), keepout, 0.03).shape == (0, 2)
+
+
+def test_grasp_via_goes_around_the_target_the_straight_move_would_cross():
+    # From the box's right to the pre-grasp point on its left: the straight move crosses the box.
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    start, pre = np.array([0.15, 0.0]), np.array([-0.15, 0.0])
+    assert _crosses(keepout, grasp_transit(start, pre, 0.03))
+    via = grasp_via(start, pre, keepout, 0.03)
+    assert via.shape == (1, 2)
+    first = grasp_transit(start, via[0], 0.03)
+    second = grasp_transit(first[-1], pre, 0.03)
+    assert not _crosses(keepout, first) and not _crosses(keepout, second)
+
+
+def test_grasp_via_from_against_the_target_first_moves_no_closer():
+    # The return ended pressed against the box's long face (the outline 5 mm inside it): every route starts within
+    # the margin, so the first action may not go deeper; the rest keeps the margin.
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    start, pre = np.array([0.025, 0.0]), np.array([-0.1, 0.05])
+    via = grasp_via(start, pre, keepout, 0.03)
+    assert via.shape == (1, 2)
+    first = grasp_transit(start, via[0], 0.03)
+    lc = keepout.link_clearance(first[:-1], first[1:])
+    assert lc[0] >= keepout.clearance(start[None, :])[0] - 1e-12 and np.all(lc[1:] >= 0.015)
+    assert not _crosses(keepout, grasp_transit(first[-1], pre, 0.03))
+
+
+def test_grasp_via_gives_up_when_no_route_keeps_clear():
+    # A box so long that every waypoint route from one side to the other crosses it (the waypoints lie within
+    # 35 cm of the pre-grasp point): the straight move is kept.
+    wall = Primitive(kind="box", half=(0.01, 2.0), centre=np.zeros(2), yaw=0.0)
+    keepout = Keepout(wall, np.zeros(3), DOT, 0.015)
+    assert grasp_via(np.array([0.1, 0.0]), np.array([-0.1, 0.0]), keepout, 0.03).shape == (0, 2)
+
+
+def test_the_set_grasp_moves_through_the_waypoint_its_keepout_asks_for(monkeypatch):
+    import pipeline.probe.set_grasp as set_grasp
+    from pipeline.scenes import load_scene
+
+    seen = {}
+    monkeypatch.setattr(set_grasp, "grasp_with", lambda *a: seen.update(via=a[-1]) or "simulated")
+    scene = load_scene("FB")
+    g = set_grasp.SetGrasp(yaw=0.0, centre=np.zeros(2), advance=4, share=1.0, pregrasp=np.array([-0.15, 0.0]),
+                           approach=np.array([1.0, 0.0]))
+    keepout = Keepout(BOX, np.zeros(3), DOT, 0.015)
+    start = np.array([0.15, 0.0])
+    assert set_grasp.simulate_set_grasp(scene, np.zeros((1, 3)), start, g, keepout=keepout) == "simulated"
+    assert seen["via"].shape == (1, 2)
+    np.testing.assert_array_equal(seen["via"], grasp_via(start, g.pregrasp, keepout, scene.action_scale))
+    set_grasp.simulate_set_grasp(scene, np.zeros((1, 3)), start, g)  # no keep-out: the script's straight move
+    assert seen["via"] is None

@@ -22,9 +22,10 @@ from pipeline.parallel import run_calls
 from pipeline.probe.policy import ProbeParams, required_contacts
 from pipeline.probe.report import run_stats, save_times
 from pipeline.probe.retrieval import active_set
-from pipeline.probe.set_grasp import choose_grasp, simulate_set_grasp
+from pipeline.probe.set_grasp import choose_grasp, grasp_keepout, simulate_set_grasp
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import load_run
+from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 
 __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]
@@ -62,7 +63,8 @@ def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: boo
     n0 = int(history[0]["rows"])
     ee = info.final_ee if last else info.ee[n0]
     g = choose_grasp(scene, info.target, belief.poses, belief.weights, belief.best)
-    res = simulate_set_grasp(scene, poses, ee, g)
+    keepout = grasp_keepout(info.target, belief.poses[belief.best], load_robot("panda"), params.plan)
+    res = simulate_set_grasp(scene, poses, ee, g, keepout=keepout)
     pose = info.target.canonical(belief.poses[belief.best])
     pe, ye = pose_error(info.target, pose, poses[info.target_id])
     return res, pe, ye

@@ -19,10 +19,12 @@ import numpy as np
 
 from pipeline.geometry import Primitive, rot2, rotate
 from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan, GraspResult, grasp_with, plan_for
+from pipeline.probe.planning import gripper_outline
+from pipeline.probe.transit import Keepout, grasp_via
 from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.plausible import primitive_pose
 
-__all__ = ["SetGrasp", "box_success", "can_success", "choose_grasp", "simulate_set_grasp"]
+__all__ = ["SetGrasp", "box_success", "can_success", "choose_grasp", "simulate_set_grasp", "grasp_keepout"]
 
 #: Outline points within this distance (m) of a finger's farthest reach touch it (compliant pads): calibrated so
 #: that a box turned by 0.05 rad holds and one turned by 0.10 rad slips to the corner, as simulated
@@ -170,7 +172,18 @@ def choose_grasp(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray,
 
 
 def simulate_set_grasp(scene, final_poses: np.ndarray, final_ee: np.ndarray, grasp: SetGrasp,
-                       params: GraspParams = GraspParams()) -> GraspResult:
-    """Simulate the chosen grasp in the run's restored final state (:func:`pipeline.grasp.grasp_with`)."""
+                       params: GraspParams = GraspParams(), keepout: Keepout | None = None) -> GraspResult:
+    """Simulate the chosen grasp in the run's restored final state (:func:`pipeline.grasp.grasp_with`). With
+    ``keepout`` (the target at the set's estimate, :func:`grasp_keepout`), the move to the pre-grasp point goes
+    through a waypoint when the straight move would cross it (:func:`pipeline.probe.transit.grasp_via`)."""
+    via = None if keepout is None else grasp_via(final_ee, grasp.pregrasp, keepout, scene.action_scale, params=params)
     return grasp_with(scene, final_poses, final_ee, grasp.yaw, grasp.pregrasp, grasp.approach, params,
-                      grasp.advance)
+                      grasp.advance, via)
+
+
+def grasp_keepout(prim: Primitive, estimate: np.ndarray, sdf, plan) -> Keepout:
+    """The region the grasp's move to its pre-grasp point keeps out of: the target at the set's estimate (COM pose
+    (3,)) with the return's clearance, ``plan.transit_clearance`` (``plan``: a
+    :class:`pipeline.probe.planning.PlanParams`), for the gripper's outline of the robot's SDF ``sdf``."""
+    return Keepout(prim, np.asarray(estimate, dtype=np.float64).reshape(3),
+                   gripper_outline(sdf, plan.outline_resolution), plan.transit_clearance)

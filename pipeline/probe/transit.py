@@ -23,7 +23,7 @@ from pipeline.geometry import Primitive, primitive_sdf, rotate
 from pipeline.grasp import GraspParams
 from pipeline.retrieve.plausible import primitive_pose
 
-__all__ = ["Keepout", "transit_graph", "path_to", "grasp_transit"]
+__all__ = ["Keepout", "transit_graph", "path_to", "grasp_transit", "grasp_via"]
 
 
 @dataclass(frozen=True)
@@ -144,3 +144,45 @@ def grasp_transit(start: np.ndarray, pre: np.ndarray, scale: float, params: Gras
         here = here + np.clip(d / scale, -1.0, 1.0) * scale
         out.append(here.copy())
     return np.array(out)
+
+
+def _path_length(points: np.ndarray) -> float:
+    return float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+
+
+def grasp_via(start: np.ndarray, pre: np.ndarray, keepout: Keepout, scale: float,
+              radii: tuple[float, ...] = (0.05, 0.10, 0.15, 0.20, 0.25, 0.30, 0.35), directions: int = 16,
+              params: GraspParams = GraspParams()) -> np.ndarray:
+    """A waypoint for the grasp's move to its pre-grasp point when the straight move from ``start`` (2,) would
+    come closer to the target than ``keepout.margin`` (it would push or turn it before the fingers close;
+    docs/retrieval.md, "Known limits"). Candidates lie around ``pre`` (2,) at each of ``radii`` (m) in
+    ``directions`` directions; both moves (:func:`grasp_transit` to the waypoint, then to ``pre``) must keep the
+    margin, and the shortest such route wins (ties to the first candidate). A gripper that starts closer than the
+    margin (the policy's return can end against the target) only has to move no closer on its first action.
+    Returns the waypoints (V, 2), metres: none when the straight move keeps the margin or no candidate does."""
+    start = np.asarray(start, dtype=np.float64).reshape(2)
+    pre = np.asarray(pre, dtype=np.float64).reshape(2)
+    first_need = min(keepout.margin, float(keepout.clearance(start[None, :])[0]))
+
+    def clear(way: np.ndarray, from_start: bool = False) -> bool:
+        if len(way) < 2:
+            return True
+        c = keepout.link_clearance(way[:-1], way[1:])
+        if from_start:
+            return bool(c[0] >= first_need and np.all(c[1:] >= keepout.margin))
+        return bool(np.all(c >= keepout.margin))
+
+    if clear(grasp_transit(start, pre, scale, params), True):
+        return np.zeros((0, 2))
+    angles = 2 * np.pi * np.arange(directions) / directions
+    best, best_len = np.zeros((0, 2)), np.inf
+    for r in radii:
+        for a in angles:
+            w = pre + r * np.array([math.cos(a), math.sin(a)])
+            first = grasp_transit(start, w, scale, params)
+            second = grasp_transit(first[-1], pre, scale, params)
+            length = _path_length(first) + _path_length(second)
+            if length < best_len and clear(first, True) and clear(second):
+                best, best_len = w[None, :], length
+    return best
+
