@@ -31,7 +31,7 @@ $(STAMP): pyproject.toml requirements.lock
 	@touch $(STAMP)
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
-# compilation as its own time (never inside a timed update or estimate). The tracker's kernels (about 60 s on a
+# compilation as its own time (never inside a timed update or estimate). The tracker's kernels (35-46 s on a
 # 2-core EPYC) and the estimators' (about 20 s) compile in two processes side by side.
 $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
