@@ -22,10 +22,9 @@ from pipeline.parallel import run_calls
 from pipeline.probe.policy import ProbeParams, required_contacts
 from pipeline.probe.report import run_stats, save_times
 from pipeline.probe.retrieval import active_set
-from pipeline.probe.set_grasp import choose_grasp, grasp_keepout, simulate_set_grasp
+from pipeline.probe.set_grasp import grasp_for_set
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.runs import load_run
-from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 
 __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]
@@ -62,9 +61,7 @@ def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: boo
     poses = info.final_poses if last else np.asarray(t.column("obj_pose")[rows - 1].as_py()).reshape(-1, 3)
     n0 = int(history[0]["rows"])
     ee = info.final_ee if last else info.ee[n0]
-    g = choose_grasp(scene, info.target, belief.poses, belief.weights, belief.best)
-    keepout = grasp_keepout(info.target, belief.poses[belief.best], load_robot("panda"), params.plan)
-    res = simulate_set_grasp(scene, poses, ee, g, keepout=keepout)
+    _, res = grasp_for_set(scene, info.target, belief.poses, belief.weights, belief.best, poses, ee, params.plan)
     pose = info.target.canonical(belief.poses[belief.best])
     pe, ye = pose_error(info.target, pose, poses[info.target_id])
     return res, pe, ye

@@ -18,11 +18,10 @@ from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
-from pipeline.probe.set_grasp import SetGrasp, choose_grasp, grasp_keepout, simulate_set_grasp
+from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
-from pipeline.robot import load_robot
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row"]
 
@@ -99,9 +98,8 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
     """The set of :func:`active_set`, the grasp chosen for it (:func:`choose_grasp`) and, with ``grasp``, its
     simulation in the run's final state."""
     belief, meta = active_set(info, root_seed, method)
-    g = choose_grasp(info.scene, info.target, belief.poses, belief.weights, belief.best, params)
-    keepout = grasp_keepout(info.target, belief.poses[belief.best], load_robot("panda"), plan)
-    res = simulate_set_grasp(info.scene, info.final_poses, info.final_ee, g, params, keepout) if grasp else None
+    g, res = grasp_for_set(info.scene, info.target, belief.poses, belief.weights, belief.best, info.final_poses,
+                           info.final_ee, plan, params, grasp)
     wide = set_share(info.target, belief, plan) < plan.agree_share and g.share < plan.agree_share
     notes = list(belief.notes) + (["wide_set"] if wide else [])
     return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g, result=res,

@@ -23,8 +23,10 @@ from pipeline.probe.planning import gripper_outline
 from pipeline.probe.transit import Keepout, grasp_via
 from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.plausible import primitive_pose
+from pipeline.robot import load_robot
 
-__all__ = ["SetGrasp", "box_success", "can_success", "choose_grasp", "simulate_set_grasp", "grasp_keepout"]
+__all__ = ["SetGrasp", "box_success", "can_success", "choose_grasp", "simulate_set_grasp", "grasp_keepout",
+           "grasp_for_set"]
 
 #: Outline points within this distance (m) of a finger's farthest reach touch it (compliant pads): calibrated so
 #: that a box turned by 0.05 rad holds and one turned by 0.10 rad slips to the corner, as simulated
@@ -187,3 +189,17 @@ def grasp_keepout(prim: Primitive, estimate: np.ndarray, sdf, plan) -> Keepout:
     :class:`pipeline.probe.planning.PlanParams`), for the gripper's outline of the robot's SDF ``sdf``."""
     return Keepout(prim, np.asarray(estimate, dtype=np.float64).reshape(3),
                    gripper_outline(sdf, plan.outline_resolution), plan.transit_clearance)
+
+
+def grasp_for_set(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, final_poses: np.ndarray,
+                  final_ee: np.ndarray, plan, params: GraspParams = GraspParams(), simulate: bool = True
+                  ) -> tuple[SetGrasp, GraspResult | None]:
+    """The grasp chosen for a set (COM poses (K, 3), weights (K,), ``best`` its estimate; :func:`choose_grasp`)
+    and, with ``simulate``, its simulation from the gripper at ``final_ee`` (2,) in the state ``final_poses``
+    (objects, 3), its move to the pre-grasp point kept out of the target at the estimate
+    (:func:`grasp_keepout`; ``plan`` a :class:`pipeline.probe.planning.PlanParams`)."""
+    g = choose_grasp(scene, prim, poses, weights, best, params)
+    if not simulate:
+        return g, None
+    keepout = grasp_keepout(prim, poses[best], load_robot("panda"), plan)
+    return g, simulate_set_grasp(scene, final_poses, final_ee, g, params, keepout)
