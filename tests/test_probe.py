@@ -164,6 +164,30 @@ def test_probe_line_blocked_by_another_object_predicts_the_block_and_the_contact
     assert explains(BOX, poses, np.array([0.22, 0.0]), 0.025)
 
 
+def test_a_contact_whose_force_the_hypothesis_surface_does_not_face_is_not_explained_by_it():
+    """A contact on the +x face pushes the gripper along +x: a force along y or -x there is not this surface's,
+    although the position fits (docs/retrieval.md, "Attributing a probe contact by its direction")."""
+    upright = np.array([[0.0, 0.0, 0.0]])
+    turned = np.array([[0.0, 0.2, np.pi / 2]])  # far from the contact
+    on_face = np.array([0.031, 0.0])
+    assert explains(BOX, upright, on_face, 0.025, np.array([2.0, 0.1]), 60.0, 0.015)
+    assert not explains(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 60.0, 0.015)
+    assert not explains(BOX, upright, on_face, 0.025, np.array([-2.0, 0.0]), 60.0, 0.015)  # pulled, not pushed
+    # position only: every direction is explained, as with no force measured (NaN) or a zero force
+    assert explains(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 180.0, 0.015)
+    assert explains(BOX, upright, on_face, 0.025, np.array([np.nan, np.nan]), 60.0, 0.015)
+    assert explains(BOX, upright, on_face, 0.025, np.zeros(2), 60.0, 0.015)
+    # a corner's normals span a quarter turn: near one, any direction is explained
+    corner = np.array([0.031, 0.079])
+    assert explains(BOX, upright, corner, 0.025, np.array([0.0, 1.0]), 60.0, 0.015)
+    assert not explains(BOX, upright, corner, 0.025, np.array([0.0, -1.0]), 60.0, 0.0)
+    # the set explains the contact when one of its hypotheses does, in position and direction
+    both = np.vstack([turned, upright])
+    assert explains(BOX, both, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015)
+    far = np.array([[0.5, 0.5, 0.0]])
+    assert not explains(BOX, far, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Guarded moves
 # ---------------------------------------------------------------------------------------------------------------

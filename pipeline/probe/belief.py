@@ -16,6 +16,7 @@ positions and the target's known shape.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -78,11 +79,14 @@ class Sensing:
         self.point_steps: list[int] = []
         self.probe_points: list[np.ndarray] = []
         self.probe_steps: list[int] = []
+        self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
 
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order)."""
         cols, _, _ = isolate_run(table, *self.surface)
         self.forces += contact_forces(table).tolist()
+        force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
+                                 table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
         for i, step in enumerate(cols["step"]):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
             scripted = len(self.steps) < self.n_scripted
@@ -97,6 +101,7 @@ class Sensing:
                 if inc:
                     self.probe_points.append(p)
                     self.probe_steps.append(int(step))
+                    self.probe_forces.append(force[i].copy())
             elif inc:
                 self.tracker.update(x, np.array([[cols["dx_m"][i], cols["dy_m"][i]]]), p[None, :])
                 self.point_steps.append(int(step))
@@ -264,13 +269,31 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
                    segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"])
 
 
-def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float) -> bool:
-    """Whether some hypothesis (COM poses (H, 3)) puts its surface within ``tolerance`` (m) of ``point`` (2,)."""
+def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float,
+             force: np.ndarray | None = None, max_angle_deg: float = 180.0, corner: float = 0.0) -> bool:
+    """Whether some hypothesis (COM poses (H, 3)) puts its surface within ``tolerance`` (m) of ``point`` (2,).
+
+    With the contact's ``force`` (2,), N, on the gripper (it pushes the gripper out of the object, along the
+    object's outward normal within the friction cone), the hypothesis must also turn its surface there to face
+    it: its outward normal within ``max_angle_deg`` of the force, unless the point lies within ``corner`` (m) of
+    one of a box's corners, whose normals span a quarter turn (docs/retrieval.md, "Attributing a probe contact
+    by its direction")."""
     pp = primitive_pose(target, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
     local = rotate(np.asarray(point, dtype=np.float64)[None, None, :] - pp[:, None, :2], pp[:, None, 2],
                    inverse=True)
-    sd, _ = primitive_sdf(target, local)
-    return bool(np.min(np.abs(sd)) <= tolerance)
+    sd, grad = primitive_sdf(target, local)
+    near = np.abs(sd[:, 0]) <= tolerance
+    f = None if force is None else np.asarray(force, dtype=np.float64).reshape(2)
+    if f is None or not np.all(np.isfinite(f)) or math.hypot(f[0], f[1]) == 0.0 or max_angle_deg >= 180.0:
+        return bool(near.any())
+    normal = rotate(grad[:, 0, :], pp[:, 2])
+    cos = (normal[:, 0] * f[0] + normal[:, 1] * f[1]) / (np.hypot(normal[:, 0], normal[:, 1]) * math.hypot(*f))
+    facing = cos >= math.cos(math.radians(max_angle_deg))
+    if target.kind == "box" and corner > 0.0:
+        hx, hy = target.half[:2]
+        d_corner = np.hypot(np.abs(local[:, 0, 0]) - hx, np.abs(local[:, 0, 1]) - hy)
+        facing |= d_corner <= corner
+    return bool((near & facing).any())
 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,

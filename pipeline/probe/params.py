@@ -33,6 +33,10 @@ class ProbeParams:
         Longest action of a transit (0.03, the scripted actions' scale).
     attribute_tolerance : float, metres
         A probe contact is the target's if some hypothesis's surface passes this close (0.025).
+    attribute_angle_deg : float, degrees
+        ... and turns its outward normal there within this angle of the contact force (60; 180: position only),
+    attribute_corner : float, metres
+        ... or puts one of a box's corners within this distance of it (0.015).
     misfit_tolerance : float, metres
         When the probe contacts attributed to the target lie farther than this (median) from the set's estimate,
         the segment is not the target's: the next-ranked one is taken (0.006).
@@ -62,6 +66,8 @@ class ProbeParams:
     backoff: float = 0.015
     transit_step: float = 0.03
     attribute_tolerance: float = 0.025
+    attribute_angle_deg: float = 60.0
+    attribute_corner: float = 0.015
     misfit_tolerance: float = 0.006
     stall: int = 99
     min_span: float = 0.6
@@ -75,6 +81,7 @@ class ProbeParams:
         **{name: number(0, 0.03, lo_open=True) for name in ("coarse_step", "fine_step", "backoff", "transit_step")},
         **{name: number(0) for name in ("slow_zone", "overshoot")},
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
+        "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
         "min_target_contacts": integer(0),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),

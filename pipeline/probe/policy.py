@@ -239,10 +239,11 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
     ``attribute_tolerance``, to another object otherwise; every contact is the target's while no set exists or
     the set is the no-segment prior. The target's contacts' steps go to
     ``log.target_steps``."""
-    for q, step in zip(sensing.probe_points[len(log.target_steps) + len(log.other_steps):],
-                       sensing.probe_steps[len(log.target_steps) + len(log.other_steps):]):
-        mine = previous is None or previous.segment < 0 or explains(target, previous.poses, q,
-                                                                    params.attribute_tolerance)
+    done = len(log.target_steps) + len(log.other_steps)
+    for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
+        mine = previous is None or previous.segment < 0 or explains(
+            target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
+            params.attribute_corner)
         (log.target_steps if mine else log.other_steps).append(int(step))
     return set_from_steps(choice, target, sensing, root_seed, run, log.target_steps)
 
