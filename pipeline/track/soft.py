@@ -29,10 +29,9 @@ import numpy as np
 
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.track import kernels
+from pipeline.track import kernels, weights
 from pipeline.track.base import StepResult, params_from_dict
 from pipeline.track.ordering import take_rows
-from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
 REPLACE_MODES = ("after-resample", "every-step", "never")
@@ -252,33 +251,30 @@ class SoftTracker:
 
     def _reweight_and_resample(self, eps: np.ndarray) -> StepResult:
         prm = self.params
-        if np.ptp(eps) == 0.0 and prm.replace != "every-step" and self.last_step_ is not None:
-            # Every particle explains the step equally well (typically free space with no point near the robot):
-            # the normalised weights and the ESS are unchanged, and the ESS was at or above the threshold after the
-            # previous step, so there is nothing to resample or replace. The estimate is still refreshed: a
-            # contact step has moved and added points.
-            self._snapshot_map(int(np.argmax(self.log_weights_)))
+        # Every particle explains the step equally well (typically free space with no point near the robot): the
+        # normalised weights and the ESS are unchanged, and the ESS was at or above the threshold after the
+        # previous step, so there is nothing to resample or replace (``skipped``). The estimate is still
+        # refreshed: a contact step has moved and added points.
+        may_skip = prm.replace != "every-step" and self.last_step_ is not None
+        floor = float(prm.weight_floor)
+        skipped, log_w, ess, map_index = weights.reweight(
+            self.log_weights_, eps, may_skip, prm.weighting == "reference", float(prm.penetration_length), floor,
+            math.log(floor) if floor > 0 else 0.0)
+        self._snapshot_map(int(map_index))
+        if skipped:
             self.last_step_ = StepResult(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
-                                              resampled=False, n_replaced=0)
+                                         resampled=False, n_replaced=0)
             return self.last_step_
-        if prm.weighting == "reference":
-            eps = eps - eps.max()
-        log_lik = -(eps * eps) / prm.penetration_length
-        log_w = normalise(self.log_weights_ + log_lik)
-        if prm.weight_floor > 0:
-            log_w = normalise(np.maximum(log_w, math.log(prm.weight_floor)))
-        self._snapshot_map(int(np.argmax(log_w)))
-        ess = effective_sample_size(log_w)
+        ess = float(ess)
         resampled = ess < prm.ess_threshold
         n_replaced = 0
         replace = self._m > 0 and (prm.replace == "every-step" or (resampled and prm.replace == "after-resample"))
         arrays = (self._P, self._C, self._colpen, self._npen, self._order)
         if resampled:
-            ancestors = systematic(log_w, self.rng)
+            ancestors, distinct = weights.systematic_ancestors(log_w, self.rng.random())
             if replace:
                 # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
                 # once per distinct ancestor (in place, before the copies are made), then hand out the copies.
-                distinct = ancestors[np.r_[True, ancestors[1:] != ancestors[:-1]]]  # sorted: systematic
                 n_rep = kernels.replace_inconsistent(self._P, self._C, self._order, distinct, self._m, self._colpen,
                                                      self._npen, *self._grid, self._lo, self._hi, prm.tolerance)
                 n_replaced = int(n_rep[ancestors].sum())
