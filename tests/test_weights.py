@@ -10,7 +10,7 @@ import pytest
 from pipeline.track import weights
 from pipeline.track.resampling import effective_sample_size, logsumexp, normalise, systematic
 
-SIZES = list(range(1, 300)) + [511, 512, 1000, 1023, 4097, 8192, 8193, 20000]
+SIZES = list(range(1, 300)) + [487, 488, 489, 511, 512, 968, 969, 1000, 1023, 4097, 7688, 7689, 8192, 8193, 20000]
 
 
 def _vector(rng, n):

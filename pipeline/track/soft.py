@@ -29,7 +29,7 @@ import numpy as np
 
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.track import kernels, weights
+from pipeline.track import kernels, replacement, weights
 from pipeline.track.base import StepResult, params_from_dict
 from pipeline.track.ordering import take_rows
 
@@ -211,8 +211,7 @@ class SoftTracker:
             eps = kernels.free_space_penetration(self._P, self._m, x, *self._grid, self._lo, self._hi,
                                                  self.params.tolerance)
         else:
-            self._predict(x, dx, p)
-            eps = self.penetration_()
+            eps = self._predict(x, dx, p)
         return self._reweight_and_resample(eps)
 
     def _ensure_capacity(self, m_needed: int) -> None:
@@ -233,15 +232,17 @@ class SoftTracker:
         self._order = grow(self._order, np.int32)
         self._capacity = cap
 
-    def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> None:
-        """Append the K new points (moved by their own dx) and move connected old points (pxdyn)."""
+    def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Append the K new points (moved by their own dx) and move connected old points (pxdyn); returns each
+        particle's summed penetration after the step (N,), as :meth:`penetration_` gives it."""
         m_old = self._m
         self._ensure_capacity(m_old + len(dx))
         u = self.rng.random((self.params.n_particles, m_old))
-        kernels.predict_and_update(self._P, self._C, self._order, u, p - dx, dx, x, p, m_old, self.params.length,
-                                   self._colpen, self._npen, *self._grid, self._lo, self._hi,
-                                   self.params.tolerance)
+        eps = kernels.predict_and_update(self._P, self._C, self._order, u, p - dx, dx, x, p, m_old,
+                                         self.params.length, self._colpen, self._npen, *self._grid, self._lo,
+                                         self._hi, self.params.tolerance)
         self._m = m_old + len(dx)
+        return eps
 
     def _snapshot_map(self, index: int) -> None:
         # The estimate is the MAP particle as weighted now, before resampling and replacement (as the authors'
@@ -275,15 +276,16 @@ class SoftTracker:
             if replace:
                 # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
                 # once per distinct ancestor (in place, before the copies are made), then hand out the copies.
-                n_rep = kernels.replace_inconsistent(self._P, self._C, self._order, distinct, self._m, self._colpen,
-                                                     self._npen, *self._grid, self._lo, self._hi, prm.tolerance)
+                n_rep = replacement.replace_inconsistent(self._P, self._C, self._order, distinct, self._m,
+                                                         self._colpen, self._npen, *self._grid, self._lo, self._hi,
+                                                         prm.tolerance)
                 n_replaced = int(n_rep[ancestors].sum())
             take_rows(ancestors, self._m, *arrays)
             log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
         elif replace:
-            n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._order, self._all_rows, self._m,
-                                                          self._colpen, self._npen, *self._grid, self._lo,
-                                                          self._hi, prm.tolerance).sum())
+            n_replaced = int(replacement.replace_inconsistent(self._P, self._C, self._order, self._all_rows,
+                                                              self._m, self._colpen, self._npen, *self._grid,
+                                                              self._lo, self._hi, prm.tolerance).sum())
         self.log_weights_ = log_w
         self.last_step_ = StepResult(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_

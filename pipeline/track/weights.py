@@ -54,10 +54,8 @@ def _block_sum(a, start, n):
 
 
 @njit(cache=True)
-def _pairwise_sum(a, start, n):
-    """``np.sum(a[start:start + n])`` for a contiguous float64 vector, in numpy's order: blocks of at most
-    ``_PW_BLOCK`` (:func:`_block_sum`), above that the sum of the two halves (the first a multiple of 8 long).
-    numpy recurses; this walks the same tree with an explicit stack (numba cannot cache a recursive function)."""
+def _pairwise_sum_stack(a, start, n):
+    """:func:`_pairwise_sum` of any length: the same tree walked with an explicit stack."""
     if n <= _PW_BLOCK:
         return _block_sum(a, start, n)
     depth = 64  # the tree is about log2(n / 128) deep
@@ -90,6 +88,79 @@ def _pairwise_sum(a, start, n):
             n_sums -= 1
             top -= 1
     return sums[0]
+
+
+# numpy recurses; numba cannot cache a recursive function, so each depth of the tree has a function of its own:
+# _pw{k} sums up to _PW_SIZES[k] elements (the halves of n elements are at most n / 2 + 8 long).
+_PW_SIZES = (128, 248, 488, 968, 1928, 3848, 7688)
+
+
+@njit(cache=True)
+def _pw1(a, start, n):
+    """Pairwise sum of at most 248 elements: a block, or two halves by :func:`_block_sum`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _block_sum(a, start, half) + _block_sum(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pw2(a, start, n):
+    """Pairwise sum of at most 488 elements: a block, or two halves by :func:`_pw1`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _pw1(a, start, half) + _pw1(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pw3(a, start, n):
+    """Pairwise sum of at most 968 elements: a block, or two halves by :func:`_pw2`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _pw2(a, start, half) + _pw2(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pw4(a, start, n):
+    """Pairwise sum of at most 1928 elements: a block, or two halves by :func:`_pw3`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _pw3(a, start, half) + _pw3(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pw5(a, start, n):
+    """Pairwise sum of at most 3848 elements: a block, or two halves by :func:`_pw4`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _pw4(a, start, half) + _pw4(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pw6(a, start, n):
+    """Pairwise sum of at most 7688 elements: a block, or two halves by :func:`_pw5`."""
+    if n <= _PW_BLOCK:
+        return _block_sum(a, start, n)
+    half = n // 2 - (n // 2) % 8
+    return _pw5(a, start, half) + _pw5(a, start + half, n - half)
+
+
+@njit(cache=True)
+def _pairwise_sum(a, start, n):
+    """``np.sum(a[start:start + n])`` for a contiguous float64 vector, in numpy's order: blocks of at most
+    ``_PW_BLOCK`` elements (:func:`_block_sum`), above that the sum of the two halves, recursively. Up to 7688
+    elements without allocating (per-depth functions), beyond with an explicit stack."""
+    if n <= _PW_SIZES[1]:
+        return _pw1(a, start, n)
+    if n <= _PW_SIZES[3]:
+        return _pw3(a, start, n)
+    if n <= _PW_SIZES[6]:
+        return _pw6(a, start, n)
+    return _pairwise_sum_stack(a, start, n)
 
 
 @njit(cache=True)
