@@ -1,24 +1,26 @@
 """Optional speed-ups do not change what stucco does (issue 17, environment): STUCCO's numba kernels
-(pipeline/track/kernels.py) run as plain Python (``NUMBA_DISABLE_JIT=1``; a kernel's ``py_func`` is what that runs)
-give the compiled kernels' results, and an unwritable cache folder (the Panda grid's, under ``$HOME``) only costs
-time."""
+(pipeline/track/kernels.py, ordering.py, replacement.py, weights.py) run as plain Python (``NUMBA_DISABLE_JIT=1``;
+a kernel's ``py_func`` is what that runs) give the compiled kernels' results, and an unwritable cache folder (the
+Panda grid's, under ``$HOME``) only costs time."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from pipeline.robot import panda_cache
-from pipeline.track import kernels, ordering
+from pipeline.track import kernels, ordering, replacement, weights
 from tests.test_soft import _random_stream, make, run
 
 # every jitted function, helpers included (as NUMBA_DISABLE_JIT=1 runs them: numpy scalars, not Python floats)
-KERNELS = tuple((module, name) for module in (kernels, ordering) for name, f in vars(module).items()
+KERNELS = tuple((module, name) for module in (kernels, ordering, replacement, weights)
+                for name, f in vars(module).items()
                 if hasattr(f, "py_func"))
 
 
 def _state(tracker):
     m = tracker.n_points_
-    return tracker._P[:, :m].copy(), tracker._C[:, :m].copy(), tracker._colpen[:, :m].copy(), tracker._npen[:, :m].copy()
+    return (tracker._P[:, :m].copy(), tracker._C[:, :m].copy(), tracker._colpen[:, :m].copy(),
+            tracker._npen[:, :m].copy(), tracker.log_weights_.copy())
 
 
 @pytest.mark.parametrize("replace", ["never", "after-resample"])

@@ -29,10 +29,9 @@ import numpy as np
 
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.track import kernels
+from pipeline.track import kernels, replacement, weights
 from pipeline.track.base import StepResult, params_from_dict
 from pipeline.track.ordering import take_rows
-from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 WEIGHTINGS = ("reference", "paper")
 REPLACE_MODES = ("after-resample", "every-step", "never")
@@ -212,8 +211,7 @@ class SoftTracker:
             eps = kernels.free_space_penetration(self._P, self._m, x, *self._grid, self._lo, self._hi,
                                                  self.params.tolerance)
         else:
-            self._predict(x, dx, p)
-            eps = self.penetration_()
+            eps = self._predict(x, dx, p)
         return self._reweight_and_resample(eps)
 
     def _ensure_capacity(self, m_needed: int) -> None:
@@ -234,15 +232,17 @@ class SoftTracker:
         self._order = grow(self._order, np.int32)
         self._capacity = cap
 
-    def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> None:
-        """Append the K new points (moved by their own dx) and move connected old points (pxdyn)."""
+    def _predict(self, x: np.ndarray, dx: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Append the K new points (moved by their own dx) and move connected old points (pxdyn); returns each
+        particle's summed penetration after the step (N,), as :meth:`penetration_` gives it."""
         m_old = self._m
         self._ensure_capacity(m_old + len(dx))
         u = self.rng.random((self.params.n_particles, m_old))
-        kernels.predict_and_update(self._P, self._C, self._order, u, p - dx, dx, x, p, m_old, self.params.length,
-                                   self._colpen, self._npen, *self._grid, self._lo, self._hi,
-                                   self.params.tolerance)
+        eps = kernels.predict_and_update(self._P, self._C, self._order, u, p - dx, dx, x, p, m_old,
+                                         self.params.length, self._colpen, self._npen, *self._grid, self._lo,
+                                         self._hi, self.params.tolerance)
         self._m = m_old + len(dx)
+        return eps
 
     def _snapshot_map(self, index: int) -> None:
         # The estimate is the MAP particle as weighted now, before resampling and replacement (as the authors'
@@ -252,42 +252,40 @@ class SoftTracker:
 
     def _reweight_and_resample(self, eps: np.ndarray) -> StepResult:
         prm = self.params
-        if np.ptp(eps) == 0.0 and prm.replace != "every-step" and self.last_step_ is not None:
-            # Every particle explains the step equally well (typically free space with no point near the robot):
-            # the normalised weights and the ESS are unchanged, and the ESS was at or above the threshold after the
-            # previous step, so there is nothing to resample or replace. The estimate is still refreshed: a
-            # contact step has moved and added points.
-            self._snapshot_map(int(np.argmax(self.log_weights_)))
+        # Every particle explains the step equally well (typically free space with no point near the robot): the
+        # normalised weights and the ESS are unchanged, and the ESS was at or above the threshold after the
+        # previous step, so there is nothing to resample or replace (``skipped``). The estimate is still
+        # refreshed: a contact step has moved and added points.
+        may_skip = prm.replace != "every-step" and self.last_step_ is not None
+        floor = float(prm.weight_floor)
+        skipped, log_w, ess, map_index = weights.reweight(
+            self.log_weights_, eps, may_skip, prm.weighting == "reference", float(prm.penetration_length), floor,
+            math.log(floor) if floor > 0 else 0.0)
+        self._snapshot_map(int(map_index))
+        if skipped:
             self.last_step_ = StepResult(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
-                                              resampled=False, n_replaced=0)
+                                         resampled=False, n_replaced=0)
             return self.last_step_
-        if prm.weighting == "reference":
-            eps = eps - eps.max()
-        log_lik = -(eps * eps) / prm.penetration_length
-        log_w = normalise(self.log_weights_ + log_lik)
-        if prm.weight_floor > 0:
-            log_w = normalise(np.maximum(log_w, math.log(prm.weight_floor)))
-        self._snapshot_map(int(np.argmax(log_w)))
-        ess = effective_sample_size(log_w)
+        ess = float(ess)
         resampled = ess < prm.ess_threshold
         n_replaced = 0
         replace = self._m > 0 and (prm.replace == "every-step" or (resampled and prm.replace == "after-resample"))
         arrays = (self._P, self._C, self._colpen, self._npen, self._order)
         if resampled:
-            ancestors = systematic(log_w, self.rng)
+            ancestors, distinct = weights.systematic_ancestors(log_w, self.rng.random())
             if replace:
                 # Right after resampling, copies of one ancestor are identical, and Alg. 2 is deterministic: run it
                 # once per distinct ancestor (in place, before the copies are made), then hand out the copies.
-                distinct = ancestors[np.r_[True, ancestors[1:] != ancestors[:-1]]]  # sorted: systematic
-                n_rep = kernels.replace_inconsistent(self._P, self._C, self._order, distinct, self._m, self._colpen,
-                                                     self._npen, *self._grid, self._lo, self._hi, prm.tolerance)
+                n_rep = replacement.replace_inconsistent(self._P, self._C, self._order, distinct, self._m,
+                                                         self._colpen, self._npen, *self._grid, self._lo, self._hi,
+                                                         prm.tolerance)
                 n_replaced = int(n_rep[ancestors].sum())
             take_rows(ancestors, self._m, *arrays)
             log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
         elif replace:
-            n_replaced = int(kernels.replace_inconsistent(self._P, self._C, self._order, self._all_rows, self._m,
-                                                          self._colpen, self._npen, *self._grid, self._lo,
-                                                          self._hi, prm.tolerance).sum())
+            n_replaced = int(replacement.replace_inconsistent(self._P, self._C, self._order, self._all_rows,
+                                                              self._m, self._colpen, self._npen, *self._grid,
+                                                              self._lo, self._hi, prm.tolerance).sum())
         self.log_weights_ = log_w
         self.last_step_ = StepResult(ess=ess, resampled=bool(resampled), n_replaced=n_replaced)
         return self.last_step_
