@@ -52,10 +52,9 @@ def _left_half(n):
 
 
 @njit(cache=True)
-def pairwise_sum(a, lo, n):
-    """Sum of ``a[lo:lo + n]`` in numpy's pairwise order (``np.add.reduce`` over a contiguous axis): blocks of
-    at most 128 values (:func:`_block_sum`), halves summed above. numpy recurses; here an explicit stack of
-    halves does (a recursive function in numba's on-disk cache crashed the process)."""
+def _stack_sum(a, lo, n):
+    """:func:`pairwise_sum` of any length, the tree walked with an explicit stack of halves (it allocates its
+    stack: used beyond the sizes the per-depth functions cover)."""
     if n <= 128:
         return _block_sum(a, lo, n)
     los = np.empty(64, np.int64)
@@ -95,3 +94,70 @@ def pairwise_sum(a, lo, n):
             los[top] = los[top - 1]
             ns[top] = _left_half(m)
             stage[top] = 0
+
+
+# numpy recurses, but a recursive function in numba's on-disk cache crashed the process: each depth of the tree has
+# a function of its own instead, so sums of up to 7688 values allocate nothing. _pw{k} sums at most
+# _PW_SIZES[k] values (the halves of n values are at most n / 2 + 8 long).
+_PW_SIZES = (128, 248, 488, 968, 1928, 3848, 7688)
+
+
+@njit(cache=True)
+def _pw1(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _block_sum(a, lo, half) + _block_sum(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def _pw2(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _pw1(a, lo, half) + _pw1(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def _pw3(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _pw2(a, lo, half) + _pw2(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def _pw4(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _pw3(a, lo, half) + _pw3(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def _pw5(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _pw4(a, lo, half) + _pw4(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def _pw6(a, lo, n):
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    half = _left_half(n)
+    return _pw5(a, lo, half) + _pw5(a, lo + half, n - half)
+
+
+@njit(cache=True)
+def pairwise_sum(a, lo, n):
+    """Sum of ``a[lo:lo + n]`` (a contiguous float64 vector) in numpy's pairwise order (``np.add.reduce`` over a
+    contiguous axis): blocks of at most 128 values (:func:`_block_sum`), halves summed above."""
+    if n <= _PW_SIZES[1]:
+        return _pw1(a, lo, n)
+    if n <= _PW_SIZES[3]:
+        return _pw3(a, lo, n)
+    if n <= _PW_SIZES[6]:
+        return _pw6(a, lo, n)
+    return _stack_sum(a, lo, n)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from pipeline.pairwise_sum import pairwise_sum
 from pipeline.track import weights
 from pipeline.track.resampling import effective_sample_size, logsumexp, normalise, systematic
 
@@ -18,11 +19,19 @@ def _vector(rng, n):
     return rng.standard_normal(n) * 10.0 ** rng.integers(-8, 8, n)
 
 
-def test_pairwise_sum_is_numpys_sum():
+def test_pairwise_sum_is_numpys_sum_to_the_bit():
+    """Every branch of :func:`pipeline.pairwise_sum.pairwise_sum`: one block, each per-depth function's range and
+    the stack beyond 7688 values, at an offset too; ``0.0 +`` it (as the tracker adds it) is np.sum's +0 for a
+    sum of negative zeros."""
     rng = np.random.default_rng(0)
     for n in SIZES:
         a = _vector(rng, n)
-        assert weights._pairwise_sum(a, 0, n) == np.sum(a), n
+        assert np.float64(pairwise_sum(a, 0, n)).view(np.int64) == np.sum(a).view(np.int64), n
+        b = np.concatenate([_vector(rng, 5), a])
+        assert np.float64(pairwise_sum(b, 5, n)).view(np.int64) == np.sum(a).view(np.int64), n
+    for n in (1, 7, 8, 200):
+        z = np.full(n, -0.0)
+        assert np.float64(0.0 + pairwise_sum(z, 0, n)).view(np.int64) == np.sum(z).view(np.int64), n
 
 
 def test_logsumexp_and_normalise_are_the_numpy_ones():

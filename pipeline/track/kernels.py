@@ -29,7 +29,7 @@ from numba import njit, prange
 
 from pipeline.track.ordering import (_below_exp, _first_above, _first_at_least, _groups_by_first_coordinate,
                                      _merge_order, _same_config)
-from pipeline.track.weights import _pairwise_sum
+from pipeline.pairwise_sum import pairwise_sum
 
 #: A term counts as penetrating only when sdf + tol is below -PEN_EPS (metres): grid cells that sit exactly at
 #: -tol give sdf + tol = -1e-17 in float64 (0 in float32), and such a tie must not mark a point inconsistent.
@@ -139,7 +139,7 @@ def predict_and_update(P, C, order, u, prev_points, dx, x, p, m_old, length, col
         _add_new_pairs(P, C, n, m_old, m_old + K, counts, gorder, xs, ys, zero, colpen, npen, values, shape,
                        strides, origin, inv_res, lo, hi, tol)
         _merge_order(P, n, counts, gorder, xs, order, m_old, K)
-        eps[n] = _pairwise_sum(colpen[n], 0, m_old + K)
+        eps[n] = 0.0 + pairwise_sum(colpen[n], 0, m_old + K)  # 0.0 +: np.sum's +0 for a sum of -0s
     return eps
 
 

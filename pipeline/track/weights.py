@@ -6,7 +6,7 @@ twenty small array operations per step (tens of microseconds each), which was a 
 Bit-identity rests on three facts, each checked by ``tests/test_weights.py`` against numpy:
 
 * ``np.sum`` of a contiguous float64 vector is numpy's pairwise summation (blocks of 8 accumulators up to 128
-  elements, halves above), written out in :func:`_pairwise_sum`;
+  elements, halves above), written out in :func:`pipeline.pairwise_sum.pairwise_sum`;
 * ``np.cumsum``, ``max``, ``argmax``, ``maximum`` and ``searchsorted`` are sequential or exact;
 * :func:`math.exp` and :func:`math.log` compiled by numba are the C library's scalar functions, as are
   :func:`pipeline.portable.exp` and :func:`pipeline.portable.log` that numpy ran.
@@ -18,150 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-#: numpy's pairwise summation block (``PW_BLOCKSIZE`` in numpy's loops_utils.h).
-_PW_BLOCK = 128
-
-
-@njit(cache=True)
-def _block_sum(a, start, n):
-    """numpy's pairwise sum of at most ``_PW_BLOCK`` elements: sequential below 8, else 8 accumulators combined
-    as a tree, then the remainder."""
-    if n < 8:
-        res = 0.0
-        for i in range(start, start + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[start], a[start + 1], a[start + 2], a[start + 3]
-    r4, r5, r6, r7 = a[start + 4], a[start + 5], a[start + 6], a[start + 7]
-    stop = n - n % 8
-    i = 8
-    while i < stop:
-        b = start + i
-        r0 += a[b]
-        r1 += a[b + 1]
-        r2 += a[b + 2]
-        r3 += a[b + 3]
-        r4 += a[b + 4]
-        r5 += a[b + 5]
-        r6 += a[b + 6]
-        r7 += a[b + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[start + i]
-        i += 1
-    return res
-
-
-@njit(cache=True)
-def _pairwise_sum_stack(a, start, n):
-    """:func:`_pairwise_sum` of any length: the same tree walked with an explicit stack."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    depth = 64  # the tree is about log2(n / 128) deep
-    starts = np.empty(depth, np.int64)
-    sizes = np.empty(depth, np.int64)
-    phase = np.empty(depth, np.int64)
-    sums = np.empty(depth + 1)
-    top = 1
-    starts[0], sizes[0], phase[0] = start, n, 0
-    n_sums = 0
-    while top > 0:
-        s, m = starts[top - 1], sizes[top - 1]
-        if m <= _PW_BLOCK:
-            sums[n_sums] = _block_sum(a, s, m)
-            n_sums += 1
-            top -= 1
-            continue
-        half = m // 2
-        half -= half % 8
-        if phase[top - 1] == 0:  # the first half next
-            phase[top - 1] = 1
-            starts[top], sizes[top], phase[top] = s, half, 0
-            top += 1
-        elif phase[top - 1] == 1:  # then the second
-            phase[top - 1] = 2
-            starts[top], sizes[top], phase[top] = s + half, m - half, 0
-            top += 1
-        else:  # both halves summed: first + second
-            sums[n_sums - 2] = sums[n_sums - 2] + sums[n_sums - 1]
-            n_sums -= 1
-            top -= 1
-    return sums[0]
-
-
-# numpy recurses; numba cannot cache a recursive function, so each depth of the tree has a function of its own:
-# _pw{k} sums up to _PW_SIZES[k] elements (the halves of n elements are at most n / 2 + 8 long).
-_PW_SIZES = (128, 248, 488, 968, 1928, 3848, 7688)
-
-
-@njit(cache=True)
-def _pw1(a, start, n):
-    """Pairwise sum of at most 248 elements: a block, or two halves by :func:`_block_sum`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _block_sum(a, start, half) + _block_sum(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pw2(a, start, n):
-    """Pairwise sum of at most 488 elements: a block, or two halves by :func:`_pw1`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _pw1(a, start, half) + _pw1(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pw3(a, start, n):
-    """Pairwise sum of at most 968 elements: a block, or two halves by :func:`_pw2`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _pw2(a, start, half) + _pw2(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pw4(a, start, n):
-    """Pairwise sum of at most 1928 elements: a block, or two halves by :func:`_pw3`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _pw3(a, start, half) + _pw3(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pw5(a, start, n):
-    """Pairwise sum of at most 3848 elements: a block, or two halves by :func:`_pw4`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _pw4(a, start, half) + _pw4(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pw6(a, start, n):
-    """Pairwise sum of at most 7688 elements: a block, or two halves by :func:`_pw5`."""
-    if n <= _PW_BLOCK:
-        return _block_sum(a, start, n)
-    half = n // 2 - (n // 2) % 8
-    return _pw5(a, start, half) + _pw5(a, start + half, n - half)
-
-
-@njit(cache=True)
-def _pairwise_sum(a, start, n):
-    """``np.sum(a[start:start + n])`` for a contiguous float64 vector, in numpy's order: blocks of at most
-    ``_PW_BLOCK`` elements (:func:`_block_sum`), above that the sum of the two halves, recursively. Up to 7688
-    elements without allocating (per-depth functions), beyond with an explicit stack."""
-    if n <= _PW_SIZES[1]:
-        return _pw1(a, start, n)
-    if n <= _PW_SIZES[3]:
-        return _pw3(a, start, n)
-    if n <= _PW_SIZES[6]:
-        return _pw6(a, start, n)
-    return _pairwise_sum_stack(a, start, n)
-
+from pipeline.pairwise_sum import pairwise_sum
 
 @njit(cache=True)
 def _logsumexp(a):
@@ -178,7 +35,7 @@ def _logsumexp(a):
     shifted = np.empty(a.size)
     for i in range(a.size):
         shifted[i] = math.exp(a[i] - top)
-    return top + math.log(_pairwise_sum(shifted, 0, a.size))
+    return top + math.log(pairwise_sum(shifted, 0, a.size))
 
 
 @njit(cache=True)
