@@ -236,8 +236,9 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
                 log: ProbeLog, previous: PoseSet | None, params: ProbeParams) -> PoseSet:
     """The plausible set now. Probe contacts not yet attributed are attributed with the previous set (the one
     the probe was planned with): to the target if some of its hypotheses explains them within
-    ``attribute_tolerance``, to another object otherwise; every contact is the target's while no set exists or
-    the set is the no-segment prior. The target's contacts' steps go to
+    ``attribute_tolerance`` with its surface facing the contact's sensed force (``attribute_angle_deg``,
+    ``attribute_corner``; :func:`pipeline.probe.belief.explains`), to another object otherwise; every contact
+    is the target's while no set exists or the set is the no-segment prior. The target's contacts' steps go to
     ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
     for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
