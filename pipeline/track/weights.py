@@ -20,16 +20,23 @@ from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
 
+
+@njit(cache=True)
+def _max(a):
+    """``np.max`` of a vector (nan if any)."""
+    top = a[0]
+    for i in range(1, a.size):
+        if a[i] > top or a[i] != a[i]:
+            top = a[i]
+            if top != top:
+                break
+    return top
+
+
 @njit(cache=True)
 def _logsumexp(a):
     """:func:`pipeline.track.resampling.logsumexp` of a float64 vector (N,)."""
-    top = a[0]
-    for i in range(1, a.size):
-        v = a[i]
-        if v > top or v != v:  # np.max propagates nan
-            top = v
-            if v != v:
-                break
+    top = _max(a)
     if not np.isfinite(top):
         return top
     shifted = np.empty(a.size)
@@ -112,18 +119,6 @@ def reweight(log_weights, eps, may_skip, reference, penetration_length, floor, l
     # Round-off puts a perfectly even set of weights a hair above or below 1: "all particles equal" reads 1.
     ess = 1.0 if abs(ess - 1.0) < 1e-12 else min(ess, 1.0)
     return False, log_w, ess, _argmax(log_w)
-
-
-@njit(cache=True)
-def _max(a):
-    """``np.max`` of a vector (nan if any)."""
-    top = a[0]
-    for i in range(1, a.size):
-        if a[i] > top or a[i] != a[i]:
-            top = a[i]
-            if top != top:
-                break
-    return top
 
 
 @njit(cache=True)
