@@ -32,15 +32,17 @@ $(STAMP): pyproject.toml requirements.lock
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
 # compilation as its own time (never inside a timed update or estimate). The tracker's kernels (35-46 s on a
-# 2-core EPYC) and the estimators' (about 20 s) compile in two processes side by side; the second then writes the
-# .pyc files of every module the project imports (pipeline/bytecode.py: pip installs with --no-compile).
+# 2-core EPYC) and the estimators' (about 20 s) compile in two processes side by side; the second first writes the
+# .pyc files of every module the project imports (pipeline/bytecode.py: pip installs with --no-compile), which
+# is why both write bytecode even where the environment sets PYTHONDONTWRITEBYTECODE.
 $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
-	@$(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()" & tracker=$$!; \
-	  $(BIN)/python -c "from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
+	@export PYTHONDONTWRITEBYTECODE=; \
+	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()" & tracker=$$!; \
+	  $(BIN)/python -c "from pipeline.bytecode import compile_imports; compile_imports(); \
+	    from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
 	    from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
-	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt(); \
-	    from pipeline.bytecode import compile_imports; compile_imports()"; estimators=$$?; \
+	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"; estimators=$$?; \
 	  wait $$tracker && test $$estimators = 0
 	@touch $(KSTAMP)
 
