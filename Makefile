@@ -24,9 +24,10 @@ syslibs:
 # full transitive set), so every machine runs the same numpy/scipy/Open3D/numba and computes the same numbers.
 # --no-compile: Python byte-compiles a module when it is first imported instead of pip compiling every module of
 # every distribution (about 50 s of a fresh set-up on 2 cores; docs/evaluation.md, "Where CI's time goes").
+# The venv's own pip (Python 3.11 ships 23.x, which installs a pyproject.toml project editable) is used as it is:
+# upgrading it first cost 8 s and made the installer depend on the day of the set-up.
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q --no-compile -c requirements.lock -e '.[dev]'
 	@touch $(STAMP)
 
