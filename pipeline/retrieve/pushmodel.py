@@ -29,9 +29,10 @@ from pipeline.portable import atan2, exp, logsumexp
 from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
+from pipeline.track.resampling import systematic
 
 __all__ = ["PushTrackParams", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik",
-           "initial_particles", "systematic", "run_filter", "MAX_PARTICLES"]
+           "initial_particles", "run_filter", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
@@ -247,15 +248,6 @@ def initial_particles(prim: Primitive, point: np.ndarray, normal_hint: np.ndarra
     centre = point - rotate(u, yaw)
     com = centre - rotate(np.broadcast_to(prim.centre, centre.shape), theta)
     return np.column_stack([com, wrap_angle(theta)])
-
-
-def systematic(log_w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Ancestors (N,) by systematic resampling of log-weights (N,) (at least one finite)."""
-    w = exp(log_w - logsumexp(log_w))
-    cum = np.cumsum(w)
-    cum[-1] = 1.0
-    pos = (rng.uniform() + np.arange(len(w))) / len(w)
-    return np.minimum(np.searchsorted(cum, pos, side="right"), len(w) - 1)
 
 
 @dataclass

@@ -9,20 +9,7 @@ import math
 
 import numpy as np
 
-from pipeline.portable import exp, log
-
-
-def logsumexp(log_w: np.ndarray) -> float:
-    """log(sum(exp(log_w))) with the max shifted out, so no term overflows and the largest never underflows.
-
-    The same arithmetic as ``scipy.special.logsumexp`` on a 1-D array, without its array-API dispatch, whose
-    overhead dominates on the small arrays of a particle filter's update, and with the CPU-independent
-    exp and log of :mod:`pipeline.portable`.
-    """
-    top = np.max(log_w)
-    if not np.isfinite(top):
-        return float(top)  # all -inf (nothing to normalise) or a +inf entry
-    return float(top + log(np.sum(exp(log_w - top))))
+from pipeline.portable import exp, logsumexp
 
 
 def normalise(log_w: np.ndarray) -> np.ndarray:
@@ -39,7 +26,7 @@ def normalise(log_w: np.ndarray) -> np.ndarray:
         If no entry is finite (there is nothing to normalise against).
     """
     log_w = np.asarray(log_w, dtype=np.float64)
-    total = logsumexp(log_w)
+    total = float(logsumexp(log_w))
     if not np.isfinite(total):
         raise ValueError("cannot normalise log-weights: no particle has a finite weight")
     return log_w - total
@@ -48,7 +35,7 @@ def normalise(log_w: np.ndarray) -> np.ndarray:
 def effective_sample_size(log_w: np.ndarray) -> float:
     """ESS = 1 / sum(w^2) of normalised weights, as a fraction of the number of particles, in (0, 1]."""
     lw = normalise(log_w)
-    ess = float(math.exp(-logsumexp(2.0 * lw)) / lw.size)
+    ess = float(math.exp(-float(logsumexp(2.0 * lw))) / lw.size)
     # Round-off puts a perfectly even set of weights a hair above or below 1; "all particles equal" must read
     # as exactly 1 so that a threshold of 1 does not resample identical weights.
     return 1.0 if abs(ess - 1.0) < 1e-12 else min(ess, 1.0)

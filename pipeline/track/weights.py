@@ -35,7 +35,8 @@ def _max(a):
 
 @njit(cache=True)
 def _logsumexp(a):
-    """:func:`pipeline.track.resampling.logsumexp` of a float64 vector (N,)."""
+    """:func:`pipeline.portable.logsumexp` of a float64 vector (N,), as :func:`pipeline.track.resampling.normalise`
+    computes it."""
     top = _max(a)
     if not np.isfinite(top):
         return top
