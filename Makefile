@@ -32,19 +32,22 @@ $(STAMP): pyproject.toml requirements.lock
 	@touch $(STAMP)
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
-# compilation as its own time (never inside a timed update or estimate). The tracker's kernels (35-46 s on a
-# 2-core EPYC) and the estimators' (about 20 s) compile in two processes side by side; the second first writes the
-# .pyc files of every module the project imports (pipeline/bytecode.py: pip installs with --no-compile), which
-# is why both write bytecode even where the environment sets PYTHONDONTWRITEBYTECODE.
+# compilation as its own time (never inside a timed update or estimate). Two processes side by side (a 2-core EPYC:
+# about 33 s, against 41 s for the tracker's alone before): the first replays a tracker log, compiling the contact
+# step's kernel (about 26 s, the longest), loading the tracker's other kernels, which the second has compiled by
+# then, and then writes the .pyc files of every module the project imports (pipeline/bytecode.py: pip installs with
+# --no-compile, which is also why both write bytecode even where the environment sets PYTHONDONTWRITEBYTECODE); the
+# second compiles the tracker's other kernels, then the estimators'.
 $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
 	@export PYTHONDONTWRITEBYTECODE=; \
-	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels()" & tracker=$$!; \
-	  $(BIN)/python -c "from pipeline.bytecode import compile_imports; compile_imports(); \
+	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels(); \
+	    from pipeline.bytecode import compile_imports; compile_imports()" & first=$$!; \
+	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels_but_contact; warm_up_kernels_but_contact(); \
 	    from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
 	    from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
-	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"; estimators=$$?; \
-	  wait $$tracker && test $$estimators = 0
+	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt()"; second=$$?; \
+	  wait $$first && test $$second = 0
 	@touch $(KSTAMP)
 
 # Refresh the lock: resolve pyproject.toml's ranges afresh in a throw-away venv and pin what was installed.

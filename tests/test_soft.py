@@ -429,3 +429,13 @@ def test_equal_weights_do_not_resample_at_threshold_one(disc):
     tracker.update([0.0, 0.0], [[0.0, 0.0]], [[0.05, 0.0]])  # one consistent point: every particle identical
     assert tracker.last_step_.ess == 1.0
     assert not tracker.last_step_.resampled
+
+
+def test_warm_up_without_contacts_takes_the_free_space_resampling_and_replacement_paths(disc):
+    # make setup compiles these kernels in a second process beside the contact step's: the warm-up must reach
+    # each of them (free space with points, a resampling step, Alg. 2 after it) with the weights left sane.
+    tracker = make(disc, n_particles=4)
+    tracker.warm_up_without_contacts(n_points=8)
+    assert tracker.n_points_ == 8
+    assert tracker.last_step_.resampled
+    assert_weights_sane(tracker)

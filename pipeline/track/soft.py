@@ -177,6 +177,26 @@ class SoftTracker:
         """Alg. 3 on the MAP particle: object index of each point, shape (M,)."""
         return segment_points(self.points_, self.params.length, self.params.alpha)
 
+    def warm_up_without_contacts(self, n_points: int = 8) -> None:
+        """Compile (or load from numba's cache) every kernel of an update but the contact step's, on made-up
+        points: the free-space step, the reweighting, systematic resampling, Alg. 2 and the row copies.
+
+        ``make setup`` runs it in a second process while the first compiles the contact step's kernel (the
+        slowest to compile by far), so the two halves compile side by side and the first process loads this half
+        from the cache. The same calls as a real update makes, so the same specialisations. Leaves made-up
+        points behind: for a throwaway tracker only."""
+        n = self.params.n_particles
+        self._ensure_capacity(n_points)
+        self._m = n_points
+        points = self.rng.uniform(-0.1, 0.1, (n, n_points, self.dim))
+        self._P[:, :n_points] = points
+        self._C[:, :n_points] = points
+        self._order[:, :n_points] = np.argsort(points[:, :, 0], axis=1, kind="stable")
+        self.update(np.zeros(self.dim))  # free space with points: the penetration kernel and the reweighting
+        # One particle far ahead of the rest: the ESS falls below any threshold, so the step resamples and
+        # (replace="after-resample") runs Alg. 2 on the distinct ancestors.
+        self._reweight_and_resample(np.r_[0.0, np.full(n - 1, -1.0)])
+
     # ------------------------------------------------------------------ the filter
     def update(self, x, dx=None, p=None) -> StepResult:
         """One control step; see the module docstring.

@@ -123,6 +123,20 @@ def warm_up_kernels() -> float:
     return warm_up(config, load_robot(config.robot))
 
 
+def warm_up_kernels_but_contact() -> float:
+    """Compile or load STUCCO's kernels other than the contact step's on the default robot
+    (:meth:`~pipeline.track.soft.SoftTracker.warm_up_without_contacts`): ``make setup`` runs it in a second
+    process beside :func:`warm_up_kernels`, which then loads them from numba's cache instead of compiling them
+    after the contact step's kernel. Returns the seconds spent."""
+    t0 = time.perf_counter()
+    config = TrackConfig()
+    tracker = make_tracker(dataclasses.replace(config, params={"n_particles": 4}), load_robot(config.robot),
+                           np.random.default_rng(0))
+    tracker.warm_up_without_contacts()
+    tracker.labels()
+    return time.perf_counter() - t0
+
+
 @dataclass
 class TrackResult:
     """Rows of one tracked run, as column arrays."""
