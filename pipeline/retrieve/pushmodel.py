@@ -25,7 +25,7 @@ import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
 from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
-from pipeline.portable import atan2, exp, logsumexp
+from pipeline.portable import atan2, logsumexp
 from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
