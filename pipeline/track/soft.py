@@ -146,7 +146,12 @@ class SoftTracker:
         self._npen = np.zeros((n, 0), np.int32)
         self._order = np.zeros((n, 0), np.int32)  # points by first coordinate, per particle (kernels)
         self._all_rows = np.arange(n, dtype=np.int64)
-        self.log_weights_ = np.full(n, -math.log(n))
+        self._uniform_log_weights = np.full(n, -math.log(n))  # after resampling (copied)
+        floor = float(self.params.weight_floor)
+        # weights.reweight's arguments that the (frozen) parameters fix
+        self._weighting = (self.params.weighting == "reference", float(self.params.penetration_length), floor,
+                           math.log(floor) if floor > 0 else 0.0)
+        self.log_weights_ = self._uniform_log_weights.copy()
         self._map_points = np.zeros((0, self.dim))
         self.last_step_: StepResult | None = None
 
@@ -213,7 +218,7 @@ class SoftTracker:
         # Fresh writable copies: numba compiles one specialisation per array flag, so read-only input (zero-copy
         # from Parquet) and writable input would each pay a compilation of the parallel kernels.
         x = np.array(x, dtype=np.float64).reshape(self.dim)
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             raise ValueError(f"x must be finite, got {x}")
         if (dx is None) != (p is None):
             raise ValueError("dx and p must both be given (contact) or both be None (free space)")
@@ -222,7 +227,7 @@ class SoftTracker:
             p = np.array(p, dtype=np.float64).reshape(-1, self.dim)
             if dx.shape != p.shape:
                 raise ValueError(f"dx {dx.shape} and p {p.shape} must have the same shape (K, {self.dim})")
-            if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(p))):
+            if not (np.isfinite(dx).all() and np.isfinite(p).all()):
                 raise ValueError("dx and p must be finite")
         if dx is None or len(dx) == 0:
             if self._m == 0:
@@ -277,10 +282,7 @@ class SoftTracker:
         # previous step, so there is nothing to resample or replace (``skipped``). The estimate is still
         # refreshed: a contact step has moved and added points.
         may_skip = prm.replace != "every-step" and self.last_step_ is not None
-        floor = float(prm.weight_floor)
-        skipped, log_w, ess, map_index = weights.reweight(
-            self.log_weights_, eps, may_skip, prm.weighting == "reference", float(prm.penetration_length), floor,
-            math.log(floor) if floor > 0 else 0.0)
+        skipped, log_w, ess, map_index = weights.reweight(self.log_weights_, eps, may_skip, *self._weighting)
         self._snapshot_map(int(map_index))
         if skipped:
             self.last_step_ = StepResult(ess=self.last_step_.ess if not self.last_step_.resampled else 1.0,
@@ -301,7 +303,7 @@ class SoftTracker:
                                                          prm.tolerance)
                 n_replaced = int(n_rep[ancestors].sum())
             take_rows(ancestors, self._m, *arrays)
-            log_w = np.full(prm.n_particles, -math.log(prm.n_particles))
+            log_w = self._uniform_log_weights.copy()
         elif replace:
             n_replaced = int(replacement.replace_inconsistent(self._P, self._C, self._order, self._all_rows,
                                                               self._m, self._colpen, self._npen, *self._grid,
