@@ -115,6 +115,8 @@ def reweight(log_weights, eps, may_skip, reference, penetration_length, floor, l
         for i in range(n):
             log_w[i] = max(log_w[i], log_floor)
         log_w = _normalise(log_w)
+    # Normalised once more, as resampling.effective_sample_size does with its input: the weights' bits, not their
+    # meaning, can change on the second pass, and the ESS must keep numpy's bits.
     lw = _normalise(log_w)
     ess = math.exp(-_logsumexp(2.0 * lw)) / n
     # Round-off puts a perfectly even set of weights a hair above or below 1: "all particles equal" reads 1.
