@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["wrap_angle", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
-           "primitive_sdf", "primitive_of"]
+           "primitive_sdf", "primitive_of", "primitive_pose", "com_pose", "outline_point"]
 
 
 def wrap_angle(a):
@@ -195,3 +195,32 @@ def primitive_of(spec) -> Primitive:
     centre = rotate(so - com, -com_yaw)
     return Primitive(kind=kind, half=tuple(float(h) for h in half), centre=centre,
                      yaw=float(getattr(spec, "shape_yaw", 0.0)) - com_yaw, name=spec.name)
+
+
+def primitive_pose(prim: Primitive, com: np.ndarray) -> np.ndarray:
+    """Primitive (centre x, centre y, axes yaw) (..., 3) of COM poses (..., 3)."""
+    com = np.asarray(com, dtype=np.float64)
+    return np.concatenate([prim.centre_world(com), (com[..., 2] + prim.yaw)[..., None]], axis=-1)
+
+
+def com_pose(prim: Primitive, pose: np.ndarray) -> np.ndarray:
+    """COM poses (..., 3) of primitive poses (..., 3) (inverse of :func:`primitive_pose`)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    yaw = pose[..., 2] - prim.yaw
+    c = rotate(np.asarray(prim.centre, dtype=np.float64), yaw)
+    return np.stack([pose[..., 0] - c[..., 0], pose[..., 1] - c[..., 1], yaw], axis=-1)
+
+
+def outline_point(s: np.ndarray, hx: float, hy: float) -> np.ndarray:
+    """Points (N, 2) at arc lengths s (N,) along the outline of [-hx, hx] x [-hy, hy], counter-clockwise from
+    (hx, -hy)."""
+    s = np.asarray(s, dtype=np.float64) % (4.0 * (hx + hy))
+    edges = np.cumsum([0.0, 2 * hy, 2 * hx, 2 * hy, 2 * hx])
+    out = np.empty((len(s), 2))
+    for k, (start, (x0, y0), (dx, dy)) in enumerate(zip(
+            edges[:4], ((hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy)), ((0, 1), (-1, 0), (0, -1), (1, 0)))):
+        m = (s >= start) & (s < edges[k + 1])
+        u = s[m] - start
+        out[m, 0] = x0 + dx * u
+        out[m, 1] = y0 + dy * u
+    return out

@@ -10,11 +10,10 @@ import pytest
 
 from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.estimators import plausible_notes
-from pipeline.geometry import Primitive, primitive_sdf
+from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
-from pipeline.retrieve.plausible import (PlausibleParams, com_pose, consensus, evaluate_terms, fit_segment,
-                                         primitive_pose)
+from pipeline.retrieve.plausible import PlausibleParams, consensus, evaluate_terms, fit_segment
 from pipeline.robot import disc_sdf
 
 BOX = Primitive("box", (0.03, 0.079), np.array([0.002, -0.001]), 0.1, "box")

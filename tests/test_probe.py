@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.geometry import Primitive
+from pipeline.geometry import Primitive, com_pose, primitive_pose
 from pipeline.grasp import plan_for
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, explains, pose_set
 from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy,
                                      ray_travel)
 from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
-from pipeline.probe.set_grasp import box_success, can_success, choose_grasp
+from pipeline.grasp_rule import box_success, can_success
+from pipeline.probe.set_grasp import choose_grasp
 from pipeline.retrieve.model import target_primitive
-from pipeline.retrieve.plausible import com_pose, primitive_pose
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 from pipeline import schema

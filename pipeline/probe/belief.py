@@ -24,14 +24,14 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.portable import exp
-from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
 from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, fit_segment, primitive_pose
+from pipeline.retrieve.plausible import PlausibleParams, fit_segment
 from pipeline.retrieve.resistance import resisting_choice, segment_fits
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng

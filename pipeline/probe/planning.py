@@ -19,10 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.portable import log
-from pipeline.geometry import Primitive, rotate
+from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate
 from pipeline.retrieve.evidence import gripper_lattice
 from pipeline.probe.transit import Keepout, path_to, transit_graph
-from pipeline.retrieve.plausible import com_pose, primitive_pose
 
 __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "outcome_entropy",
            "obstacle_travel", "hit_points", "choose_probe"]

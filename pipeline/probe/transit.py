@@ -19,9 +19,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.grasp import GraspParams
-from pipeline.retrieve.plausible import primitive_pose
 
 __all__ = ["Keepout", "transit_graph", "path_to", "grasp_transit", "grasp_via"]
 

@@ -18,8 +18,7 @@ from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, 
 from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, Segment, estimate, estimate_plausible, plausible_notes,
                                           retrieval_metadata)
 from pipeline.retrieve.icp import IcpResult, icp_error, icp_restarts, initial_transforms
-from pipeline.retrieve.model import (model_normals, model_points, outline_point, pose_error, project_to_outline,
-                                     target_primitive)
+from pipeline.retrieve.model import model_normals, model_points, pose_error, project_to_outline, target_primitive
 from pipeline.retrieve.paper import Choice, Estimate, choose_segment, confidence_notes, estimate_run, min_clearance
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, SegmentFit, fit_segment
@@ -31,7 +30,7 @@ from pipeline.retrieve.tables import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL,
 __all__ = [
     "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "plausible_notes",
     "retrieval_metadata", "IcpResult", "icp_error", "icp_restarts", "initial_transforms",
-    "Primitive", "apply_pose", "model_normals", "model_points", "outline_point", "pose_error", "primitive_of",
+    "Primitive", "apply_pose", "model_normals", "model_points", "pose_error", "primitive_of",
     "project_to_outline", "rot2", "rots2", "target_primitive", "wrap_angle", "Choice", "Estimate", "choose_segment",
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
     "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "check_runs", "RetrieveConfig",

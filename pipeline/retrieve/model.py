@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 
-from pipeline.geometry import Primitive, primitive_of, rotate
+from pipeline.geometry import Primitive, outline_point, primitive_of, rotate
 from pipeline.retrieve.params import RetrievalParams
 
-__all__ = ["target_primitive", "model_points", "model_normals", "outline_point", "project_to_outline", "pose_error"]
+__all__ = ["target_primitive", "model_points", "model_normals", "project_to_outline", "pose_error"]
 
 
 def target_primitive(scene) -> tuple[int, Primitive]:
@@ -65,21 +65,6 @@ def model_points(prim: Primitive, params: RetrievalParams, rng: np.random.Genera
                              f"{2 * hx} x {2 * hy} m outline")
         local = np.array(accepted)
     return rotate(local, prim.yaw) + prim.centre
-
-
-def outline_point(s: np.ndarray, hx: float, hy: float) -> np.ndarray:
-    """Points (N, 2) at arc lengths s (N,) along the outline of [-hx, hx] x [-hy, hy], counter-clockwise from
-    (hx, -hy)."""
-    s = np.asarray(s, dtype=np.float64) % (4.0 * (hx + hy))
-    edges = np.cumsum([0.0, 2 * hy, 2 * hx, 2 * hy, 2 * hx])
-    out = np.empty((len(s), 2))
-    for k, (start, (x0, y0), (dx, dy)) in enumerate(zip(
-            edges[:4], ((hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy)), ((0, 1), (-1, 0), (0, -1), (1, 0)))):
-        m = (s >= start) & (s < edges[k + 1])
-        u = s[m] - start
-        out[m, 0] = x0 + dx * u
-        out[m, 1] = y0 + dy * u
-    return out
 
 
 def project_to_outline(t: np.ndarray, hx: float, hy: float) -> np.ndarray:

@@ -31,14 +31,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
+from pipeline.geometry import Primitive, com_pose, outline_point, primitive_pose, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.spd import solve_spd
-from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.plausible_kernel import CONTACT, FREE, piece_terms, piece_terms_each
 
 __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_poses", "SegmentFit",
-           "fit_segment", "consensus", "com_pose", "primitive_pose"]
+           "fit_segment", "consensus"]
 
 #: Costs (squared contact sigmas) closer than this are tied (then the lower index wins): far above the last-bit
 #: differences between CPUs, far below any difference between two poses worth choosing between.
@@ -282,20 +281,6 @@ def initial_poses(prim: Primitive, points: np.ndarray, n: int, rng: np.random.Ge
         hx, hy = prim.half
         u = outline_point(rng.uniform(0.0, 4.0 * (hx + hy), n), hx, hy)
     return np.column_stack([points.mean(axis=0) - rotate(u, theta), theta])
-
-
-def primitive_pose(prim: Primitive, com: np.ndarray) -> np.ndarray:
-    """Primitive (centre x, centre y, axes yaw) (..., 3) of COM poses (..., 3)."""
-    com = np.asarray(com, dtype=np.float64)
-    return np.concatenate([prim.centre_world(com), (com[..., 2] + prim.yaw)[..., None]], axis=-1)
-
-
-def com_pose(prim: Primitive, pose: np.ndarray) -> np.ndarray:
-    """COM poses (..., 3) of primitive poses (..., 3) (inverse of :func:`primitive_pose`)."""
-    pose = np.asarray(pose, dtype=np.float64)
-    yaw = pose[..., 2] - prim.yaw
-    c = rotate(np.asarray(prim.centre, dtype=np.float64), yaw)
-    return np.stack([pose[..., 0] - c[..., 0], pose[..., 1] - c[..., 1], yaw], axis=-1)
 
 
 # ---------------------------------------------------------------------------------------------------------------

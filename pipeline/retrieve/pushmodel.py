@@ -24,9 +24,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.geometry import Primitive, primitive_sdf, rotate, wrap_angle
+from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import atan2, logsumexp
-from pipeline.retrieve.model import outline_point
 from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 from pipeline.track.resampling import systematic
@@ -113,9 +112,12 @@ class PushTrackParams:
         The refinement's growth of a carried contact's sigma with the length the target was pushed after it (3.0;
         sigma = hypot(grown sigma, refine_spread x metres pushed since): 1 cm pushed, 3 cm): a contact followed only
         by touches that do not push stays at full weight.
-    select : {"cost", "posterior"}
-        Which refined particle is the estimate: the lowest refinement cost ("cost"), or (default) the lowest
-        refinement cost minus the particle's log-weight ("posterior": the trajectory's evidence counts too).
+    select : {"cost", "posterior", "grasp"}
+        Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); or (default, "grasp")
+        the lowest posterior among the particles held by the paper grasp, of those aimed at each refined
+        particle, that holds the largest share of the refined set weighted by exp(-posterior) (the Bayes
+        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs").
     """
 
     n_particles: int = 512
@@ -143,11 +145,11 @@ class PushTrackParams:
     refine_growth: float = 1.0
     carry: str = "mixed"
     refine_spread: float = 3.0
-    select: str = "posterior"
+    select: str = "grasp"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
-        "select": one_of("cost", "posterior"),
+        "select": one_of("cost", "posterior", "grasp"),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
         "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),

@@ -16,14 +16,15 @@ from typing import Sequence
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.grasp_rule import own_grasp_shares
 from pipeline.isolate import isolate_run, isolation_surface
-from pipeline.geometry import Primitive, apply_pose, primitive_sdf, rotate
+from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, com_pose, primitive_pose, refine
+from pipeline.retrieve.plausible import PlausibleParams, refine
 from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
@@ -98,18 +99,32 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
 
 
 def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
-               params: PushTrackParams) -> tuple[np.ndarray, int]:
+               params: PushTrackParams, scene=None) -> tuple[np.ndarray, int]:
     """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
-    particle without refinement (``n_refine`` 0), otherwise the refined particle of lowest cost ("cost") or of
-    lowest cost minus its log-weight and the log prior of its pushed-or-left choices ("posterior"),
-    ``params.select``; ties to the higher weight."""
+    particle without refinement (``n_refine`` 0), otherwise, by ``params.select``, the refined particle of lowest
+    cost ("cost"), of lowest posterior cost (its cost minus its log-weight and the log prior of its pushed-or-left
+    choices: "posterior"), or ("grasp", for the grasp plan of ``scene``) of lowest posterior cost among those held
+    by the paper grasp that holds the largest share of the refined set weighted by exp(-posterior cost), of the
+    grasps aimed at each refined particle."""
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
     if not params.n_refine:
         return result.poses[order[0]], int(order[0])
     top, refined, costs = refine_final(prim, result, free, others, params)
-    if params.select == "posterior":
-        costs = costs - result.log_w[top] - result.choice[top]
-    k = argmin_tolerant(costs, 1e-9)
+    if params.select == "cost":
+        k = argmin_tolerant(costs, 1e-9)
+        return refined[k], int(top[k])
+    post = costs - result.log_w[top] - result.choice[top]
+    if params.select == "grasp":
+        if scene is None:
+            raise ValueError("select='grasp' needs the scene (its grasp plan)")
+        # The Bayes decision for the grasp script: the posterior over yaw is often flat on the boxes, and its
+        # lowest cost is then an arbitrary member of the set (docs/retrieval.md). The grasp aimed at `mode` holds
+        # the largest share; the estimate is the most probable particle it holds.
+        share, held = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
+        mode = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
+        k = argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
+        return refined[k], int(top[k])
+    k = argmin_tolerant(post, 1e-9)
     return refined[k], int(top[k])
 
 
@@ -152,7 +167,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
                                  centre, radius)
         others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
         others = others[np.hypot(*(others - centre).T) <= radius]
-    best_pose, best = final_pose(target, result, free, others, own)
+    best_pose, best = final_pose(target, result, free, others, own, info.scene)
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
     B = len(order)
