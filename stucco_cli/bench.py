@@ -16,6 +16,15 @@ def bench() -> None:
     """Benchmarks: what accuracy costs in time."""
 
 
+def _choices(name: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
+    """Comma-separated words of ``allowed`` for option `name`; '' gives ()."""
+    out = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [t for t in out if t not in allowed]
+    if bad:
+        raise click.BadParameter(f"{bad[0]!r} is not one of {', '.join(allowed)}", param_hint=name)
+    return out
+
+
 def _ints(name: str, text: str, lo: int = 1, hi: int = 100_000) -> tuple[int, ...]:
     """Comma-separated integers in [lo, hi] for option `name`; '' gives ()."""
     out = []
@@ -110,6 +119,9 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Particles the pushtrack estimator refines at the end ('' for none).")
 @click.option("--pushtrack-substeps", "pt_substeps", default="1,4,8", show_default=True,
               help="Integration steps of one push in the pushtrack estimator ('' for none).")
+@click.option("--pushtrack-select", "pt_select", default="posterior,grasp", show_default=True,
+              help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
+                   "grasp ('' for none).")
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")
@@ -118,7 +130,7 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
 @click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   pt_particles, pt_refine, pt_substeps, baselines, out_dir, jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, pt_select, baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -138,7 +150,9 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                               paper_estimator=paper_estimator,
                               pushtrack=(("n_particles", _ints("--pushtrack-particles", pt_particles, 8, 16384)),
                                          ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
-                                         ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64))),
+                                         ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
+                                         ("select", _choices("--pushtrack-select", pt_select,
+                                                             ("cost", "posterior", "grasp")))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,

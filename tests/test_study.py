@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import math
 
 import numpy as np
 import pytest
@@ -78,12 +79,27 @@ def test_pushtrack_knobs_override_only_the_estimators_parameters():
         ("pushtrack_n_particles", 128.0, (("n_particles", 128),)), ("pushtrack_substeps", 1.0, (("substeps", 1),))]
 
 
+def test_pushtrack_select_is_a_choice_without_a_value():
+    sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
+                              pushtrack=(("select", ("grasp", "posterior")),))
+    mine = [s for s in sweep if s.estimator == "pushtrack"]
+    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack select=posterior"]
+    assert mine[1].knob == "pushtrack_select" and math.isnan(mine[1].value)
+    assert mine[1].estimator_params == (("select", "posterior"),)
+
+
+def test_bench_accuracy_rejects_an_unknown_select(tmp_path):
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--pushtrack-select", "best", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "--pushtrack-select" in res.output and "'best'" in res.output
+
+
 def test_bench_accuracy_cli_tiny_grid(tmp_path):
     out = tmp_path / "acc"
     res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
                                    "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
-                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--baselines", "dbscan",
+                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--pushtrack-select", "",
+                                   "--baselines", "dbscan",
                                    "--out",
                                    str(out)])
     assert res.exit_code == 0, res.output

@@ -38,11 +38,12 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
                       baselines: Sequence[str] | None = None,
                       pushtrack: Sequence[tuple[str, Sequence[float]]] = (
                           ("n_particles", (128, 256, 512, 1024)), ("n_refine", (0, 8, 32)),
-                          ("substeps", (1, 4, 8)))) -> list[Setting]:
+                          ("substeps", (1, 4, 8)), ("select", ("posterior", "grasp")))) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
     I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's),
     the pushtrack estimator's knobs ``pushtrack`` ((parameter, values) pairs of
-    :class:`~pipeline.retrieve.pushmodel.PushTrackParams`: particles, refined particles, push integration steps;
+    :class:`~pipeline.retrieve.pushmodel.PushTrackParams`: particles, refined particles, push integration steps,
+    the choice of the estimate among the refined particles;
     the default values run as "stucco pushtrack estimator"), then the baselines at their defaults (None:
     :func:`pipeline.registry.baseline_names`). The default STUCCO setting appears once."""
     out: list[Setting] = []
@@ -75,8 +76,10 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
             for v in values:
                 v = type(getattr(defaults, knob))(v)
                 own = () if v == getattr(defaults, knob) else ((knob, v),)
-                add(Setting(f"stucco pushtrack {knob}={v:g}" if own else "stucco pushtrack estimator", "stucco",
-                            f"pushtrack_{knob}", float(v), (), estimator="pushtrack", estimator_params=own))
+                text = v if isinstance(v, str) else f"{v:g}"  # a choice (select) has no numeric value
+                add(Setting(f"stucco pushtrack {knob}={text}" if own else "stucco pushtrack estimator", "stucco",
+                            f"pushtrack_{knob}", math.nan if isinstance(v, str) else float(v), (),
+                            estimator="pushtrack", estimator_params=own))
     for b in (registry.baseline_names() if baselines is None else baselines):
         add(Setting(b, b, "method", math.nan))
     return out
