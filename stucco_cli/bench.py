@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Sequence
 
 import click
 
@@ -16,12 +17,14 @@ def bench() -> None:
     """Benchmarks: what accuracy costs in time."""
 
 
-def _choices(name: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
-    """Comma-separated words of ``allowed`` for option `name`; '' gives ()."""
+def _choices(name: str, text: str, allowed: Sequence[str], what: str = "value", allow_none: bool = True
+             ) -> tuple[str, ...]:
+    """Comma-separated words of ``allowed`` for option `name`; '' gives () where ``allow_none``."""
     out = tuple(t.strip() for t in text.split(",") if t.strip())
     bad = [t for t in out if t not in allowed]
-    if bad:
-        raise click.BadParameter(f"{bad[0]!r} is not one of {', '.join(allowed)}", param_hint=name)
+    if bad or not (out or allow_none):
+        raise click.BadParameter(f"unknown {what} {bad[0]!r}; expected some of {', '.join(allowed)}"
+                                 if bad else f"expected at least one {what}", param_hint=name)
     return out
 
 
@@ -92,13 +95,7 @@ def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[f
 
 
 def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False) -> tuple[str, ...]:
-    known = registry.tracker_names()
-    methods = tuple(m.strip() for m in text.split(",") if m.strip())
-    unknown = [m for m in methods if m not in known]
-    if unknown or not (methods or allow_none):
-        raise click.BadParameter(f"unknown method {unknown[0]!r}; expected some of {', '.join(known)}"
-                                 if unknown else "expected at least one method", param_hint=param_hint)
-    return methods
+    return _choices(param_hint, text, registry.tracker_names(), "method", allow_none)
 
 
 @bench.command("accuracy")
@@ -152,7 +149,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                                          ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
                                          ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
                                          ("select", _choices("--pushtrack-select", pt_select,
-                                                             ("cost", "posterior", "grasp")))),
+                                                             ("cost", "posterior", "grasp"), "choice"))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
