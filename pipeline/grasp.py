@@ -35,8 +35,8 @@ import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 
-__all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "pregrasp", "grasp_at", "grasp_with", "judge_box",
-           "judge_can", "restore_world", "FingerContacts", "PLANS"]
+__all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
+           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
 FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
@@ -166,8 +166,16 @@ class GraspResult:
     wall_s: float = 0.0
 
 
-def _wrap_into(yaw: float, low: float, period: float) -> float:
-    return float((yaw - low) % period + low)
+def grasp_yaw(plan: GraspPlan, target: Primitive, poses: np.ndarray) -> np.ndarray:
+    """The yaw the script takes from each estimated COM pose (H, 3): the plan's fixed yaw, or the primitive's yaw
+    (its long side is its y) wrapped into the plan's range. Returns (H,)."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if plan.fixed_yaw is not None:
+        return np.full(len(poses), float(plan.fixed_yaw))
+    lo, hi = plan.yaw_range
+    sym = target.symmetry if target.symmetry > 0 else 2 * math.pi
+    y = (poses[:, 2] + target.yaw - lo) % sym + lo
+    return np.where(y > hi, lo, y)  # a range narrower than the symmetry period cannot hold every yaw: its low end
 
 
 def pregrasp(plan: GraspPlan, target: Primitive, estimate: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -178,15 +186,7 @@ def pregrasp(plan: GraspPlan, target: Primitive, estimate: np.ndarray) -> tuple[
     """
     est = np.asarray(estimate, dtype=np.float64)
     centre = target.centre_world(est)
-    if plan.fixed_yaw is not None:
-        yaw = float(plan.fixed_yaw)
-    else:
-        yaw = float(est[2] + target.yaw)  # the primitive's axes: the long side is its y
-        lo, hi = plan.yaw_range
-        sym = target.symmetry if target.symmetry > 0 else 2 * math.pi
-        yaw = _wrap_into(yaw, lo, sym)
-        if yaw > hi:  # a range narrower than the symmetry period cannot hold every yaw; keep the low end
-            yaw = lo
+    yaw = float(grasp_yaw(plan, target, est)[0])
     approach = rot2(yaw)[:, 1]  # object +y
     return yaw, centre - plan.offset * approach, approach
 

@@ -17,14 +17,16 @@ import math
 import numpy as np
 
 from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
-from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan, plan_for
+from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan, grasp_yaw, plan_for
 
-__all__ = ["CONTACT_BAND", "box_success", "can_success", "grasp_yaw", "holds", "own_grasp_shares"]
+__all__ = ["CONTACT_BAND", "box_success", "can_success", "holds", "own_grasp_shares"]
 
 #: Outline points within this distance (m) of a finger's farthest reach touch it (compliant pads): calibrated so
 #: that a box turned by 0.05 rad holds and one turned by 0.10 rad slips to the corner, as simulated
 #: (docs/retrieval.md, "Where grasps are lost").
 CONTACT_BAND = 0.0015
+
+
 def _frames(yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray, plan: GraspPlan, scale: float):
     """Approach (G, 2), closing axis (G, 2) and final base (G, 2) of grasps."""
     r = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
@@ -79,17 +81,6 @@ def can_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.
     depth = np.maximum(np.sum(rel * approach[:, None, :], axis=-1), PAD_FROM_BASE[0] + r)
     lateral = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
     return (depth >= PAD_FROM_BASE[0]) & (depth <= PAD_FROM_BASE[1]) & (lateral <= OPEN - r - 0.003)
-
-
-def grasp_yaw(plan: GraspPlan, prim: Primitive, poses: np.ndarray) -> np.ndarray:
-    """The yaw the script takes from each COM pose (H,): the plan's fixed yaw, or the primitive's yaw wrapped into
-    the plan's range (as :func:`pipeline.grasp.pregrasp`)."""
-    if plan.fixed_yaw is not None:
-        return np.full(len(poses), float(plan.fixed_yaw))
-    lo, hi = plan.yaw_range
-    sym = prim.symmetry if prim.symmetry > 0 else 2 * math.pi
-    y = (poses[:, 2] + prim.yaw - lo) % sym + lo
-    return np.where(y > hi, lo, y)
 
 
 def holds(scene, prim: Primitive, yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray, poses: np.ndarray,

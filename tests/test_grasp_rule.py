@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.grasp import plan_for, pregrasp
-from pipeline.grasp_rule import grasp_yaw, own_grasp_shares
+from pipeline.grasp import grasp_yaw, plan_for, pregrasp
+from pipeline.grasp_rule import own_grasp_shares
 from pipeline.retrieve.model import target_primitive
 from pipeline.scenes import load_scene
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.geometry import Primitive, rot2
-from pipeline.grasp import GraspParams, GraspResult, grasp_with, plan_for
-from pipeline.grasp_rule import grasp_yaw, holds
+from pipeline.grasp import GraspParams, GraspResult, grasp_with, grasp_yaw, plan_for
+from pipeline.grasp_rule import holds
 from pipeline.probe.planning import gripper_outline
 from pipeline.probe.transit import Keepout, grasp_via
 from pipeline.robot import load_robot
