@@ -8,6 +8,7 @@ import pytest
 from sklearn.metrics import fowlkes_mallows_score
 
 from pipeline import registry
+from pipeline.parallel import single_threaded
 from pipeline.track.base import ContactTracker, StepResult
 from pipeline.track.cluster import (
     BirchParams,
@@ -21,6 +22,17 @@ from pipeline.track.stage import build_tracker
 
 #: The hard-tracking baselines of this module (the registered methods built by pipeline/track/cluster.py).
 BASELINES = tuple(s.name for s in registry.trackers() if str(s.factory).startswith("pipeline.track.cluster:"))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread_per_library():
+    """Run the baselines as every evaluation job runs them: one thread per numeric library
+    (:func:`pipeline.parallel.single_threaded`). Under ``make test`` this process is one of two busy xdist workers
+    on two cores, where scikit-learn's OpenMP threads only spin: a k-means fit of a dozen points took 160 ms on
+    two threads and 6 ms on one, and this module's k-means tests 40 s instead of 2 (docs/evaluation.md,
+    "Parallelism")."""
+    with single_threaded():
+        yield
 
 
 def make_baseline(name, params, rng):
