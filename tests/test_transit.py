@@ -266,3 +266,33 @@ def test_the_set_grasp_moves_through_the_waypoint_its_keepout_asks_for(monkeypat
     np.testing.assert_array_equal(seen["via"], grasp_via(start, g.pregrasp, keepout, scene.action_scale))
     set_grasp.simulate_set_grasp(scene, np.zeros((1, 3)), start, g)  # no keep-out: the script's straight move
     assert seen["via"] is None
+
+
+def test_a_transit_that_met_an_object_routes_around_it_afterwards():
+    """The straight line of ``_ring`` is the short way to its far end; once a transit met an object in the line's
+    middle (where the target was pushed, say), the positions there are left out and the way goes around."""
+    from pipeline.probe.belief import Sensing
+    from pipeline.probe.moves import BLOCK_RADIUS
+
+    ring = _ring()
+    # The current position at the line's start, so the short way to its far end (index 10) is the line itself.
+    visited = np.vstack([ring[1:], ring[:1]])
+    sensing = Sensing.__new__(Sensing)  # the visited positions only: no tracker is needed here
+    sensing.ee = [v for v in visited]
+    sensing.touching = [False] * len(visited)
+    far = 9  # (0.2, 0) in the shifted order
+    before, _ = transit_graph(sensing.visited, 0.05, np.asarray(sensing.touching))
+    sensing.block_near(np.array([0.0, 0.0]), BLOCK_RADIUS)
+    blocked = np.asarray(sensing.touching)
+    assert blocked.sum() == 1 and np.allclose(sensing.visited[blocked], [[0.0, 0.0]])
+    after, pred = transit_graph(sensing.visited, 0.05, blocked)
+    assert before[far] == pytest.approx(0.4)
+    assert after[far] > 0.4 + 0.25  # around through y = 0.15
+    assert not np.any(np.all(np.isclose(path_to(pred, sensing.visited, far), [0.0, 0.0]), axis=1))
+    assert not blocked[-1]  # the current position is never left out
+
+
+def test_consecutive_positions_close_together_count_their_distance_once():
+    line = np.column_stack([np.arange(0.0, 0.1001, 0.01), np.zeros(11)])[::-1]  # current position (0, 0) last
+    dist, _ = transit_graph(line, 0.02)
+    assert dist[0] == pytest.approx(0.1)  # not 0.2: each 1 cm link is both consecutive and within the radius

@@ -113,6 +113,13 @@ class Sensing:
         """Gripper positions (K + 1, 2), metres: the start, then the end of every action."""
         return np.array(self.ee)
 
+    def block_near(self, point: np.ndarray, radius: float) -> None:
+        """Leave the visited positions within ``radius`` (m) of ``point`` (2,) out of transit from now on, as if
+        reached in contact: a transit met an object there, so the space the gripper once passed is no longer
+        free (the current position stays the start of every path)."""
+        near = np.linalg.norm(self.visited - np.asarray(point, dtype=np.float64).reshape(1, 2), axis=1) < radius
+        self.touching = [t or bool(b) for t, b in zip(self.touching, near)]
+
     def segments(self) -> list[Segment]:
         """The segmentation ``stucco segment`` makes of the tracker's points (segment -1 left out)."""
         if not self.point_steps:

@@ -13,6 +13,9 @@ from pipeline.geometry import Primitive
 from pipeline.probe.belief import PoseSet, Sensing
 from pipeline.probe.transit import Keepout, path_to, transit_graph
 
+#: Visited positions within this distance (m) of where a transit met an object are left out of later transits.
+BLOCK_RADIUS = 0.03
+
 __all__ = ["Act", "retrace", "guarded_move", "transit_limits", "first_reaching", "return_to_start"]
 
 Act = Callable[[float, float], dict]
@@ -147,7 +150,7 @@ def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.nd
         n += k
         if not contact:
             break
-        near = np.linalg.norm(visited - here, axis=1) < 0.03
+        near = np.linalg.norm(visited - here, axis=1) < BLOCK_RADIUS
         masks = [m | near for m in masks]
     return n
 

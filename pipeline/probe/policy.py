@@ -23,7 +23,8 @@ import pyarrow as pa
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explains, misfit,
                                    pose_set)
-from pipeline.probe.moves import Act, first_reaching, guarded_move, retrace, return_to_start, transit_limits
+from pipeline.probe.moves import (BLOCK_RADIUS, Act, first_reaching, guarded_move, retrace, return_to_start,
+                                  transit_limits)
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
@@ -150,7 +151,11 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         here = sensing.visited[-1]
         here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
         log.actions += n
-        if not contact:  # a contact during the transit is this probe's outcome (the policy goes on)
+        if contact:
+            # An object (often the target, pushed where the gripper once passed) lies across the retraced path:
+            # the positions there are not free any more, or every later transit would stop at the same point.
+            sensing.block_near(here, BLOCK_RADIUS)
+        else:  # a contact during the transit is this probe's outcome (the policy goes on)
             here, n, contact, _ = guarded_move(act, here, plan.direction, plan.predicted, params)
             log.actions += n
         log.probes += 1

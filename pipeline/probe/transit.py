@@ -95,7 +95,9 @@ def transit_graph(visited: np.ndarray, radius: float, touching: np.ndarray | Non
     k = len(v)
     i = np.arange(k - 1)
     d = np.linalg.norm(v[:, None, :] - v[None, :, :], axis=-1)
-    a, b = np.nonzero(np.triu(d < radius, 1))
+    # Above the first superdiagonal: a consecutive pair is linked once (a link listed twice would be summed by
+    # the sparse matrix, counting its length double).
+    a, b = np.nonzero(np.triu(d < radius, 2))
     rows = np.concatenate([i, a])
     cols = np.concatenate([i + 1, b])
     t = np.zeros(k, dtype=bool) if touching is None else np.asarray(touching, dtype=bool).copy()
