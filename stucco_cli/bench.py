@@ -135,6 +135,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
+    from pipeline.retrieve.pushmodel import SELECT_RULES
     from pipeline.study import (accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
                                 summary_markdown, write_csv)
 
@@ -148,8 +149,8 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                               pushtrack=(("n_particles", _ints("--pushtrack-particles", pt_particles, 8, 16384)),
                                          ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
                                          ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
-                                         ("select", _choices("--pushtrack-select", pt_select,
-                                                             ("cost", "posterior", "grasp"), "choice"))),
+                                         ("select", _choices("--pushtrack-select", pt_select, SELECT_RULES,
+                                                             "choice"))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,

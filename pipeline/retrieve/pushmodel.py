@@ -30,11 +30,13 @@ from pipeline.retrieve.pushtrack_kernel import free_depth_sums
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 from pipeline.track.resampling import systematic
 
-__all__ = ["PushTrackParams", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik",
+__all__ = ["PushTrackParams", "SELECT_RULES", "Actions", "FilterResult", "push", "contact_loglik", "free_loglik",
            "initial_particles", "run_filter", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
+#: The rules by which the estimate is chosen among the refined particles (``PushTrackParams.select``).
+SELECT_RULES = ("cost", "posterior", "grasp")
 
 
 @dataclass(frozen=True)
@@ -149,7 +151,7 @@ class PushTrackParams:
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
-        "select": one_of("cost", "posterior", "grasp"),
+        "select": one_of(*SELECT_RULES),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
         "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),
