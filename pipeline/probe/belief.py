@@ -38,7 +38,7 @@ from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
 __all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains",
-           "prior_set"]
+           "explaining", "prior_set"]
 
 
 class Sensing:
@@ -146,6 +146,8 @@ class PoseSet:
         Segment the set was fitted to (-1: none; the set is then :func:`prior_set`).
     notes : list of str
         Why the set is not a fit to the target's own segment (``no_segment``).
+    cost : float, squared sigmas
+        The fit's lowest cost (:func:`pipeline.retrieve.plausible.fit_segment`; 0 for :func:`prior_set`).
     """
 
     poses: np.ndarray
@@ -153,6 +155,7 @@ class PoseSet:
     best: int
     segment: int
     notes: list[str] = field(default_factory=list)
+    cost: float = 0.0
 
 
 @dataclass
@@ -273,12 +276,19 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     keep = np.flatnonzero(fit.plausible)
     w = exp(-(cost[keep] - cost[keep].min()))
     return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
-                   segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"])
+                   segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"],
+                   cost=float(cost[keep].min()))
 
 
 def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float,
              force: np.ndarray | None = None, max_angle_deg: float = 180.0, corner: float = 0.0) -> bool:
-    """Whether some hypothesis (COM poses (H, 3)) puts its surface within ``tolerance`` (m) of ``point`` (2,).
+    """Whether some hypothesis (COM poses (H, 3)) explains the contact at ``point`` (:func:`explaining`)."""
+    return bool(explaining(target, poses, point, tolerance, force, max_angle_deg, corner).any())
+
+
+def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float,
+               force: np.ndarray | None = None, max_angle_deg: float = 180.0, corner: float = 0.0) -> np.ndarray:
+    """Which hypotheses (COM poses (H, 3)) put their surface within ``tolerance`` (m) of ``point`` (2,): (H,) bool.
 
     With the contact's ``force`` (2,), N, on the gripper (it pushes the gripper out of the object, along the
     object's outward normal within the friction cone), the hypothesis must also turn its surface there to face
@@ -292,7 +302,7 @@ def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance:
     near = np.abs(sd[:, 0]) <= tolerance
     f = None if force is None else np.asarray(force, dtype=np.float64).reshape(2)
     if f is None or not np.all(np.isfinite(f)) or math.hypot(f[0], f[1]) == 0.0 or max_angle_deg >= 180.0:
-        return bool(near.any())
+        return near
     normal = rotate(grad[:, 0, :], pp[:, 2])
     cos = (normal[:, 0] * f[0] + normal[:, 1] * f[1]) / (np.hypot(normal[:, 0], normal[:, 1]) * math.hypot(*f))
     facing = cos >= math.cos(math.radians(max_angle_deg))
@@ -300,7 +310,7 @@ def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance:
         hx, hy = target.half[:2]
         d_corner = np.hypot(np.abs(local[:, 0, 0]) - hx, np.abs(local[:, 0, 1]) - hy)
         facing |= d_corner <= corner
-    return bool((near & facing).any())
+    return near & facing
 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,

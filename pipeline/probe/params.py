@@ -52,6 +52,9 @@ class ProbeParams:
     switch_probes : int
         Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
         the budget: its set rests on the scripted part's drifted points otherwise.
+    clutter_cost : float, squared sigmas
+        A probe contact that some hypotheses of the set explain and others do not is the target's only if the set
+        fitted with it as the target's costs less than this more than with it as another object's (0.3; docs/retrieval.md, "Attributing a contact some hypotheses explain").
     method : str
         Tracking method of the policy's belief (``stucco``).
     plan : PlanParams
@@ -73,6 +76,7 @@ class ProbeParams:
     min_span: float = 0.6
     min_target_contacts: int = 3
     switch_probes: int = 3
+    clutter_cost: float = 0.3
     method: str = "stucco"
     plan: PlanParams = field(default_factory=PlanParams)
 
@@ -83,6 +87,7 @@ class ProbeParams:
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
+        "clutter_cost": number(0),
         "min_target_contacts": integer(0),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
         "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}

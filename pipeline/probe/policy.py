@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.geometry import Primitive, primitive_of
-from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explains, misfit,
+from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explaining, misfit,
                                    pose_set)
 from pipeline.probe.moves import (BLOCK_RADIUS, Act, first_reaching, guarded_move, retrace, return_to_start,
                                   transit_limits)
@@ -240,18 +240,32 @@ def required_contacts(target: Primitive, params: ProbeParams) -> int:
 def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
                 log: ProbeLog, previous: PoseSet | None, params: ProbeParams) -> PoseSet:
     """The plausible set now. Probe contacts not yet attributed are attributed with the previous set (the one
-    the probe was planned with): to the target if some of its hypotheses explains them within
+    the probe was planned with): to another object if none of its hypotheses explains them within
     ``attribute_tolerance`` with its surface facing the contact's sensed force (``attribute_angle_deg``,
-    ``attribute_corner``; :func:`pipeline.probe.belief.explains`), to another object otherwise; every contact
-    is the target's while no set exists or the set is the no-segment prior. The target's contacts' steps go to
-    ``log.target_steps``."""
+    ``attribute_corner``; :func:`pipeline.probe.belief.explaining`), to the target if all of them do, and if only
+    some do, to the target only when the set fitted with it as the target's costs less than ``clutter_cost``
+    more than the set fitted with it as another object's (docs/retrieval.md, "Attributing a contact some
+    hypotheses explain"). Every contact is the target's while no set exists or the set is the no-segment prior.
+    The target's contacts' steps go to ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
+    fitted: dict[tuple, PoseSet] = {}  # the sets of this call by target steps (a fit is deterministic)
+
+    def fit(steps: list) -> PoseSet:
+        key = tuple(steps)
+        if key not in fitted:
+            fitted[key] = set_from_steps(choice, target, sensing, root_seed, run, steps)
+        return fitted[key]
+
     for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
-        mine = previous is None or previous.segment < 0 or explains(
-            target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
-            params.attribute_corner)
+        mine = True
+        if previous is not None and previous.segment >= 0:
+            hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
+                             params.attribute_corner)
+            mine = bool(hit.any())
+            if mine and not hit.all():
+                mine = fit(log.target_steps + [int(step)]).cost - fit(log.target_steps).cost < params.clutter_cost
         (log.target_steps if mine else log.other_steps).append(int(step))
-    return set_from_steps(choice, target, sensing, root_seed, run, log.target_steps)
+    return fit(log.target_steps)
 
 
 def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
