@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from pipeline.geometry import Primitive, com_pose, primitive_pose
 from pipeline.grasp import plan_for
 from pipeline.probe import policy as policy_mod
-from pipeline.probe.belief import NO_TARGET, explains, pose_set
+from pipeline.probe.belief import NO_TARGET, explaining, pose_set
 from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy,
                                      ray_travel)
 from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
@@ -160,8 +160,8 @@ def test_probe_line_blocked_by_another_object_predicts_the_block_and_the_contact
     # every hypothesis of a line through the obstacle predicts the obstacle's stop: no such line is chosen
     assert blocked is None or not (blocked.direction @ [1.0, 0.0] > 0.99)
     # a contact on the other object is not explained by the set, so the policy attributes it elsewhere
-    assert not explains(BOX, poses, np.array([0.1, 0.0]), 0.025)
-    assert explains(BOX, poses, np.array([0.22, 0.0]), 0.025)
+    assert not explaining(BOX, poses, np.array([0.1, 0.0]), 0.025).any()
+    assert explaining(BOX, poses, np.array([0.22, 0.0]), 0.025).any()
 
 
 def test_a_contact_whose_force_the_hypothesis_surface_does_not_face_is_not_explained_by_it():
@@ -170,22 +170,22 @@ def test_a_contact_whose_force_the_hypothesis_surface_does_not_face_is_not_expla
     upright = np.array([[0.0, 0.0, 0.0]])
     turned = np.array([[0.0, 0.2, np.pi / 2]])  # far from the contact
     on_face = np.array([0.031, 0.0])
-    assert explains(BOX, upright, on_face, 0.025, np.array([2.0, 0.1]), 60.0, 0.015)
-    assert not explains(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 60.0, 0.015)
-    assert not explains(BOX, upright, on_face, 0.025, np.array([-2.0, 0.0]), 60.0, 0.015)  # pulled, not pushed
+    assert explaining(BOX, upright, on_face, 0.025, np.array([2.0, 0.1]), 60.0, 0.015).any()
+    assert not explaining(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 60.0, 0.015).any()
+    assert not explaining(BOX, upright, on_face, 0.025, np.array([-2.0, 0.0]), 60.0, 0.015).any()  # pulled, not pushed
     # position only: every direction is explained, as with no force measured (NaN) or a zero force
-    assert explains(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 180.0, 0.015)
-    assert explains(BOX, upright, on_face, 0.025, np.array([np.nan, np.nan]), 60.0, 0.015)
-    assert explains(BOX, upright, on_face, 0.025, np.zeros(2), 60.0, 0.015)
+    assert explaining(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 180.0, 0.015).any()
+    assert explaining(BOX, upright, on_face, 0.025, np.array([np.nan, np.nan]), 60.0, 0.015).any()
+    assert explaining(BOX, upright, on_face, 0.025, np.zeros(2), 60.0, 0.015).any()
     # a corner's normals span a quarter turn: near one, any direction is explained
     corner = np.array([0.031, 0.079])
-    assert explains(BOX, upright, corner, 0.025, np.array([0.0, 1.0]), 60.0, 0.015)
-    assert not explains(BOX, upright, corner, 0.025, np.array([0.0, -1.0]), 60.0, 0.0)
+    assert explaining(BOX, upright, corner, 0.025, np.array([0.0, 1.0]), 60.0, 0.015).any()
+    assert not explaining(BOX, upright, corner, 0.025, np.array([0.0, -1.0]), 60.0, 0.0).any()
     # the set explains the contact when one of its hypotheses does, in position and direction
     both = np.vstack([turned, upright])
-    assert explains(BOX, both, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015)
+    assert explaining(BOX, both, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015).any()
     far = np.array([[0.5, 0.5, 0.0]])
-    assert not explains(BOX, far, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015)
+    assert not explaining(BOX, far, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015).any()
 
 
 # ---------------------------------------------------------------------------------------------------------------

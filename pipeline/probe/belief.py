@@ -37,7 +37,7 @@ from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
-__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set", "explains",
+__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set",
            "explaining", "prior_set"]
 
 
@@ -278,12 +278,6 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
                    segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"],
                    cost=float(cost[keep].min()))
-
-
-def explains(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float,
-             force: np.ndarray | None = None, max_angle_deg: float = 180.0, corner: float = 0.0) -> bool:
-    """Whether some hypothesis (COM poses (H, 3)) explains the contact at ``point`` (:func:`explaining`)."""
-    return bool(explaining(target, poses, point, tolerance, force, max_angle_deg, corner).any())
 
 
 def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, tolerance: float,

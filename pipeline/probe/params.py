@@ -54,7 +54,8 @@ class ProbeParams:
         the budget: its set rests on the scripted part's drifted points otherwise.
     clutter_cost : float, squared sigmas
         A probe contact that some hypotheses of the set explain and others do not is the target's only if the set
-        fitted with it as the target's costs less than this more than with it as another object's (0.3; docs/retrieval.md, "Attributing a contact some hypotheses explain").
+        fitted with it as the target's costs less than this more than with it as another object's (0.3;
+        docs/retrieval.md, "Attributing a contact some hypotheses explain").
     method : str
         Tracking method of the policy's belief (``stucco``).
     plan : PlanParams
