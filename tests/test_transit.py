@@ -111,7 +111,7 @@ def test_return_to_start_goes_around_the_target_it_was_pushed_into(keepout, touc
 
 def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_first():
     from pipeline.probe.belief import PoseSet
-    from pipeline.probe.moves import first_reaching, transit_limits
+    from pipeline.probe.moves import reaching, transit_limits
 
     class S:
         visited = np.array([[0.0, 0.05], [0.0, 0.2], [0.0, 0.3]])  # the first is now inside the box
@@ -123,8 +123,8 @@ def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_fi
     assert [(k.margin, k.links) if k else None for _, k in probe] == [(0.0, False), None]
     assert [(round(k.margin, 6), k.links) if k else None for _, k in back] == [
         (0.015, True), (0.01, True), (0.005, True), (0.0, True), (0.0, False), None]
-    touching, keepout = first_reaching(S, probe, 0.001)
-    assert keepout is probe[0][1]  # the second position is still reachable
+    assert [k for _, k in reaching(S, probe, 0.001)] == [k for _, k in probe]  # the second is still reachable
+    touching, keepout = probe[0]
     dist, _ = transit_graph(S.visited, 0.001, touching, keepout)
     assert np.isinf(dist[0]) and np.isfinite(dist[1])
 
@@ -296,3 +296,47 @@ def test_consecutive_positions_close_together_count_their_distance_once():
     line = np.column_stack([np.arange(0.0, 0.1001, 0.01), np.zeros(11)])[::-1]  # current position (0, 0) last
     dist, _ = transit_graph(line, 0.02)
     assert dist[0] == pytest.approx(0.1)  # not 0.2: each 1 cm link is both consecutive and within the radius
+
+
+class _Probing:
+    """The sensing the planner reads: visited positions (the box's place is clear of them), no probe contact."""
+
+    visited = np.array([[0.0, 0.2], [0.0, 0.3], [0.0, 0.4]])
+    touching = [False, False, False]
+    probe_points: list = []
+    probe_steps: list = []
+
+
+@pytest.mark.parametrize("plans, expected", [
+    ({"keepout": "strict", "free": "lax"}, ("strict", [True])),
+    ({"keepout": None, "free": "lax"}, ("lax", [True, False])),
+    ({"keepout": None, "free": None}, (None, [True, False])),
+])
+def test_a_keepout_that_leaves_no_probe_gives_way_to_the_next_limit(monkeypatch, plans, expected):
+    # The planner under the keep-out around the estimate finds no line (a gripper walled in by a wrong estimate):
+    # the policy plans again without it rather than stop probing with the set wide.
+    from pipeline.probe import policy as policy_mod
+    from pipeline.probe.belief import PoseSet
+    from pipeline.probe.params import ProbeLog
+
+    kept = []
+
+    def plan(*args, keepout, **kwargs):
+        kept.append(keepout is not None)
+        return plans["keepout" if keepout is not None else "free"]
+
+    monkeypatch.setattr(policy_mod, "choose_probe", plan)
+    belief = PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=0)
+    got = policy_mod.next_probe(BOX, belief, _Probing, DOT, np.zeros((0, 2)), ProbeLog(), False, ProbeParams())
+    assert (got, kept) == expected
+
+
+def test_reaching_is_the_last_limit_alone_when_no_limit_reaches():
+    from pipeline.probe.moves import reaching
+
+    class Alone:
+        visited = np.array([[0.0, 0.2]])  # only the current position: nowhere to go under any limit
+
+    limits = [(np.zeros(1, dtype=bool), Keepout(BOX, np.zeros(3), DOT, 0.0, links=False)),
+              (np.zeros(1, dtype=bool), None)]
+    assert [k for _, k in reaching(Alone, limits, 0.02)] == [None]

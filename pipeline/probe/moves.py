@@ -16,7 +16,7 @@ from pipeline.probe.transit import Keepout, path_to, transit_graph
 #: Visited positions within this distance (m) of where a transit met an object are left out of later transits.
 BLOCK_RADIUS = 0.03
 
-__all__ = ["Act", "retrace", "guarded_move", "transit_limits", "first_reaching", "return_to_start"]
+__all__ = ["Act", "retrace", "guarded_move", "transit_limits", "reaching", "return_to_start"]
 
 Act = Callable[[float, float], dict]
 
@@ -98,14 +98,14 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
         [(touching, positions), (touching, None)]
 
 
-def first_reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | None]], link_radius: float
-                   ) -> tuple[np.ndarray, Keepout | None]:
-    """The first of ``limits`` (:func:`transit_limits`) under which transit reaches some visited position other
-    than the current one (the last limit otherwise)."""
-    for touching, keepout in limits[:-1]:
+def reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | None]], link_radius: float
+             ) -> list[tuple[np.ndarray, Keepout | None]]:
+    """``limits`` (:func:`transit_limits`, strictest first) from the first under which transit reaches some
+    visited position other than the current one (the last limit alone otherwise)."""
+    for i, (touching, keepout) in enumerate(limits[:-1]):
         if np.isfinite(transit_graph(sensing.visited, link_radius, touching, keepout)[0]).sum() > 1:
-            return touching, keepout
-    return limits[-1]
+            return limits[i:]
+    return limits[-1:]
 
 
 def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.ndarray, Keepout | None]],

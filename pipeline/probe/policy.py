@@ -23,17 +23,16 @@ import pyarrow as pa
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explaining, misfit,
                                    pose_set)
-from pipeline.probe.moves import (BLOCK_RADIUS, Act, first_reaching, guarded_move, retrace, return_to_start,
-                                  transit_limits)
+from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
-from pipeline.probe.planning import PlanParams, agreement, choose_probe, gripper_outline
+from pipeline.probe.planning import PlanParams, ProbePlan, agreement, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
 from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import retrieval_rng
 
-__all__ = ["ProbeParams", "ProbeLog", "probe_run", "run_policy", "required_contacts", "give_way_at_budget", "bunched",
-           "guarded_move", "retrace"]
+__all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "required_contacts",
+           "give_way_at_budget", "bunched", "guarded_move", "retrace"]
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
@@ -130,12 +129,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 log.history[-1].update(stop=bool(done), held=float(held))
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
-        plan = None if done or log.probes >= limit else choose_probe(
-            target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan, obstacles,
-            np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4),
-            mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None,
-            *first_reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
-                            params.plan.link_radius))
+        plan = None if done or log.probes >= limit else next_probe(target, belief, sensing, outline, obstacles, log,
+                                                                   short, params)
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
@@ -162,6 +157,27 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         log.contacts.append(bool(contact))
         log.lines.append([*map(float, plan.start), *map(float, plan.direction),
                           *_quantiles(plan.predicted, belief.weights), plan.mode == "spread"])
+
+
+def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np.ndarray, obstacles: np.ndarray,
+               log: ProbeLog, short: bool, params: ProbeParams) -> ProbePlan | None:
+    """The next guarded move (:func:`pipeline.probe.planning.choose_probe`; None: none can be reached), planned
+    under the strictest transit limit that reaches some visited position (:func:`pipeline.probe.moves.reaching`)
+    and, where that one leaves no probe, under each laxer one in turn: a gripper walled in by the keep-out
+    around a wrong estimate would otherwise stop probing with the set still wide (docs/retrieval.md, "When the
+    keep-out leaves no probe"). The copies of the estimate answer to the target's probe contacts; with ``short``
+    (those contacts are bunched) after a probe that was not a spread probe, the line is the one whose contact
+    lies farthest from them."""
+    lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
+    mine = mine_now(sensing, log)
+    spread = mine if short and log.lines and not log.lines[-1][-1] else None
+    for touching, keepout in reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
+                                      params.plan.link_radius):
+        plan = choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
+                            obstacles, lines, spread, touching=touching, keepout=keepout, contacts=mine)
+        if plan is not None:
+            return plan
+    return None
 
 
 def _stops(target: Primitive, belief: PoseSet, sensing: Sensing, log: ProbeLog, need: int, share: float,
