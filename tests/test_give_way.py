@@ -120,7 +120,7 @@ def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, 
     log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
                                ProbeParams(budget=0, switch_probes=switch_probes))
     assert calls["give_way"] == 1 and log.switches == 1 and log.probes == 0
-    assert (calls["plan"] > 0) == bool(switch_probes)  # once per transit limit that reaches (policy.next_probe)
+    assert (calls["plan"] > 0) == bool(switch_probes)  # once per limit from the first that reaches (next_probe)
     assert log.flagged == ("no_reachable_probe" if switch_probes else "budget_spent")
     assert len(log.history) == 1  # the decision's state is the taken segment's, not a second entry
 

@@ -77,7 +77,9 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
                    returning: bool = False) -> list[tuple[np.ndarray, Keepout | None]]:
     """What transit must avoid, strictest first: pairs of (visited positions reached in contact by a probe (K,),
     the keep-out around the target at the set's estimate). ``plan`` is a
-    :class:`pipeline.probe.planning.PlanParams`; the first pair that leaves transit somewhere to go is used.
+    :class:`pipeline.probe.planning.PlanParams`; the first pair that leaves transit somewhere to go is used, and
+    a probe is planned under the laxer ones in turn when it leaves none (:func:`reaching`,
+    :func:`pipeline.probe.policy.next_probe`).
 
     Transit to a probe's start only keeps the gripper's positions out of the target (a move that grazes it ends
     the probe as a contact, and starts close to the target are the informative ones: keeping the clearance there

@@ -267,9 +267,10 @@ def with_perturbed(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best
 
 def contact_cost(prim: Primitive, poses: np.ndarray, contacts: np.ndarray, sigma: float,
                  outlier_sigmas: float = 3.0) -> np.ndarray:
-    """Negative log-likelihood (K,) of the contacts (P, 2) on the surface of each posed primitive (COM poses
-    (K, 3)): half the sum of squared distances in sigmas, each capped at ``outlier_sigmas`` (a contact on
-    another object costs a bounded amount, as in the plausible estimator)."""
+    """Negative log-likelihood (K,) of the contacts (P, 2), metres, on the surface of each posed primitive (COM
+    poses (K, 3)): half the sum of squared distances in ``sigma`` (metres), each distance capped at
+    ``outlier_sigmas`` sigmas (a contact on another object costs at most 4.5, the bound the plausible
+    estimator's smooth robust cost tends to)."""
     pp = primitive_pose(prim, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
     local = rotate(np.asarray(contacts, dtype=np.float64).reshape(1, -1, 2) - pp[:, None, :2], pp[:, None, 2],
                    inverse=True)
