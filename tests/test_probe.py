@@ -14,8 +14,8 @@ from pipeline.geometry import Primitive, com_pose, primitive_pose
 from pipeline.grasp import plan_for
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, explaining, pose_set
-from pipeline.probe.planning import (PlanParams, agreement, choose_probe, contact_cost, obstacle_travel,
-                                     outcome_entropy, ray_travel, with_perturbed)
+from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy,
+                                     ray_travel)
 from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
 from pipeline.grasp_rule import box_success, can_success
 from pipeline.probe.set_grasp import choose_grasp
@@ -67,36 +67,6 @@ def test_outcome_entropy_counts_distinct_outcomes():
                        [0.10, 0.20, 0.30, np.inf]])  # four outcomes (a miss is one): two bits
     ent = outcome_entropy(travel, np.full(4, 0.25), 0.008)
     assert ent == pytest.approx([0.0, 1.0, 2.0])
-
-
-def test_contact_cost_is_half_the_squared_sigmas_capped():
-    pose = np.zeros((1, 3))
-    on_face, off_3mm, far = np.array([[0.03, 0.0]]), np.array([[0.033, 0.0]]), np.array([[0.5, 0.0]])
-    assert contact_cost(BOX, pose, on_face, 0.003) == pytest.approx([0.0], abs=1e-12)
-    assert contact_cost(BOX, pose, off_3mm, 0.003) == pytest.approx([0.5])
-    assert contact_cost(BOX, pose, far, 0.003) == pytest.approx([4.5])  # at most (3 sigmas)^2 / 2
-    assert contact_cost(BOX, pose, np.vstack([on_face, off_3mm]), 0.003) == pytest.approx([0.5])
-
-
-def test_the_estimates_copies_answer_to_the_targets_probe_contacts():
-    params = PlanParams()
-    poses, w = np.zeros((2, 3)), np.array([0.5, 0.5])
-    # No contact yet: the six copies (turned -+, shifted -+ across, -+ along the box) share perturb_weight.
-    all_poses, all_w = with_perturbed(BOX, poses, w, 0, params)
-    assert all_poses.shape == (8, 3) and all_w[2:] == pytest.approx(np.full(6, params.perturb_weight / 6))
-    # A contact in the middle of the long face x = +0.03: the copies shifted across the box (1.5 cm off that
-    # face, 5 sigmas) are ruled out; the turned ones (the face's middle does not move) and those shifted along
-    # the box keep their weight. The weights still sum to 1.
-    _, all_w = with_perturbed(BOX, poses, w, 0, params, np.array([[0.03, 0.0]]))
-    assert all_w[[2, 3, 6, 7]] == pytest.approx(np.full(4, params.perturb_weight / 6), rel=1e-3)
-    assert np.all(all_w[4:6] < 0.001) and all_w.sum() == pytest.approx(1.0)
-    # Touched at a corner: both turned copies lose weight, the one that puts the surface 6 mm from the contact
-    # (2 sigmas) most of it.
-    _, all_w = with_perturbed(BOX, poses, w, 0, params, np.array([[0.03, 0.08]]))
-    assert np.all(all_w[2:4] < 0.8 * params.perturb_weight / 6) and all_w[3] < 0.15 * params.perturb_weight / 6
-    # Switched off: the copies keep their weight whatever the contacts.
-    _, all_w = with_perturbed(BOX, poses, w, 0, dataclasses.replace(params, copy_sigma=0.0), np.array([[0.03, 0.0]]))
-    assert all_w[2:] == pytest.approx(np.full(6, params.perturb_weight / 6))
 
 
 def test_agreement_of_a_set_of_one_pose_is_one_and_yaw_is_modulo_symmetry():

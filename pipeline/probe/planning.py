@@ -18,13 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.portable import exp, log
-from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf, rotate
+from pipeline.portable import log
+from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate
 from pipeline.retrieve.evidence import gripper_lattice
 from pipeline.probe.transit import Keepout, path_to, transit_graph
 
 __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "outcome_entropy",
-           "obstacle_travel", "hit_points", "with_perturbed", "contact_cost", "choose_probe"]
+           "obstacle_travel", "hit_points", "choose_probe"]
 
 
 @dataclass(frozen=True)
@@ -56,13 +56,9 @@ class PlanParams:
         Charge on the transit to the start plus the expected travel (1.0).
     perturb_weight : float
         Likelihood share given to copies of the estimate turned by +-``perturb_yaw`` and shifted by
-        +-``perturb_shift`` (0.3, less what the target's probe contacts rule out; :func:`with_perturbed`): a set
-        that already agrees still has a probe that would catch its being wrong.
+        +-``perturb_shift`` (0.3): a set that already agrees still has a probe that would catch its being wrong.
     perturb_yaw : float, radians
     perturb_shift : float, metres
-    copy_sigma : float, metres
-        Contact noise by which the copies are weighed against the target's probe contacts (0.003, the plausible
-        estimator's ``contact_sigma``; 0: not weighed; :func:`with_perturbed`).
     outline_resolution : float, metres
         Spacing of the gripper outline points (0.01).
     link_radius : float, metres
@@ -87,7 +83,6 @@ class PlanParams:
     perturb_weight: float = 0.3
     perturb_yaw: float = 0.08
     perturb_shift: float = 0.015
-    copy_sigma: float = 0.003
     outline_resolution: float = 0.01
     link_radius: float = 0.02
     transit_clearance: float = 0.015
@@ -247,42 +242,10 @@ def _perturbed(prim: Primitive, pose: np.ndarray, params: PlanParams) -> np.ndar
     return com_pose(prim, np.array(out))
 
 
-def with_perturbed(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, params: PlanParams,
-                   contacts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The set (COM poses (H, 3), weights (H,) summing to 1) with the six copies of its estimate of
-    :func:`_perturbed` appended: poses (H + 6, 3) and weights (H + 6,) summing to 1.
-
-    Each copy weighs ``perturb_weight / 6`` times its likelihood on the target's probe contacts ``contacts``
-    (P, 2) relative to the estimate's (:func:`contact_cost`, at most 1): a copy those contacts already rule out
-    (a corner turned 7 mm from where it was touched) no longer draws probes to the place it disagrees on
-    (docs/retrieval.md, "The copies of the estimate answer to the contacts")."""
-    extra = _perturbed(prim, poses[best], params)
-    share = np.full(len(extra), params.perturb_weight / len(extra))
-    contacts = np.zeros((0, 2)) if contacts is None else np.asarray(contacts, dtype=np.float64).reshape(-1, 2)
-    if len(contacts) and params.copy_sigma > 0.0:
-        cost = contact_cost(prim, np.vstack([poses[best][None, :], extra]), contacts, params.copy_sigma)
-        share = share * exp(-np.maximum(cost[1:] - cost[0], 0.0))
-    return np.vstack([poses, extra]), np.r_[weights * (1.0 - share.sum()), share]
-
-
-def contact_cost(prim: Primitive, poses: np.ndarray, contacts: np.ndarray, sigma: float,
-                 outlier_sigmas: float = 3.0) -> np.ndarray:
-    """Negative log-likelihood (K,) of the contacts (P, 2), metres, on the surface of each posed primitive (COM
-    poses (K, 3)): half the sum of squared distances in ``sigma`` (metres), each distance capped at
-    ``outlier_sigmas`` sigmas (a contact on another object costs at most 4.5, the bound the plausible
-    estimator's smooth robust cost tends to)."""
-    pp = primitive_pose(prim, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
-    local = rotate(np.asarray(contacts, dtype=np.float64).reshape(1, -1, 2) - pp[:, None, :2], pp[:, None, 2],
-                   inverse=True)
-    sd, _ = primitive_sdf(prim, local)
-    return 0.5 * np.sum(np.minimum((sd / sigma) ** 2, outlier_sigmas ** 2), axis=1)
-
-
 def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, visited: np.ndarray,
                  outline: np.ndarray, params: PlanParams = PlanParams(), obstacles: np.ndarray | None = None,
                  done: np.ndarray | None = None, spread_from: np.ndarray | None = None,
-                 touching: np.ndarray | None = None, keepout: Keepout | None = None,
-                 contacts: np.ndarray | None = None) -> ProbePlan | None:
+                 touching: np.ndarray | None = None, keepout: Keepout | None = None) -> ProbePlan | None:
     """The guarded move that best separates the hypotheses, or None if no start can be reached.
 
     Parameters
@@ -302,8 +265,6 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
         Visited positions transit must avoid (reached in contact by a probe).
     keepout : Keepout, optional
         The region around the target's estimate transit stays out of (positions and the moves between them).
-    contacts : ndarray, shape (P, 2), optional
-        The target's probe contacts: the copies of the estimate are weighed by them (:func:`with_perturbed`).
     spread_from : ndarray, shape (P, 2), optional
         Instead of the most informative line, the one whose contact the estimate predicts farthest from these
         points (the target's probe contacts): a set that agrees on a few close contacts may rest on another,
@@ -312,7 +273,9 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     w = np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
-    all_poses, all_w = with_perturbed(prim, poses, w, best, params, contacts)
+    extra = _perturbed(prim, poses[best], params)
+    all_poses = np.vstack([poses, extra])
+    all_w = np.r_[w * (1.0 - params.perturb_weight), np.full(len(extra), params.perturb_weight / len(extra))]
     centre = np.sum(prim.centre_world(poses) * w[:, None], axis=0)
     visited = np.asarray(visited, dtype=np.float64).reshape(-1, 2)
     dist, pred = transit_graph(visited, params.link_radius, touching, keepout)

@@ -165,16 +165,14 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
     under the strictest transit limit that reaches some visited position (:func:`pipeline.probe.moves.reaching`)
     and, where that one leaves no probe, under each laxer one in turn: a gripper walled in by the keep-out
     around a wrong estimate would otherwise stop probing with the set still wide (docs/retrieval.md, "When the
-    keep-out leaves no probe"). The copies of the estimate answer to the target's probe contacts; with ``short``
-    (those contacts are bunched) after a probe that was not a spread probe, the line is the one whose contact
-    lies farthest from them."""
+    keep-out leaves no probe"). With ``short`` (the target's probe contacts are bunched) after a probe that was
+    not a spread probe, the line is the one whose contact lies farthest from them."""
     lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
-    mine = mine_now(sensing, log)
-    spread = mine if short and log.lines and not log.lines[-1][-1] else None
+    spread = mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None
     for touching, keepout in reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
                                       params.plan.link_radius):
         plan = choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
-                            obstacles, lines, spread, touching=touching, keepout=keepout, contacts=mine)
+                            obstacles, lines, spread, touching=touching, keepout=keepout)
         if plan is not None:
             return plan
     return None
