@@ -83,3 +83,54 @@ def test_without_a_fitted_set_every_contact_is_the_targets(fits):
     no_segment = PoseSet(poses=np.array([TURNED]), weights=np.ones(1), best=0, segment=-1)
     log = _attribute(np.array([0.5, 0.5]), no_segment, ProbeParams(clutter_cost=0.0))
     assert log.target_steps == [40]
+
+
+
+@pytest.mark.parametrize("mode, mine", [("off", False), ("explained", True), ("fit", True)])
+def test_a_contact_once_given_to_another_object_is_tried_again_against_the_later_set(fits, mode, mine):
+    # Action 40 went elsewhere against the set of its decision; the set now puts its surface there in every
+    # hypothesis: with reattribute it becomes the target's (no second fit needed), without it stays elsewhere.
+    log = ProbeLog(other_steps=[40])
+    previous = _previous([0.469, 0.5, 0.0], [0.469, 0.501, 0.0])  # both put their +x face at (0.5, 0.5)
+    policy_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, previous,
+                           ProbeParams(reattribute=mode))
+    assert (log.target_steps, log.other_steps) == (([40], []) if mine else ([], [40]))
+
+
+@pytest.mark.parametrize("mode, with_cost, mine", [("explained", 0.1, False), ("fit", 0.1, True), ("fit", 5.0, False)])
+def test_a_contact_no_hypothesis_explains_is_tried_by_its_cost_only_with_fit(fits, mode, with_cost, mine):
+    # "fit": the cost rule decides even where the set put no surface near it (the set may lie away from it
+    # because it counted as another object's); "explained" leaves it where it is.
+    fits["with"], fits["without"] = with_cost, 0.0
+    log = ProbeLog(other_steps=[40])
+    policy_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, _previous(UPRIGHT),
+                           ProbeParams(reattribute=mode, clutter_cost=0.3))
+    assert (log.target_steps, log.other_steps) == (([40], []) if mine else ([], [40]))
+
+
+class _Contacts:
+    """Probe contacts {action: point}, no force measured."""
+
+    def __init__(self, points):
+        self.probe_steps = list(points)
+        self.probe_points = [np.asarray(p, dtype=np.float64) for p in points.values()]
+        self.probe_forces = [np.full(2, np.nan) for _ in points]
+
+
+def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(fits):
+    # Neither earlier contact is explained; the one nearer the estimate's surface (action 41) is fitted, the
+    # other waits for a later decision: one fit beyond the set's own.
+    log = ProbeLog(other_steps=[40, 41])
+    sensing = _Contacts({40: [0.5, 0.5], 41: [0.1, 0.0]})
+    policy_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT), ProbeParams(reattribute="fit"))
+    assert log.target_steps == [41] and log.other_steps == [40]
+    assert sorted(fits["calls"]) == [(), (41,)]
+
+
+def test_no_contact_is_tried_again_by_a_fit_when_a_new_contact_needed_one(fits):
+    log = ProbeLog(other_steps=[40])
+    sensing = _Contacts({40: [0.5, 0.5], 42: ON_LONG_FACE})  # 42 is new, and some hypotheses explain it
+    policy_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT, TURNED),
+                           ProbeParams(reattribute="fit", clutter_cost=2.0))
+    assert log.target_steps == [42] and log.other_steps == [40]
+    assert sorted(fits["calls"]) == [(), (42,)]

@@ -38,7 +38,7 @@ from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
 __all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set",
-           "explaining", "prior_set"]
+           "explaining", "surface_distance", "prior_set"]
 
 
 class Sensing:
@@ -289,10 +289,7 @@ def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, toleranc
     it: its outward normal within ``max_angle_deg`` of the force, unless the point lies within ``corner`` (m) of
     one of a box's corners, whose normals span a quarter turn (docs/retrieval.md, "Attributing a probe contact
     by its direction")."""
-    pp = primitive_pose(target, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
-    local = rotate(np.asarray(point, dtype=np.float64)[None, None, :] - pp[:, None, :2], pp[:, None, 2],
-                   inverse=True)
-    sd, grad = primitive_sdf(target, local)
+    pp, local, sd, grad = _surface_at(target, poses, point)
     near = np.abs(sd[:, 0]) <= tolerance
     f = None if force is None else np.asarray(force, dtype=np.float64).reshape(2)
     if f is None or not np.all(np.isfinite(f)) or math.hypot(f[0], f[1]) == 0.0 or max_angle_deg >= 180.0:
@@ -305,6 +302,21 @@ def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, toleranc
         d_corner = np.hypot(np.abs(local[:, 0, 0]) - hx, np.abs(local[:, 0, 1]) - hy)
         facing |= d_corner <= corner
     return near & facing
+
+
+def surface_distance(target: Primitive, poses: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Distance (m) from ``point`` (2,) to the surface of the target at each COM pose (H, 3) or (3,): (H,)."""
+    return np.abs(_surface_at(target, poses, point)[2][:, 0])
+
+
+def _surface_at(target: Primitive, poses: np.ndarray, point: np.ndarray):
+    """(primitive poses (H, 3), the point in each one's frame (H, 1, 2), signed distance (H, 1), its gradient
+    (H, 1, 2)) of ``point`` (2,) against the target at the COM poses (H, 3)."""
+    pp = primitive_pose(target, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+    local = rotate(np.asarray(point, dtype=np.float64)[None, None, :] - pp[:, None, :2], pp[:, None, 2],
+                   inverse=True)
+    sd, grad = primitive_sdf(target, local)
+    return pp, local, sd, grad
 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,

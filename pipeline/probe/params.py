@@ -56,6 +56,11 @@ class ProbeParams:
         A probe contact that some hypotheses of the set explain and others do not is the target's only if the set
         fitted with it as the target's costs less than this more than with it as another object's (0.3;
         docs/retrieval.md, "Attributing a contact some hypotheses explain").
+    reattribute : str
+        Whether a probe contact once attributed to another object is tried again at later decisions against the
+        set then (``fit``: by the rule above, or by its cost alone where no hypothesis explains it; ``explained``:
+        only where some hypothesis does; ``off``: never). One fit more per decision at most; docs/retrieval.md,
+        "A contact once given to another object, tried again".
     method : str
         Tracking method of the policy's belief (``stucco``).
     plan : PlanParams
@@ -78,6 +83,7 @@ class ProbeParams:
     min_target_contacts: int = 3
     switch_probes: int = 3
     clutter_cost: float = 0.3
+    reattribute: str = "fit"
     method: str = "stucco"
     plan: PlanParams = field(default_factory=PlanParams)
 
@@ -89,6 +95,7 @@ class ProbeParams:
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
         "clutter_cost": number(0),
+        "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
         "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}

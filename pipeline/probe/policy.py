@@ -22,7 +22,7 @@ import pyarrow as pa
 
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explaining, misfit,
-                                   pose_set)
+                                   pose_set, surface_distance)
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, ProbePlan, agreement, choose_probe, gripper_outline
@@ -270,6 +270,7 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
             fitted[key] = set_from_steps(choice, target, sensing, root_seed, run, steps)
         return fitted[key]
 
+    earlier = list(log.other_steps)
     for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
         mine = True
         if previous is not None and previous.segment >= 0:
@@ -279,7 +280,34 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
             if mine and not hit.all():
                 mine = fit(log.target_steps + [int(step)]).cost - fit(log.target_steps).cost < params.clutter_cost
         (log.target_steps if mine else log.other_steps).append(int(step))
+    if params.reattribute != "off" and previous is not None and previous.segment >= 0 and earlier:
+        _reattribute(target, sensing, log, earlier, previous, fit, spare=not fitted, params=params)
     return fit(log.target_steps)
+
+
+def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: list, previous: PoseSet,
+                 fit: Callable[[list], PoseSet], spare: bool, params: ProbeParams) -> None:
+    """Try again the probe contacts of ``earlier`` (steps attributed to another object at earlier decisions)
+    against ``previous``: the first set may have been wrong, and a set fitted with a contact as another object's
+    keeps its surface away from it. One that every hypothesis explains becomes the target's; the one nearest the
+    estimate's surface among the others is tried by the cost rule of :func:`current_set` (with ``explained``
+    only if some hypothesis explains it), if ``spare`` (no fit beyond the set's own was made for this decision's
+    contacts): one fit more per decision at most, for a decision must stay under half a second."""
+    at = {int(st): (q, f) for q, st, f in zip(sensing.probe_points, sensing.probe_steps, sensing.probe_forces)}
+    best = previous.poses[previous.best]
+    ranked = sorted(earlier, key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
+    for step in ranked:
+        q, f = at[step]
+        hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
+                         params.attribute_corner)
+        if not hit.all():
+            if not spare or params.reattribute == "explained" and not hit.any():
+                continue
+            spare = False
+            if fit(log.target_steps + [step]).cost - fit(log.target_steps).cost >= params.clutter_cost:
+                continue
+        log.other_steps.remove(step)
+        log.target_steps.append(step)
 
 
 def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
