@@ -85,7 +85,6 @@ def test_without_a_fitted_set_every_contact_is_the_targets(fits):
     assert log.target_steps == [40]
 
 
-
 @pytest.mark.parametrize("mode, mine", [("off", False), ("explained", True), ("fit", True)])
 def test_a_contact_once_given_to_another_object_is_tried_again_against_the_later_set(fits, mode, mine):
     # Action 40 went elsewhere against the set of its decision; the set now puts its surface there in every

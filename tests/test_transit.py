@@ -123,7 +123,7 @@ def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_fi
     assert [(k.margin, k.links) if k else None for _, k in probe] == [(0.0, False), None]
     assert [(round(k.margin, 6), k.links) if k else None for _, k in back] == [
         (0.015, True), (0.01, True), (0.005, True), (0.0, True), (0.0, False), None]
-    assert [k for _, k in reaching(S, probe, 0.001)] == [k for _, k in probe]  # the second is still reachable
+    assert [k for _, k, _ in reaching(S, probe, 0.001)] == [k for _, k in probe]  # the second is still reachable
     touching, keepout = probe[0]
     dist, _ = transit_graph(S.visited, 0.001, touching, keepout)
     assert np.isinf(dist[0]) and np.isfinite(dist[1])
@@ -321,7 +321,7 @@ def test_a_keepout_that_leaves_no_probe_gives_way_to_the_next_limit(monkeypatch,
 
     kept = []
 
-    def plan(*args, touching, keepout):
+    def plan(*args, touching, keepout, graph=None):
         assert len(touching) == len(_Probing.visited)
         kept.append(keepout is not None)
         return plans["keepout" if keepout is not None else "free"]
@@ -340,4 +340,4 @@ def test_reaching_is_the_last_limit_alone_when_no_limit_reaches():
 
     limits = [(np.zeros(1, dtype=bool), Keepout(BOX, np.zeros(3), DOT, 0.0, links=False)),
               (np.zeros(1, dtype=bool), None)]
-    assert [k for _, k in reaching(Alone, limits, 0.02)] == [None]
+    assert [k for _, k, _ in reaching(Alone, limits, 0.02)] == [None]

@@ -101,13 +101,15 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
 
 
 def reaching(sensing: Sensing, limits: list[tuple[np.ndarray, Keepout | None]], link_radius: float
-             ) -> list[tuple[np.ndarray, Keepout | None]]:
+             ) -> list[tuple[np.ndarray, Keepout | None, tuple[np.ndarray, np.ndarray] | None]]:
     """``limits`` (:func:`transit_limits`, strictest first) from the first under which transit reaches some
-    visited position other than the current one (the last limit alone otherwise)."""
+    visited position other than the current one (the last limit alone otherwise), each with the transit graph
+    built to find it ((distance, predecessor) of :func:`transit_graph` for the first, None for the rest)."""
     for i, (touching, keepout) in enumerate(limits[:-1]):
-        if np.isfinite(transit_graph(sensing.visited, link_radius, touching, keepout)[0]).sum() > 1:
-            return limits[i:]
-    return limits[-1:]
+        graph = transit_graph(sensing.visited, link_radius, touching, keepout)
+        if np.isfinite(graph[0]).sum() > 1:
+            return [(*limits[i], graph)] + [(*lim, None) for lim in limits[i + 1:]]
+    return [(*limits[-1], None)]
 
 
 def return_to_start(act: Act, sensing: Sensing, params, limits: list[tuple[np.ndarray, Keepout | None]],

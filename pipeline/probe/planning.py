@@ -245,7 +245,8 @@ def _perturbed(prim: Primitive, pose: np.ndarray, params: PlanParams) -> np.ndar
 def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, visited: np.ndarray,
                  outline: np.ndarray, params: PlanParams = PlanParams(), obstacles: np.ndarray | None = None,
                  done: np.ndarray | None = None, spread_from: np.ndarray | None = None,
-                 touching: np.ndarray | None = None, keepout: Keepout | None = None) -> ProbePlan | None:
+                 touching: np.ndarray | None = None, keepout: Keepout | None = None,
+                 graph: tuple[np.ndarray, np.ndarray] | None = None) -> ProbePlan | None:
     """The guarded move that best separates the hypotheses, or None if no start can be reached.
 
     Parameters
@@ -265,6 +266,9 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
         Visited positions transit must avoid (reached in contact by a probe).
     keepout : Keepout, optional
         The region around the target's estimate transit stays out of (positions and the moves between them).
+    graph : (ndarray (K,), ndarray (K,)), optional
+        :func:`pipeline.probe.transit.transit_graph` of ``visited`` under ``touching`` and ``keepout``, when the
+        caller has built it already (:func:`pipeline.probe.moves.reaching`).
     spread_from : ndarray, shape (P, 2), optional
         Instead of the most informative line, the one whose contact the estimate predicts farthest from these
         points (the target's probe contacts): a set that agrees on a few close contacts may rest on another,
@@ -278,7 +282,7 @@ def choose_probe(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: 
     all_w = np.r_[w * (1.0 - params.perturb_weight), np.full(len(extra), params.perturb_weight / len(extra))]
     centre = np.sum(prim.centre_world(poses) * w[:, None], axis=0)
     visited = np.asarray(visited, dtype=np.float64).reshape(-1, 2)
-    dist, pred = transit_graph(visited, params.link_radius, touching, keepout)
+    dist, pred = graph if graph is not None else transit_graph(visited, params.link_radius, touching, keepout)
     reach = np.linalg.norm(visited - centre, axis=1)
     ok = np.flatnonzero(np.isfinite(dist) & (reach <= params.start_reach))
     if len(ok) == 0:

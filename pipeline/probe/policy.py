@@ -169,10 +169,10 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
     not a spread probe, the line is the one whose contact lies farthest from them."""
     lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
     spread = mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None
-    for touching, keepout in reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
-                                      params.plan.link_radius):
+    for touching, keepout, graph in reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
+                                             params.plan.link_radius):
         plan = choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
-                            obstacles, lines, spread, touching=touching, keepout=keepout)
+                            obstacles, lines, spread, touching=touching, keepout=keepout, graph=graph)
         if plan is not None:
             return plan
     return None
@@ -270,6 +270,10 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
             fitted[key] = set_from_steps(choice, target, sensing, root_seed, run, steps)
         return fitted[key]
 
+    def costs_little(step: int) -> bool:
+        # the set fitted with the contact as the target's against the set fitted with it as another object's
+        return fit(log.target_steps + [step]).cost - fit(log.target_steps).cost < params.clutter_cost
+
     earlier = list(log.other_steps)
     for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
         mine = True
@@ -278,21 +282,21 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
                              params.attribute_corner)
             mine = bool(hit.any())
             if mine and not hit.all():
-                mine = fit(log.target_steps + [int(step)]).cost - fit(log.target_steps).cost < params.clutter_cost
+                mine = costs_little(int(step))
         (log.target_steps if mine else log.other_steps).append(int(step))
     if params.reattribute != "off" and previous is not None and previous.segment >= 0 and earlier:
-        _reattribute(target, sensing, log, earlier, previous, fit, spare=not fitted, params=params)
+        _reattribute(target, sensing, log, earlier, previous, costs_little, spare=not fitted, params=params)
     return fit(log.target_steps)
 
 
 def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: list, previous: PoseSet,
-                 fit: Callable[[list], PoseSet], spare: bool, params: ProbeParams) -> None:
+                 costs_little: Callable[[int], bool], spare: bool, params: ProbeParams) -> None:
     """Try again the probe contacts of ``earlier`` (steps attributed to another object at earlier decisions)
     against ``previous``: the first set may have been wrong, and a set fitted with a contact as another object's
     keeps its surface away from it. One that every hypothesis explains becomes the target's; the one nearest the
-    estimate's surface among the others is tried by the cost rule of :func:`current_set` (with ``explained``
-    only if some hypothesis explains it), if ``spare`` (no fit beyond the set's own was made for this decision's
-    contacts): one fit more per decision at most, for a decision must stay under half a second."""
+    estimate's surface among the others is tried by the cost rule of :func:`current_set` (``costs_little``; with
+    ``explained`` only if some hypothesis explains it), if ``spare`` (no fit beyond the set's own was made for
+    this decision's contacts): one fit more per decision at most, for a decision must stay under half a second."""
     at = {int(st): (q, f) for q, st, f in zip(sensing.probe_points, sensing.probe_steps, sensing.probe_forces)}
     best = previous.poses[previous.best]
     ranked = sorted(earlier, key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
@@ -304,7 +308,7 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
             if not spare or params.reattribute == "explained" and not hit.any():
                 continue
             spare = False
-            if fit(log.target_steps + [step]).cost - fit(log.target_steps).cost >= params.clutter_cost:
+            if not costs_little(step):
                 continue
         log.other_steps.remove(step)
         log.target_steps.append(step)
