@@ -1,6 +1,7 @@
 """The pushtrack estimator: the pushing model's known answers, and the hard cases of the filter and the estimator
 (never touched, touched once, pushed against a wall, a target that only slides, a still target, pushed through
-another object, two segments that both fit, every particle inconsistent, the same seed twice)."""
+another object, a segment that begins on another object, two segments that both fit, every particle inconsistent,
+the same seed twice)."""
 from __future__ import annotations
 
 import math
@@ -16,7 +17,8 @@ from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.pushmodel import (Actions, FilterResult, PushTrackParams, contact_loglik, free_loglik,
                                          initial_particles, push, run_filter)
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
-from pipeline.retrieve.pushtrack import final_pose, observed_actions
+from pipeline.retrieve.evidence import cached_gripper_lattice, target_reach
+from pipeline.retrieve.pushtrack import filter_from_best_start, final_pose, free_space_of, observed_actions
 from pipeline.retrieve.runs import load_run, retrieval_rng
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
@@ -213,6 +215,66 @@ def test_pushed_through_another_object_the_filter_follows():
     assert np.all(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(5)).choice == 0.0)
 
 
+@pytest.fixture(scope="module")
+def begins_on_the_can():
+    """BC-000's box with a segment that begins with the three contacts on the master chef can just before the
+    box's first (the tracker merges them so in BC runs): (run, actions, free_points, contacts on the can)."""
+    info = load_run("data/regression/BC-000.parquet")
+    oid = pq.read_table(info.path, columns=["object_id"]).column("object_id").to_numpy()
+    sdf = load_robot("panda")
+    contact, push = observed_actions(info, sdf)
+    seen = np.all(np.isfinite(contact), axis=1)
+    box = np.flatnonzero(seen & (oid == info.target_id))
+    can = np.flatnonzero(seen & (oid == info.scene.body_names.index("master_chef_can")))
+    touch = np.zeros(len(seen), dtype=bool)
+    touch[np.r_[can[can < box[0]][-3:], box]] = True
+    a = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push)
+    _, radius = target_reach(info.target, contact[touch])
+    return info, a, free_space_of(a, cached_gripper_lattice(sdf, P.free_resolution), P, radius), 3
+
+
+def test_a_segment_that_begins_on_another_object_starts_on_the_target(begins_on_the_can):
+    info, a, free_points, elsewhere = begins_on_the_can
+    for seed in range(3):
+        result, kept = filter_from_best_start(info.target, a, free_points, P, np.random.default_rng(seed))
+        # the first start on the box wins by far more than the can's contacts' charge and the margin: from the
+        # first contact on, the particles follow the can and the gripper later sweeps where they are
+        assert np.array_equal(kept.touch, a.touch & (np.arange(len(a.touch)) > np.flatnonzero(a.touch)[elsewhere - 1]))
+        first = run_filter(info.target, a, free_points, P, np.random.default_rng(seed))
+        assert result.log_evidence - 0.5 * P.outlier_sigmas ** 2 * elsewhere - P.start_margin > first.log_evidence
+        assert np.isfinite(result.log_evidence) and np.all(np.isfinite(result.poses))
+        est = final_pose(info.target, result, np.zeros((0, 2)), np.zeros((0, 2)), P, info.scene)[0]
+        assert pose_error(info.target, est, info.true_pose)[0] < 0.015
+
+
+def test_a_segment_that_begins_on_the_target_loses_nothing_by_the_starts():
+    # the still box of twelve contacts: the kept filter's score is at least the first start's (a later start wins
+    # only by more than the filter's evidence varies between seeds), and the pose is as exact as from the first
+    local, _ = _faces(12)
+    truth = np.array([[0.43, 0.0, 0.2]] * 12)
+    a = _pushes(truth, local, np.zeros((12, 2)))
+    for seed in (6, 7):
+        result, kept = filter_from_best_start(BOX, a, NO_FREE, P, np.random.default_rng(seed))
+        first = run_filter(BOX, a, NO_FREE, P, np.random.default_rng(seed))
+        skipped = int(a.touch.sum() - kept.touch.sum())
+        margin = P.start_margin if skipped else 0.0
+        assert result.log_evidence - 0.5 * P.outlier_sigmas ** 2 * skipped - margin >= first.log_evidence
+        pos, yaw = pose_error(BOX, _best(result), truth[-1])
+        assert pos < 0.001 and yaw < 0.005
+
+
+def test_one_start_is_the_filter_itself(begins_on_the_can):
+    info, a, free_points, _ = begins_on_the_can
+    one = PushTrackParams(starts=1)
+    result, kept = filter_from_best_start(info.target, a, free_points, one, np.random.default_rng(7))
+    plain = run_filter(info.target, a, free_points, one, np.random.default_rng(7))
+    assert kept is a and np.array_equal(result.poses, plain.poses) and np.array_equal(result.log_w, plain.log_w)
+    assert result.log_evidence == plain.log_evidence
+    none = Actions(ee_start=np.zeros((2, 2)), ee_end=np.ones((2, 2)), touch=np.zeros(2, dtype=bool),
+                   contact=np.full((2, 2), np.nan), push=np.zeros((2, 2)))
+    assert filter_from_best_start(BOX, none, NO_FREE, P, np.random.default_rng(0)) == (None, none)
+
+
 def test_every_particle_inconsistent_stays_finite():
     truth = np.array([[0.4, 0.0, 0.0]] * 3)
     a = _pushes(truth, np.array([[-0.03, 0.0]] * 3), np.zeros((3, 2)))
@@ -222,6 +284,9 @@ def test_every_particle_inconsistent_stays_finite():
     assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
     assert math.isclose(float(np.sum(np.exp(r.log_w))), 1.0, rel_tol=1e-9)
     assert np.all(free_loglik(BOX, r.poses, grid, P) < -100.0)
+    assert np.isfinite(r.log_evidence) and r.log_evidence < -100.0
+    best, _ = filter_from_best_start(BOX, a, lambda rows, centre: grid, P, np.random.default_rng(3))
+    assert np.all(np.isfinite(best.poses)) and np.isfinite(best.log_evidence)
 
 
 def test_likelihoods_peak_on_the_surface():
@@ -267,3 +332,7 @@ def test_bad_parameters_are_refused():
         PushTrackParams(motion="teleport")
     with pytest.raises(ValueError):
         PushTrackParams(n_particles=0)
+    with pytest.raises(ValueError):
+        PushTrackParams(starts=0)
+    with pytest.raises(ValueError):
+        PushTrackParams(start_margin=-1.0)

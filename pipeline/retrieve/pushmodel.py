@@ -114,6 +114,17 @@ class PushTrackParams:
         The refinement's growth of a carried contact's sigma with the length the target was pushed after it (3.0;
         sigma = hypot(grown sigma, refine_spread x metres pushed since): 1 cm pushed, 3 cm): a contact followed only
         by touches that do not push stays at full weight.
+    starts : int
+        The filter runs from each of the first ``starts`` contacts of the segment (6; 1: from its first only), the
+        segment's contacts before that start taken as another object's, and the run whose evidence
+        (``FilterResult.log_evidence``) is highest is kept, each skipped contact charged the contact term's outlier
+        level (``outlier_sigmas``² / 2 nats) and any later start ``start_margin``: a segment often begins with
+        another object's contacts, and a filter started there loses the target (docs/retrieval.md, "Where the
+        filter starts").
+    start_margin : float, nats
+        What a start after the segment's first contact must win by, beyond the skipped contacts' charge (10): more
+        than the filter's own evidence varies between random seeds, so that a later start wins on the contacts,
+        not on the particles' luck.
     select : {"cost", "posterior", "grasp"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
         minus the particle's log-weight ("posterior": the trajectory's evidence counts too); or (default, "grasp")
@@ -147,14 +158,16 @@ class PushTrackParams:
     refine_growth: float = 1.0
     carry: str = "mixed"
     refine_spread: float = 3.0
+    starts: int = 6
+    start_margin: float = 10.0
     select: str = "grasp"
     constraints: ClassVar[dict[str, Constraint]] = {
-        "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64),
+        "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64), "starts": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
         "select": one_of(*SELECT_RULES),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
-        "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0),
+        "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0), "start_margin": number(0),
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
                                         "free_tolerance")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
@@ -276,6 +289,10 @@ class FilterResult:
         Actions that touched the target.
     n_resampled : int
         Resampling steps.
+    log_evidence : float
+        Log-likelihood of the observations given to the filter (its contacts and free space, from the first touch
+        on; the free space before it at the first touch), summed over the actions: log of the weights' total after
+        each update, before normalising. Compares filters over the same run (``starts``).
     """
 
     poses: np.ndarray
@@ -285,6 +302,7 @@ class FilterResult:
     pushed: np.ndarray
     n_pushes: int
     n_resampled: int
+    log_evidence: float = 0.0
 
 
 def _normalised(log_w: np.ndarray) -> np.ndarray:
@@ -320,8 +338,9 @@ def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarra
 
 
 def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrackParams,
-               rng: np.random.Generator) -> FilterResult | None:
-    """The particle filter over one run's actions; None when no action touched the target.
+               rng: np.random.Generator, give_up_below: float = -math.inf) -> FilterResult | None:
+    """The particle filter over one run's actions; None when no action touched the target, or as soon as the
+    evidence falls below ``give_up_below`` (it never rises: every likelihood term is at most 1).
 
     ``free_points(rows, centre)`` returns the world points (F, 2) the gripper's slice covered during the actions
     ``rows`` (an index array; only the end pose for a touching action) near ``centre`` (2,).
@@ -333,7 +352,11 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
-    log_w = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
+    ll = free_loglik(prim, pose, free_points(np.arange(first), start), params)
+    evidence = float(logsumexp(ll)) - math.log(len(pose))
+    if evidence < give_up_below:
+        return None
+    log_w = _normalised(ll)
     resampled = 0
     seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
     choice = np.zeros(len(pose))
@@ -385,8 +408,12 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                     pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j, noisy,
                                  np.clip(1.0 - gap, 0.0, 1.0))
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
+        # (log_w need not sum to one here: the particles injected at a push were weighted apart)
+        evidence += float(logsumexp(log_w + ll) - logsumexp(log_w))
+        if evidence < give_up_below:
+            return None
         log_w = _normalised(log_w + ll)
     pose[:, 2] = wrap_angle(pose[:, 2])
     local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
     return FilterResult(poses=pose, log_w=log_w, local=local, choice=choice, pushed=pushed, n_pushes=len(touched),
-                        n_resampled=resampled)
+                        n_resampled=resampled, log_evidence=evidence)
