@@ -388,10 +388,10 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
     ``wall_s`` is then the time of the look-up (docs/evaluation.md, "Where the time goes")."""
     t0 = time.perf_counter()
     steps = params.approach_steps if approach_steps is None else int(approach_steps)
-    # Everything the outcome depends on, to the bit: scene (fields, file text), restored state, grasp, parameters.
+    # All the outcome depends on, to the bit: scene (fields but the path, file text), restored state, grasp, params.
     via = np.zeros((0, 2)) if via is None else np.asarray(via, dtype=np.float64).reshape(-1, 2)
-    key = (repr(scene), hashlib.sha256(scene.source.encode()).digest(), _bits(poses), _bits(ee), _bits([yaw]),
-           _bits(pre), _bits(approach), params, steps) + ((_bits(via),) if len(via) else ())
+    key = (repr(dataclasses.replace(scene, path=None)), hashlib.sha256(scene.source.encode()).digest(), _bits(poses),
+           _bits(ee), _bits([yaw]), _bits(pre), _bits(approach), params, steps) + ((_bits(via),) if len(via) else ())
     if key in _MEMO:
         _MEMO.move_to_end(key)
         return dataclasses.replace(copy.deepcopy(_MEMO[key]), wall_s=time.perf_counter() - t0)
