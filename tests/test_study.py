@@ -73,10 +73,13 @@ def test_accuracy_settings_have_the_default_once():
 
 def test_pushtrack_knobs_override_only_the_estimators_parameters():
     sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
-                              pushtrack=(("n_particles", (128,)), ("substeps", (1,))))
+                              pushtrack=(("n_particles", (128,)), ("substeps", (1,)), ("starts", (1, 6))))
     mine = [s for s in sweep if s.estimator == "pushtrack"]
+    # the default (6 starts) is the estimator's own setting, without parameters of its own
     assert [(s.knob, s.value, s.estimator_params) for s in mine] == [
-        ("pushtrack_n_particles", 128.0, (("n_particles", 128),)), ("pushtrack_substeps", 1.0, (("substeps", 1),))]
+        ("pushtrack_n_particles", 128.0, (("n_particles", 128),)), ("pushtrack_substeps", 1.0, (("substeps", 1),)),
+        ("pushtrack_starts", 1.0, (("starts", 1),)), ("pushtrack_starts", 6.0, ())]
+    assert mine[-1].name == "stucco pushtrack estimator"
 
 
 def test_pushtrack_select_is_a_choice_without_a_value():
@@ -98,7 +101,8 @@ def test_bench_accuracy_cli_tiny_grid(tmp_path):
     res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "10,100",
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
                                    "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
-                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--pushtrack-select", "",
+                                   "--pushtrack-refine", "", "--pushtrack-substeps", "", "--pushtrack-starts", "",
+                                   "--pushtrack-select", "",
                                    "--baselines", "dbscan",
                                    "--out",
                                    str(out)])
