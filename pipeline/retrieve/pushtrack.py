@@ -82,10 +82,12 @@ def filter_from_best_start(prim: Primitive, actions: Actions, free_points, param
                            rng: np.random.Generator) -> tuple[FilterResult | None, Actions]:
     """:func:`~pipeline.retrieve.pushmodel.run_filter` started at each of the first ``params.starts`` touching
     actions, the earlier ones given to another object (no longer touching: they push nothing; ``free_points``
-    decides what of them is free space, as for any action). Returns
-    the filter of the highest evidence, each skipped contact charged ``outlier_sigmas``² / 2 nats (what the contact
-    term costs a contact far off the surface) and any later start ``start_margin`` nats, the earliest start on a
-    tie, and the actions it ran on; (None, ``actions``) when no action touched the target.
+    decides what of them is free space, as for any action).
+
+    Returns the filter of the highest evidence, each skipped contact charged ``outlier_sigmas``² / 2 nats (what the
+    contact term costs a contact far off the surface) and any later start ``start_margin`` nats, the earliest start
+    on a tie, and the actions it ran on (docs/retrieval.md, "Where the filter starts"); (None, ``actions``) when no
+    action touched the target.
 
     Every start draws from a copy of ``rng`` (common random numbers: the starts differ by their evidence, not by
     their draws), so ``starts`` 1 is :func:`run_filter` itself.
