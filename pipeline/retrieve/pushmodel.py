@@ -305,12 +305,14 @@ class FilterResult:
     log_evidence: float = 0.0
 
 
-def _normalised(log_w: np.ndarray) -> np.ndarray:
-    """Log-weights that sum to one; uniform when none is finite (every particle inconsistent)."""
+def _normalised(log_w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Log-weights that sum to one (uniform when none is finite: every particle inconsistent), and the log of the
+    weights' total before normalising (-inf then): the filter's evidence needs it."""
     log_w = np.where(np.isnan(log_w), -np.inf, log_w)
     if not np.any(np.isfinite(log_w)):
-        return np.full(len(log_w), -math.log(len(log_w)))
-    return log_w - logsumexp(log_w)
+        return np.full(len(log_w), -math.log(len(log_w))), -math.inf
+    total = logsumexp(log_w)
+    return log_w - total, float(total)
 
 
 def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
@@ -352,11 +354,10 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
-    ll = free_loglik(prim, pose, free_points(np.arange(first), start), params)
-    evidence = float(logsumexp(ll)) - math.log(len(pose))
+    log_w, total = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
+    evidence = total - math.log(len(pose))
     if evidence < give_up_below:
         return None
-    log_w = _normalised(ll)
     resampled = 0
     seen = np.zeros((len(pose), len(touched), 2))  # the contacts in world coordinates, carried by the model
     choice = np.zeros(len(pose))
@@ -408,11 +409,12 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                     pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j, noisy,
                                  np.clip(1.0 - gap, 0.0, 1.0))
             ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
+        updated, total = _normalised(log_w + ll)
         # (log_w need not sum to one here: the particles injected at a push were weighted apart)
-        evidence += float(logsumexp(log_w + ll) - logsumexp(log_w))
+        evidence += total - float(logsumexp(log_w))
         if evidence < give_up_below:
             return None
-        log_w = _normalised(log_w + ll)
+        log_w = updated
     pose[:, 2] = wrap_angle(pose[:, 2])
     local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
     return FilterResult(poses=pose, log_w=log_w, local=local, choice=choice, pushed=pushed, n_pushes=len(touched),
