@@ -118,9 +118,9 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Integration steps of one push in the pushtrack estimator ('' for none).")
 @click.option("--pushtrack-starts", "pt_starts", default="1,6", show_default=True,
               help="Contacts of the segment the pushtrack estimator's filter may start from ('' for none).")
-@click.option("--pushtrack-select", "pt_select", default="posterior,grasp", show_default=True,
+@click.option("--pushtrack-select", "pt_select", default="grasp,mode", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
-                   "grasp ('' for none).")
+                   "grasp, mode ('' for none).")
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")

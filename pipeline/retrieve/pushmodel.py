@@ -36,7 +36,7 @@ __all__ = ["PushTrackParams", "SELECT_RULES", "Actions", "FilterResult", "push",
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
 #: The rules by which the estimate is chosen among the refined particles (``PushTrackParams.select``).
-SELECT_RULES = ("cost", "posterior", "grasp")
+SELECT_RULES = ("cost", "posterior", "grasp", "mode")
 
 
 @dataclass(frozen=True)
@@ -125,12 +125,12 @@ class PushTrackParams:
         What a start after the segment's first contact must win by, beyond the skipped contacts' charge (10): more
         than the filter's own evidence varies between random seeds, so that a later start wins on the contacts,
         not on the particles' luck.
-    select : {"cost", "posterior", "grasp"}
+    select : {"cost", "posterior", "grasp", "mode"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
-        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); or (default, "grasp")
-        the lowest posterior among the particles held by the paper grasp, of those aimed at each refined
-        particle, that holds the largest share of the refined set weighted by exp(-posterior) (the Bayes
-        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs").
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); (default, "mode")
+        the particle whose paper grasp holds the largest share of the refined set weighted by exp(-posterior)
+        (the Bayes decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs");
+        or ("grasp", the default before) the lowest posterior among the particles that grasp holds.
     """
 
     n_particles: int = 512
@@ -160,7 +160,7 @@ class PushTrackParams:
     refine_spread: float = 3.0
     starts: int = 6
     start_margin: float = 10.0
-    select: str = "grasp"
+    select: str = "mode"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64), "starts": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),

@@ -140,9 +140,9 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
     """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
     particle without refinement (``n_refine`` 0), otherwise, by ``params.select``, the refined particle of lowest
     cost ("cost"), of lowest posterior cost (its cost minus its log-weight and the log prior of its pushed-or-left
-    choices: "posterior"), or ("grasp", for the grasp plan of ``scene``) of lowest posterior cost among those held
-    by the paper grasp that holds the largest share of the refined set weighted by exp(-posterior cost), of the
-    grasps aimed at each refined particle."""
+    choices: "posterior"), or, for the grasp plan of ``scene``, the one whose paper grasp holds the largest share of
+    the refined set weighted by exp(-posterior cost) ("mode", the lowest posterior cost among equals), or of
+    lowest posterior cost among the particles that grasp holds ("grasp")."""
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
     if not params.n_refine:
         return result.poses[order[0]], int(order[0])
@@ -151,15 +151,22 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
         k = argmin_tolerant(costs, 1e-9)
         return refined[k], int(top[k])
     post = costs - result.log_w[top] - result.choice[top]
-    if params.select == "grasp":
+    if params.select in ("grasp", "mode"):
         if scene is None:
-            raise ValueError("select='grasp' needs the scene (its grasp plan)")
+            raise ValueError(f"select={params.select!r} needs the scene (its grasp plan)")
+    if params.select == "grasp":
         # The Bayes decision for the grasp script: the posterior over yaw is often flat on the boxes, and its
         # lowest cost is then an arbitrary member of the set (docs/retrieval.md). The grasp aimed at `mode` holds
         # the largest share; the estimate is the most probable particle it holds.
         share, held = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
         mode = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
         k = argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
+        return refined[k], int(top[k])
+    if params.select == "mode":
+        # The grasp script aims at the estimate: the particle whose grasp holds the most of the set is the one to
+        # report (under "grasp", the particle reported was held by that grasp but its own grasp could hold less).
+        share, _ = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
+        k = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
         return refined[k], int(top[k])
     k = argmin_tolerant(post, 1e-9)
     return refined[k], int(top[k])
