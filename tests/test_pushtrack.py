@@ -82,11 +82,11 @@ def _pushes(truth: np.ndarray, local: np.ndarray, push: np.ndarray) -> Actions:
                    push=push)
 
 
-def test_the_estimate_is_the_pose_whose_grasp_holds_the_most_of_the_set():
+def test_mode_returns_the_pose_whose_grasp_holds_the_most_of_the_set():
     # three particles 0.045 rad apart and one a quarter turn off; the most probable (0) is at one end of the three:
-    # the grasp aimed at the middle one holds all three, the grasp aimed at 0 only two. "mode" (the default)
-    # returns the middle one; "grasp" (the rule before) returned 0, the most probable particle the middle one's
-    # grasp holds, whose own grasp holds less
+    # the grasp aimed at the middle one holds all three, the grasp aimed at 0 only two. "mode" returns the middle
+    # one; "grasp" (the default) returns 0, the most probable particle the middle one's grasp holds, whose own
+    # grasp holds less
     poses = np.array([[0.4, 0.0, 0.30], [0.4, 0.0, 0.345], [0.4, 0.0, 0.39], [0.4, 0.0, 0.30 + np.pi / 2]])
     log_w = np.log([0.30, 0.22, 0.20, 0.28])
     share, held = own_grasp_shares(SCENE, BOX, poses, np.exp(log_w))
@@ -94,12 +94,12 @@ def test_the_estimate_is_the_pose_whose_grasp_holds_the_most_of_the_set():
     result = FilterResult(poses=poses, log_w=log_w, local=np.tile([[[0.03, 0.0]]], (4, 1, 1)), choice=np.zeros(4),
                           pushed=np.zeros(1), n_pushes=1, n_resampled=0)
     none = np.zeros((0, 2))
-    assert P.select == "mode"
-    est, k = final_pose(BOX, result, none, none, P, SCENE)
+    mode = PushTrackParams(select="mode")
+    est, k = final_pose(BOX, result, none, none, mode, SCENE)
     assert k == 1 and pose_error(BOX, est, poses[1])[1] < 1e-6
-    assert final_pose(BOX, result, none, none, PushTrackParams(select="grasp"), SCENE)[1] == 0
+    assert P.select == "grasp" and final_pose(BOX, result, none, none, P, SCENE)[1] == 0
     with pytest.raises(ValueError, match="scene"):
-        final_pose(BOX, result, none, none, P)
+        final_pose(BOX, result, none, none, mode)
 
 
 def _best(result) -> np.ndarray:
@@ -110,16 +110,16 @@ def _best(result) -> np.ndarray:
 def test_a_flat_posterior_gives_the_pose_of_the_mode_the_grasp_holds():
     # three particles within 0.02 rad and one a quarter turn off, slightly heavier, each with one contact on its
     # own surface (every refined cost 0): the lowest posterior cost is the lone one, but the grasp aimed at any
-    # of the three holds three quarters of the set ("grasp"), and the estimate is the most probable of those
-    # three
+    # of the three holds three quarters of the set ("grasp", the default), and the estimate is the most probable
+    # of those three
     poses = np.array([[0.4, 0.0, 0.30], [0.4, 0.0, 0.31], [0.4, 0.0, 0.29], [0.4, 0.0, 0.30 + np.pi / 2]])
     log_w = np.log([0.24, 0.25, 0.23, 0.28])
     result = FilterResult(poses=poses, log_w=log_w, local=np.tile([[[0.03, 0.0]]], (4, 1, 1)), choice=np.zeros(4),
                           pushed=np.zeros(1), n_pushes=1, n_resampled=0)
     none = np.zeros((0, 2))
-    est, k = final_pose(BOX, result, none, none, PushTrackParams(select="grasp"), SCENE)
+    est, k = final_pose(BOX, result, none, none, P, SCENE)
     assert k == 1 and pose_error(BOX, est, poses[1])[1] < 1e-6
-    assert final_pose(BOX, result, none, none, P, SCENE)[1] == 1  # "mode": the same here
+    assert final_pose(BOX, result, none, none, PushTrackParams(select="mode"), SCENE)[1] == 1  # the same here
     assert final_pose(BOX, result, none, none, PushTrackParams(select="posterior"), SCENE)[1] == 3
     with pytest.raises(ValueError, match="scene"):
         final_pose(BOX, result, none, none, P)

@@ -84,11 +84,11 @@ def test_pushtrack_knobs_override_only_the_estimators_parameters():
 
 def test_pushtrack_select_is_a_choice_without_a_value():
     sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
-                              pushtrack=(("select", ("mode", "grasp")),))
+                              pushtrack=(("select", ("grasp", "mode")),))
     mine = [s for s in sweep if s.estimator == "pushtrack"]
-    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack select=grasp"]
+    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack select=mode"]
     assert mine[1].knob == "pushtrack_select" and math.isnan(mine[1].value)
-    assert mine[1].estimator_params == (("select", "grasp"),)
+    assert mine[1].estimator_params == (("select", "mode"),)
 
 
 def test_bench_accuracy_rejects_an_unknown_select(tmp_path):

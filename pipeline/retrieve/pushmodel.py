@@ -127,10 +127,11 @@ class PushTrackParams:
         not on the particles' luck.
     select : {"cost", "posterior", "grasp", "mode"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
-        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); (default, "mode")
-        the particle whose paper grasp holds the largest share of the refined set weighted by exp(-posterior)
-        (the Bayes decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs");
-        or ("grasp", the default before) the lowest posterior among the particles that grasp holds.
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); (default, "grasp")
+        the lowest posterior among the particles held by the paper grasp, of those aimed at each refined
+        particle, that holds the largest share of the refined set weighted by exp(-posterior) (the Bayes
+        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs"); or ("mode")
+        the particle whose own paper grasp holds that largest share (measured and not the default, ibid.).
     """
 
     n_particles: int = 512
@@ -160,7 +161,7 @@ class PushTrackParams:
     refine_spread: float = 3.0
     starts: int = 6
     start_margin: float = 10.0
-    select: str = "mode"
+    select: str = "grasp"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64), "starts": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),

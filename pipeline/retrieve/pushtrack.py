@@ -163,8 +163,8 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
         k = argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
         return refined[k], int(top[k])
     if params.select == "mode":
-        # The grasp script aims at the estimate: the particle whose grasp holds the most of the set is the one to
-        # report (under "grasp", the particle reported was held by that grasp but its own grasp could hold less).
+        # The grasp script aims at the estimate: the particle whose own grasp holds the most of the set (under
+        # "grasp" the particle reported is held by that grasp, but its own grasp may hold less of the set).
         share, _ = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
         k = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
         return refined[k], int(top[k])
