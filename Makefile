@@ -28,13 +28,14 @@ syslibs:
 # tags (about 32 s of CPU for the 98 pins, for nothing: each pin names one release); uv fetches and unpacks the
 # same wheels (byte-identical files) in about 10 s of CPU. Like pip --no-compile, uv writes no .pyc files: the
 # kernels' step below writes those of the modules the project imports (docs/evaluation.md, "Where CI's time
-# goes"). pip check then proves the environment consistent. `make lock` still resolves with pip.
+# goes"). uv pip check then proves the environment consistent (every requirement met, every wheel for this
+# platform), as pip check does, in 0.2 s instead of 3 s. `make lock` still resolves with pip.
 UV := uv==0.13.8
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --no-compile --no-deps $(UV)
 	$(BIN)/uv pip install -q --python $(BIN)/python --no-deps -r requirements.lock -e '.[dev]'
-	$(BIN)/pip check
+	$(BIN)/uv pip check -q --python $(BIN)/python
 	@touch $(STAMP)
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
@@ -82,9 +83,13 @@ reproduce-active: setup
 
 # The test files run in PYTEST_WORKERS processes (pytest-xdist); each file stays in one process, so its module
 # fixtures are built once. PYTEST_WORKERS=0 runs everything in this process.
+# --basetemp: the tests' temporary files go to this checkout's .pytest-tmp (emptied when the next run starts)
+# instead of a numbered folder of the machine's /tmp/pytest-of-USER, where pytest, after the last test, deletes
+# the folders beyond the newest three: a whole run's (about 3,500 files) at the end of every run, 7 s of wall time
+# on this machine's disk with both cores idle, also on a fresh clone.
 PYTEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --basetemp .pytest-tmp
 
 # REFERENCE_PYTHON=/path/to/venv/bin/python reruns the authors' tracker side by side (../shared/anchors/README.md).
 bench: setup
@@ -93,4 +98,4 @@ bench: setup
 	$(BIN)/stucco bench sim --scene FB
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out .pytest_cache .pytest-tmp
