@@ -12,8 +12,10 @@ import json
 import math
 import os
 import resource
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -145,10 +147,24 @@ def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighti
 
 
 def run_reference_worker(T: int, N: int, python: str, script: str | Path = DEFAULT_REFERENCE_SCRIPT,
-                         seed: int = 0, budget_s: float = 180.0) -> dict:
-    """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors)."""
-    cmd = [python, str(script), "--worker", "--T", str(T), "--N", str(N), "--seed", str(seed), "--budget",
-           str(budget_s)]
+                         seed: int = 0, budget_s: float = 180.0, streams: str | Path | None = None) -> dict:
+    """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors).
+
+    The harness reads ``stream_T{T}.npz`` beside its script. For a count it has no file for (T=300: the streams
+    are prefixes of one trajectory, and the harness writes 50, 100, 200 and 400), the harness runs from a
+    temporary folder holding a copy of the script and the stream our replay uses (:func:`load_contacts_stream`
+    of ``streams``: the longer stream cut after its T-th contact step, as the harness itself cuts)."""
+    script = Path(script)
+    if (script.parent / f"stream_T{T}.npz").is_file() or not script.is_file():
+        return _reference_worker([python, str(script)], T, N, python, seed, budget_s)
+    with tempfile.TemporaryDirectory(prefix="stucco-reference-") as tmp:
+        shutil.copy2(script, Path(tmp) / script.name)
+        np.savez(Path(tmp) / f"stream_T{T}.npz", **load_contacts_stream(T, streams))
+        return _reference_worker([python, str(Path(tmp) / script.name)], T, N, python, seed, budget_s)
+
+
+def _reference_worker(prefix: list[str], T: int, N: int, python: str, seed: int, budget_s: float) -> dict:
+    cmd = prefix + ["--worker", "--T", str(T), "--N", str(N), "--seed", str(seed), "--budget", str(budget_s)]
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
     except OSError as e:
@@ -186,7 +202,8 @@ def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int =
     for N in N_list:
         for T in T_list:
             key = f"T{T}_N{N}"
-            rr = run_reference_worker(T, N, reference_python) if reference_python else ref["timing"].get(key)
+            rr = run_reference_worker(T, N, reference_python, streams=streams) if reference_python else \
+                ref["timing"].get(key)
             for thr in threads:
                 runs = sorted((run_worker(T, N, streams=streams, threads=thr) for _ in range(repeats)),
                               key=lambda r: r["cpu_s"])
