@@ -154,19 +154,13 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
     if params.select in ("grasp", "mode"):
         if scene is None:
             raise ValueError(f"select={params.select!r} needs the scene (its grasp plan)")
-    if params.select == "grasp":
         # The Bayes decision for the grasp script: the posterior over yaw is often flat on the boxes, and its
         # lowest cost is then an arbitrary member of the set (docs/retrieval.md). The grasp aimed at `mode` holds
-        # the largest share; the estimate is the most probable particle it holds.
+        # the largest share; "mode" reports that particle, "grasp" the most probable particle that grasp holds
+        # (whose own grasp may hold less of the set).
         share, held = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
         mode = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
-        k = argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
-        return refined[k], int(top[k])
-    if params.select == "mode":
-        # The grasp script aims at the estimate: the particle whose own grasp holds the most of the set (under
-        # "grasp" the particle reported is held by that grasp, but its own grasp may hold less of the set).
-        share, _ = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
-        k = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
+        k = mode if params.select == "mode" else argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
         return refined[k], int(top[k])
     k = argmin_tolerant(post, 1e-9)
     return refined[k], int(top[k])
