@@ -112,12 +112,14 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Also run the other registered pose estimators (the paper's) at the defaults.")
 @click.option("--pushtrack-particles", "pt_particles", default="128,256,512,1024", show_default=True,
               help="Particles of the pushtrack estimator ('' for none).")
-@click.option("--pushtrack-refine", "pt_refine", default="0,8,32", show_default=True,
+@click.option("--pushtrack-refine", "pt_refine", default="0,32,128", show_default=True,
               help="Particles the pushtrack estimator refines at the end ('' for none).")
 @click.option("--pushtrack-substeps", "pt_substeps", default="1,4,8", show_default=True,
               help="Integration steps of one push in the pushtrack estimator ('' for none).")
 @click.option("--pushtrack-starts", "pt_starts", default="1,6", show_default=True,
               help="Contacts of the segment the pushtrack estimator's filter may start from ('' for none).")
+@click.option("--pushtrack-islands", "pt_islands", default="1,4", show_default=True,
+              help="Independent filters the pushtrack estimator pools ('' for none).")
 @click.option("--pushtrack-select", "pt_select", default="grasp,mode", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
                    "grasp, mode ('' for none).")
@@ -129,7 +131,8 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
 @click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_select, baselines, out_dir, jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_select, baselines, out_dir,
+                   jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -152,6 +155,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                                          ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
                                          ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
                                          ("starts", _ints("--pushtrack-starts", pt_starts, 1, 64)),
+                                         ("islands", _ints("--pushtrack-islands", pt_islands, 1, 64)),
                                          ("select", _choices("--pushtrack-select", pt_select, SELECT_RULES,
                                                              "choice"))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))

@@ -65,7 +65,7 @@ def test_choose_breaks_fmi_near_ties_by_ce():
 
 def test_accuracy_settings_have_the_default_once():
     names = [s.name for s in accuracy_settings((10, 100), (5, 30), (1, 2), (16, 32), (5, 10), baselines=("kmeans",),
-                                               pushtrack=(("n_particles", (128, 512)), ("n_refine", (32,))))]
+                                               pushtrack=(("n_particles", (128, 512)), ("n_refine", (128,))))]
     assert names == ["stucco N=10", "stucco N=100", "stucco restarts=5", "stucco sdf=2mm", "stucco hypotheses=16",
                      "stucco free=10mm", "stucco paper estimator", "stucco pushtrack estimator",
                      "stucco pushtrack n_particles=128", "kmeans"]
@@ -80,6 +80,14 @@ def test_pushtrack_knobs_override_only_the_estimators_parameters():
         ("pushtrack_n_particles", 128.0, (("n_particles", 128),)), ("pushtrack_substeps", 1.0, (("substeps", 1),)),
         ("pushtrack_starts", 1.0, (("starts", 1),)), ("pushtrack_starts", 6.0, ())]
     assert mine[-1].name == "stucco pushtrack estimator"
+
+
+def test_pushtrack_islands_knob_keeps_the_default_as_the_estimators_own_setting():
+    sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
+                              pushtrack=(("islands", (1, 4)),))
+    mine = [s for s in sweep if s.estimator == "pushtrack"]
+    assert [(s.knob, s.value, s.estimator_params) for s in mine] == [
+        ("pushtrack_islands", 1.0, (("islands", 1),)), ("pushtrack_islands", 4.0, ())]
 
 
 def test_pushtrack_select_is_a_choice_without_a_value():
@@ -102,7 +110,7 @@ def test_bench_accuracy_cli_tiny_grid(tmp_path):
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
                                    "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
                                    "--pushtrack-refine", "", "--pushtrack-substeps", "", "--pushtrack-starts", "",
-                                   "--pushtrack-select", "",
+                                   "--pushtrack-islands", "", "--pushtrack-select", "",
                                    "--baselines", "dbscan",
                                    "--out",
                                    str(out)])

@@ -99,7 +99,7 @@ class PushTrackParams:
         Factor on an earlier contact's sigma per later push when weighting a fresh particle (1.0: every earlier
         contact counts in full, so a fresh particle wins only where the target stayed put, as against a wall).
     n_refine : int
-        Highest-weight particles refined at the end (32; 0: none, the best particle is the estimate): each one's
+        Highest-weight particles refined at the end (128; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
         push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.retrieve.pushtrack.final_pose`).
     refine_growth : float
@@ -125,6 +125,11 @@ class PushTrackParams:
         What a start after the segment's first contact must win by, beyond the skipped contacts' charge (10): more
         than the filter's own evidence varies between random seeds, so that a later start wins on the contacts,
         not on the particles' luck.
+    islands : int
+        Independent filters run over the same actions from the kept start (4; 1: one filter), pooled before the
+        refinement, each island's particles weighted by its share of the islands' summed evidence
+        (:func:`pipeline.retrieve.pushtrack.pool_islands`): one filter's resampling often keeps only one of the
+        modes the contacts allow, and which one is a coin toss of its draws (docs/retrieval.md, "Islands").
     select : {"cost", "posterior", "grasp", "mode"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
         minus the particle's log-weight ("posterior": the trajectory's evidence counts too); (default, "grasp")
@@ -155,15 +160,17 @@ class PushTrackParams:
     other_push: float = 0.0
     other_reach: float = 0.03
     inject_growth: float = 1.0
-    n_refine: int = 32
+    n_refine: int = 128
     refine_growth: float = 1.0
     carry: str = "mixed"
     refine_spread: float = 3.0
     starts: int = 6
     start_margin: float = 10.0
+    islands: int = 4
     select: str = "grasp"
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64), "starts": integer(1, 64),
+        "islands": integer(1, 64),
         "motion": one_of("push", "translate", "static"), "carry": one_of("model", "model+noise", "mixed"),
         "select": one_of(*SELECT_RULES),
         **{name: number(0, lo_open=True) for name in ("contact_sigma", "outlier_sigmas", "free_sigma",

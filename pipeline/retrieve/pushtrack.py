@@ -11,6 +11,7 @@ gripper's in-contact displacement; :func:`pipeline.retrieve.pushmodel.run_filter
 from __future__ import annotations
 
 import copy
+import math
 import time
 from dataclasses import replace
 from typing import Sequence
@@ -21,7 +22,7 @@ import pyarrow.parquet as pq
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.isolate import isolate_run, isolation_surface
 from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate
-from pipeline.portable import argmin_tolerant, exp, tie_key
+from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.retrieve.paper import Estimate, confidence_notes
@@ -31,8 +32,8 @@ from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, 
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "filter_from_best_start", "refine_final",
-           "final_pose", "PLAUSIBLE_SET"]
+__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "filter_from_best_start", "filter_islands",
+           "pool_islands", "refine_final", "final_pose", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
@@ -110,6 +111,41 @@ def filter_from_best_start(prim: Primitive, actions: Actions, free_points, param
         if result is not None and result.log_evidence - charge > score + 1e-9:
             best, kept, score = result, act, result.log_evidence - charge
     return best, kept
+
+
+def filter_islands(prim: Primitive, actions: Actions, free_points, params: PushTrackParams, rng: np.random.Generator,
+                   first: FilterResult) -> FilterResult:
+    """``params.islands`` independent filters over ``actions`` pooled (:func:`pool_islands`): ``first`` is island 0
+    (the filter :func:`filter_from_best_start` kept, drawn from a copy of ``rng``), island k draws from ``rng``'s
+    bit generator jumped k times (independent streams; ``rng`` itself is not advanced). ``islands`` 1 returns
+    ``first``."""
+    if params.islands <= 1:
+        return first
+    results = [first] + [run_filter(prim, actions, free_points, params,
+                                    np.random.Generator(copy.deepcopy(rng).bit_generator.jumped(k)))
+                         for k in range(1, params.islands)]
+    return pool_islands(results)
+
+
+def pool_islands(results: Sequence[FilterResult]) -> FilterResult:
+    """Filters run over the same actions (the same touching actions, so ``local`` and ``pushed`` line up) pooled
+    into one: every island's particles, each island's normalised log-weights plus the log of its share of the
+    islands' summed evidence (an island of -inf evidence, every particle inconsistent somewhere, gets none; when
+    every island has -inf, they share equally). The pooled ``log_evidence`` is the log of the islands' mean
+    evidence, ``n_resampled`` their sum. Log-weights stay finite and sum to one."""
+    ev = np.array([r.log_evidence for r in results], dtype=np.float64)
+    finite = np.isfinite(ev)
+    keep = np.flatnonzero(finite) if finite.any() else np.arange(len(results))
+    share = ev[keep] - logsumexp(ev[keep]) if finite.any() else np.full(len(keep), -math.log(len(keep)))
+    log_w = np.concatenate([results[k].log_w + s for k, s in zip(keep, share)])
+    log_w = log_w - logsumexp(log_w)
+    first = results[int(keep[0])]
+    mean_ev = float(logsumexp(ev[keep]) - math.log(len(results))) if finite.any() else -math.inf
+    return FilterResult(poses=np.concatenate([results[k].poses for k in keep]), log_w=log_w,
+                        local=np.concatenate([results[k].local for k in keep]),
+                        choice=np.concatenate([results[k].choice for k in keep]), pushed=first.pushed,
+                        n_pushes=first.n_pushes, n_resampled=int(sum(r.n_resampled for r in results)),
+                        log_evidence=mean_ev)
 
 
 def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray, own: PushTrackParams
@@ -191,9 +227,11 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     pts = contact[touch] if touch.any() else np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
     _, radius = target_reach(target, pts)
     lattice = cached_gripper_lattice(sdf, own.free_resolution)
-    result, actions = filter_from_best_start(target, actions, free_space_of(actions, lattice, own, radius), own,
-                                             rngs[2])
+    free_points = free_space_of(actions, lattice, own, radius)
+    result, actions = filter_from_best_start(target, actions, free_points, own, rngs[2])
     touch = actions.touch  # the contacts before the filter's start are another object's
+    if result is not None:
+        result = filter_islands(target, actions, free_points, own, rngs[2], result)
     if result is None:
         est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
         est.icp_s = time.perf_counter() - t0
