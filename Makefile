@@ -75,7 +75,7 @@ reproduce: setup
 
 # The active protocol (docs/retrieval.md, "Active retrieval"): STUCCO's Table II with probing and the set grasp, then
 # grasp success against the probe budget. One estimator: the policy's set grasp ends every run whatever the
-# estimator, so the others' columns would repeat it (docs/evaluation.md, "make reproduce-active: one estimator").
+# estimator, so the others' columns would repeat it (docs/evaluation.md, "`make reproduce-active`: one estimator").
 reproduce-active: setup
 	$(BIN)/stucco --seed 0 evaluate --policy scripted+probe --scenes FB,BC,IB,TC --seeds 0-19 --methods stucco \
 	  --estimators plausible --jobs 2 --out out/reproduce-active
