@@ -135,12 +135,17 @@ def pool_islands(results: Sequence[FilterResult]) -> FilterResult:
     evidence, ``n_resampled`` their sum. Log-weights stay finite and sum to one."""
     ev = np.array([r.log_evidence for r in results], dtype=np.float64)
     finite = np.isfinite(ev)
-    keep = np.flatnonzero(finite) if finite.any() else np.arange(len(results))
-    share = ev[keep] - logsumexp(ev[keep]) if finite.any() else np.full(len(keep), -math.log(len(keep)))
+    if finite.any():
+        keep = np.flatnonzero(finite)
+        share = ev[keep] - logsumexp(ev[keep])
+        mean_ev = float(logsumexp(ev[keep]) - math.log(len(results)))
+    else:  # every island inconsistent somewhere: they share equally
+        keep = np.arange(len(results))
+        share = np.full(len(keep), -math.log(len(keep)))
+        mean_ev = -math.inf
     log_w = np.concatenate([results[k].log_w + s for k, s in zip(keep, share)])
     log_w = log_w - logsumexp(log_w)
     first = results[int(keep[0])]
-    mean_ev = float(logsumexp(ev[keep]) - math.log(len(results))) if finite.any() else -math.inf
     return FilterResult(poses=np.concatenate([results[k].poses for k in keep]), log_w=log_w,
                         local=np.concatenate([results[k].local for k in keep]),
                         choice=np.concatenate([results[k].choice for k in keep]), pushed=first.pushed,
@@ -230,12 +235,11 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     free_points = free_space_of(actions, lattice, own, radius)
     result, actions = filter_from_best_start(target, actions, free_points, own, rngs[2])
     touch = actions.touch  # the contacts before the filter's start are another object's
-    if result is not None:
-        result = filter_islands(target, actions, free_points, own, rngs[2], result)
     if result is None:
         est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
         est.icp_s = time.perf_counter() - t0
         return est
+    result = filter_islands(target, actions, free_points, own, rngs[2], result)
     free = others = np.zeros((0, 2))
     if own.n_refine:
         centre = np.mean(pts, axis=0)
