@@ -27,7 +27,8 @@ here = os.path.dirname(os.path.abspath(__file__))
 with np.load(os.path.join(here, f"stream_T{args.T}.npz")) as z:
     s = {k: z[k] for k in z.files}
 with open(os.environ["STAND_IN_SAW"], "w") as f:  # what the harness was given, for the test to read
-    json.dump(dict(contacts=int(s["in_contact"].sum()), steps=len(s["x"]), x_sum=float(s["x"].sum()), here=here), f)
+    json.dump(dict(contacts=int(s["in_contact"].sum()), steps=len(s["x"]), x_sum=float(s["x"].sum()), here=here,
+              budget=args.budget), f)
 print(json.dumps(dict(total_s=1.0, mean_ms_contact=2.0, last10pct_contact_ms=3.0, rss_peak_mb=4.0)))
 '''
 
@@ -42,10 +43,10 @@ def harness(tmp_path):
     return folder / "ref_tracker_bench.py"
 
 
-def _run(harness, T, monkeypatch):
+def _run(harness, T, monkeypatch, **kwargs):
     saw = harness.parent.parent / "saw.json"
     monkeypatch.setenv("STAND_IN_SAW", str(saw))
-    r = run_reference_worker(T, 100, sys.executable, harness, streams=ANCHOR_DIR)
+    r = run_reference_worker(T, 100, sys.executable, harness, streams=ANCHOR_DIR, **kwargs)
     return r, json.loads(saw.read_text())
 
 
@@ -62,6 +63,11 @@ def test_a_count_the_harness_has_no_file_for_runs_on_our_cut_of_the_longer_strea
 def test_a_count_the_harness_has_runs_in_place(harness, monkeypatch):
     r, seen = _run(harness, 400, monkeypatch)
     assert seen["contacts"] == 400 and seen["here"] == str(harness.parent)
+
+
+def test_the_harness_gets_its_default_budget_or_the_one_asked_for(harness, monkeypatch):
+    assert _run(harness, 400, monkeypatch)[1]["budget"] == 180.0  # the harness's own default: N=500 is cut
+    assert _run(harness, 400, monkeypatch, budget_s=900.0)[1]["budget"] == 900.0  # --reference-budget 900
 
 
 def test_a_failing_harness_is_one_line_naming_the_count(harness):
