@@ -115,7 +115,7 @@ def test_probe_transit_keeps_positions_out_and_the_return_keeps_its_clearance_fi
 
     class S:
         visited = np.array([[0.0, 0.05], [0.0, 0.2], [0.0, 0.3]])  # the first is now inside the box
-        touching = [False, False, False]
+        avoided = np.zeros(3, dtype=bool)
 
     belief = PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=0)
     probe = transit_limits(S, BOX, belief, DOT, PlanParams())
@@ -280,11 +280,13 @@ def test_a_transit_that_met_an_object_routes_around_it_afterwards():
     sensing = Sensing.__new__(Sensing)  # the visited positions only: no tracker is needed here
     sensing.ee = [v for v in visited]
     sensing.touching = [False] * len(visited)
+    sensing.blocked = [False] * len(visited)
     far = 9  # (0.2, 0) in the shifted order
-    before, _ = transit_graph(sensing.visited, 0.05, np.asarray(sensing.touching))
+    before, _ = transit_graph(sensing.visited, 0.05, sensing.avoided)
     sensing.block_near(np.array([0.0, 0.0]), BLOCK_RADIUS)
-    blocked = np.asarray(sensing.touching)
+    blocked = sensing.avoided
     assert blocked.sum() == 1 and np.allclose(sensing.visited[blocked], [[0.0, 0.0]])
+    assert not any(sensing.touching)  # kept apart from the positions a probe reached in contact
     after, pred = transit_graph(sensing.visited, 0.05, blocked)
     assert before[far] == pytest.approx(0.4)
     assert after[far] > 0.4 + 0.25  # around through y = 0.15
@@ -303,6 +305,8 @@ class _Probing:
 
     visited = np.array([[0.0, 0.2], [0.0, 0.3], [0.0, 0.4]])
     touching = [False, False, False]
+    blocked = [False, False, False]
+    avoided = np.zeros(3, dtype=bool)
     probe_points: list = []
     probe_steps: list = []
 
@@ -330,6 +334,39 @@ def test_a_keepout_that_leaves_no_probe_gives_way_to_the_next_limit(monkeypatch,
     belief = PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=0)
     got = policy_mod.next_probe(BOX, belief, _Probing, DOT, np.zeros((0, 2)), ProbeLog(), False, ProbeParams())
     assert (got, kept) == expected
+
+
+class _WalledIn(_Probing):
+    """A transit met an object near the positions behind the gripper: they are blocked, none reached by a probe."""
+
+    blocked = [True, True, False]
+    avoided = np.array([True, True, False])
+
+
+@pytest.mark.parametrize("sensing, planned_with", [
+    # nothing blocked: under the keep-out, then without it; no last resort
+    (_Probing, [([False] * 3, True), ([False] * 3, False)]),
+    # walled in: no limit reaches another position, so the laxest alone; then the blocked positions allowed
+    (_WalledIn, [([True, True, False], False), ([False] * 3, False)]),
+])
+def test_a_gripper_walled_in_by_a_transits_contact_probes_as_a_last_resort(monkeypatch, sensing, planned_with):
+    # Every limit leaves out the blocked positions, so no probe can be planned; the last resort leaves out only
+    # the positions a probe reached in contact (none here) and has no keep-out.
+    from pipeline.probe import policy as policy_mod
+    from pipeline.probe.belief import PoseSet
+    from pipeline.probe.params import ProbeLog
+
+    seen = []
+
+    def plan(*args, touching, keepout=None, graph=None):
+        seen.append((np.asarray(touching).tolist(), keepout is not None))
+        return "line" if not np.any(touching) and keepout is None and any(sensing.blocked) else None
+
+    monkeypatch.setattr(policy_mod, "choose_probe", plan)
+    belief = PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=0)
+    got = policy_mod.next_probe(BOX, belief, sensing, DOT, np.zeros((0, 2)), ProbeLog(), False, ProbeParams())
+    assert seen == planned_with
+    assert got == ("line" if sensing is _WalledIn else None)
 
 
 def test_reaching_is_the_last_limit_alone_when_no_limit_reaches():

@@ -74,6 +74,7 @@ class Sensing:
         self.surface = isolation_surface(self.sdf, IsolationParams(robot=robot))
         self.ee = [np.asarray(start, dtype=np.float64)[:2].copy()]
         self.touching = [False]  # per visited position: reached in contact by a probe
+        self.blocked = [False]  # per visited position: near where a transit met an object (block_near)
         self.steps: list[int] = []
         self.forces: list[float] = []  # contact force (N) each action met, NaN without
         self.point_steps: list[int] = []
@@ -96,6 +97,7 @@ class Sensing:
             # Only a probe's contact leaves its object where it was, against that position; the scripted part's
             # pushes moved theirs on, and its positions are the transit's only links.
             self.touching.append(inc and not scripted)
+            self.blocked.append(False)
             p = np.array([cols["contact_x_m"][i], cols["contact_y_m"][i]], dtype=np.float64) if inc else None
             if not scripted:
                 if inc:
@@ -114,11 +116,18 @@ class Sensing:
         return np.array(self.ee)
 
     def block_near(self, point: np.ndarray, radius: float) -> None:
-        """Leave the visited positions within ``radius`` (m) of ``point`` (2,) out of transit from now on, as if
-        reached in contact: a transit met an object there, so the space the gripper once passed is no longer
-        free (the current position stays the start of every path)."""
+        """Mark the visited positions within ``radius`` (m) of ``point`` (2,) ``blocked``: a transit met an object
+        there, so the space the gripper once passed may no longer be free. Transit leaves them out like positions
+        reached in contact (:func:`pipeline.probe.moves.transit_limits`), except as a last resort when nothing
+        else is left (:func:`pipeline.probe.policy.next_probe`); the current position stays the start of every
+        path."""
         near = np.linalg.norm(self.visited - np.asarray(point, dtype=np.float64).reshape(1, 2), axis=1) < radius
-        self.touching = [t or bool(b) for t, b in zip(self.touching, near)]
+        self.blocked = [t or bool(b) for t, b in zip(self.blocked, near)]
+
+    @property
+    def avoided(self) -> np.ndarray:
+        """Visited positions transit leaves out (K,) bool: reached in contact by a probe, or ``blocked``."""
+        return np.asarray(self.touching, dtype=bool) | np.asarray(self.blocked, dtype=bool)
 
     def segments(self) -> list[Segment]:
         """The segmentation ``stucco segment`` makes of the tracker's points (segment -1 left out)."""

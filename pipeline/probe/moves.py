@@ -75,8 +75,9 @@ def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: n
 
 def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline: np.ndarray, plan,
                    returning: bool = False) -> list[tuple[np.ndarray, Keepout | None]]:
-    """What transit must avoid, strictest first: pairs of (visited positions reached in contact by a probe (K,),
-    the keep-out around the target at the set's estimate). ``plan`` is a
+    """What transit must avoid, strictest first: pairs of (visited positions reached in contact by a probe or
+    blocked by a transit's contact (K,), :attr:`Sensing.avoided`; the keep-out around the target at the set's
+    estimate). ``plan`` is a
     :class:`pipeline.probe.planning.PlanParams`; the first pair that leaves transit somewhere to go is used, and
     a probe is planned under the laxer ones in turn when it leaves none (:func:`reaching`,
     :func:`pipeline.probe.policy.next_probe`).
@@ -90,7 +91,7 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
     of that, one third, none (the far side of the target may be linked to the rest by a narrow passage), then
     positions only, and last no keep-out, for a gripper that ended the scripted part pressed against the
     target."""
-    touching = np.asarray(sensing.touching, dtype=bool)
+    touching = sensing.avoided
     pose = np.asarray(belief.poses[belief.best], dtype=np.float64)
     positions = Keepout(target, pose, outline, 0.0, links=False)
     if not returning:

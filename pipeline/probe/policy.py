@@ -165,7 +165,9 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
     under the strictest transit limit that reaches some visited position (:func:`pipeline.probe.moves.reaching`)
     and, where that one leaves no probe, under each laxer one in turn: a gripper walled in by the keep-out
     around a wrong estimate would otherwise stop probing with the set still wide (docs/retrieval.md, "When the
-    keep-out leaves no probe"). With ``short`` (the target's probe contacts are bunched) after a probe that was
+    keep-out leaves no probe"). When none leaves a probe, once more with no keep-out and only the positions a
+    probe reached in contact left out, not those ``blocked`` near a transit's contact (docs/retrieval.md, "Walled
+    in by a transit's contact"). With ``short`` (the target's probe contacts are bunched) after a probe that was
     not a spread probe, the line is the one whose contact lies farthest from them."""
     lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
     spread = mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None
@@ -175,6 +177,11 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
                             obstacles, lines, spread, touching=touching, keepout=keepout, graph=graph)
         if plan is not None:
             return plan
+    if any(sensing.blocked):
+        # Last resort: the positions near a transit's contact were left out on suspicion (the object met may lie
+        # across some of them only); a gripper walled in by them would stop probing with the set still wide.
+        return choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
+                            obstacles, lines, spread, touching=np.asarray(sensing.touching, dtype=bool))
     return None
 
 
