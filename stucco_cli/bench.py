@@ -125,9 +125,9 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Contacts of the segment the pushtrack estimator's filter may start from ('' for none).")
 @click.option("--pushtrack-islands", "pt_islands", default="1,4", show_default=True,
               help="Independent filters the pushtrack estimator pools ('' for none).")
-@click.option("--pushtrack-select", "pt_select", default="grasp,mode", show_default=True,
+@click.option("--pushtrack-select", "pt_select", default="held_mean,grasp", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
-                   "grasp, mode ('' for none).")
+                   "grasp, mode, held_mean ('' for none).")
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")

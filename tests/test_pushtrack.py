@@ -19,7 +19,7 @@ from pipeline.retrieve.pushmodel import (Actions, FilterResult, PushTrackParams,
                                          initial_particles, push, run_filter)
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 from pipeline.retrieve.evidence import cached_gripper_lattice, target_reach
-from pipeline.retrieve.pushtrack import filter_from_best_start, final_pose, free_space_of, observed_actions
+from pipeline.retrieve.pushtrack import filter_from_best_start, final_pose, free_space_of, held_mean, observed_actions
 from pipeline.retrieve.runs import load_run, retrieval_rng
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
@@ -97,9 +97,32 @@ def test_mode_returns_the_pose_whose_grasp_holds_the_most_of_the_set():
     mode = PushTrackParams(select="mode")
     est, k = final_pose(BOX, result, none, none, mode, SCENE)
     assert k == 1 and pose_error(BOX, est, poses[1])[1] < 1e-6
-    assert P.select == "grasp" and final_pose(BOX, result, none, none, P, SCENE)[1] == 0
+    assert final_pose(BOX, result, none, none, PushTrackParams(select="grasp"), SCENE)[1] == 0
+    # the default, "held_mean": the posterior mean of those the middle grasp holds within 0.05 rad of particle 0
+    # (0 and 1; 2 is 0.09 rad away, 3 a quarter turn)
+    assert P.select == "held_mean"
+    est, k = final_pose(BOX, result, none, none, P, SCENE)
+    w = np.array([0.30, 0.22])
+    assert k == 0 and est[2] == pytest.approx(np.sum(w * poses[:2, 2]) / np.sum(w), abs=1e-9)
     with pytest.raises(ValueError, match="scene"):
         final_pose(BOX, result, none, none, mode)
+
+
+def test_held_mean_aims_between_two_groups_at_equal_cost_and_ignores_the_rest():
+    # The position class of BC's losses: refined particles split a grasp-width apart across the box at equal cost.
+    # The mean of the two groups lies between them; a particle out of the yaw window or not held has no weight.
+    across = np.array([np.cos(0.3 + np.pi / 2), np.sin(0.3 + np.pi / 2)])
+    poses = np.array([[0.4, 0.0, 0.3], [0.4, 0.0, 0.3], [*(np.array([0.4, 0.0]) + 0.02 * across), 0.3],
+                      [*(np.array([0.4, 0.0]) + 0.02 * across), 0.3], [0.5, 0.1, 0.3 + 0.1], [0.3, -0.1, 0.3]])
+    post = np.array([0.4, 0.4, 0.4, 0.4, 0.0, 0.0])  # the two outsiders cost least: they must still not count
+    held = np.array([True, True, True, True, True, False])
+    est = held_mean(BOX, poses, post, held, 0, 0.05)
+    assert np.allclose(est, [*(np.array([0.4, 0.0]) + 0.01 * across), 0.3], atol=1e-12)
+    # costs thousands of nats apart: no underflow, the cheaper group alone
+    far = held_mean(BOX, poses, np.array([1e4, 1e4, 0.0, 0.0, 0.0, 0.0]), held, 2, 0.05)
+    assert np.all(np.isfinite(far)) and np.allclose(far, poses[2], atol=1e-12)
+    # one particle: itself
+    assert np.allclose(held_mean(BOX, poses[:1], post[:1], held[:1], 0, 0.05), poses[0], atol=1e-12)
 
 
 def _best(result) -> np.ndarray:
@@ -117,8 +140,11 @@ def test_a_flat_posterior_gives_the_pose_of_the_mode_the_grasp_holds():
     result = FilterResult(poses=poses, log_w=log_w, local=np.tile([[[0.03, 0.0]]], (4, 1, 1)), choice=np.zeros(4),
                           pushed=np.zeros(1), n_pushes=1, n_resampled=0)
     none = np.zeros((0, 2))
-    est, k = final_pose(BOX, result, none, none, P, SCENE)
+    est, k = final_pose(BOX, result, none, none, PushTrackParams(select="grasp"), SCENE)
     assert k == 1 and pose_error(BOX, est, poses[1])[1] < 1e-6
+    est, k = final_pose(BOX, result, none, none, P, SCENE)  # "held_mean" (the default): the mean of the three
+    w = np.array([0.24, 0.25, 0.23])
+    assert k == 1 and est[2] == pytest.approx(np.sum(w * poses[:3, 2]) / np.sum(w), abs=1e-9)
     assert final_pose(BOX, result, none, none, PushTrackParams(select="mode"), SCENE)[1] == 1  # the same here
     assert final_pose(BOX, result, none, none, PushTrackParams(select="posterior"), SCENE)[1] == 3
     with pytest.raises(ValueError, match="scene"):
@@ -136,7 +162,10 @@ def test_touched_once_is_finite_and_on_the_contact():
     a = _pushes(truth, np.array([[-0.03, 0.01]]), np.array([[0.0, 0.0]]))
     r = run_filter(BOX, a, NO_FREE, P, np.random.default_rng(0))
     assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
-    assert abs(BOX.signed_distance(a.contact, _best(r))[0]) < 0.002
+    grasp = final_pose(BOX, r, np.zeros((0, 2)), np.zeros((0, 2)), PushTrackParams(select="grasp"), SCENE)[0]
+    assert abs(BOX.signed_distance(a.contact, grasp)[0]) < 0.002  # one of the particles: on the contact
+    # the default is the mean of the particles that grasp holds, which slide along the contact: near it, finite
+    assert np.all(np.isfinite(_best(r))) and abs(BOX.signed_distance(a.contact, _best(r))[0]) < 0.01
 
 
 def _faces(k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -92,7 +92,7 @@ def test_pushtrack_islands_knob_keeps_the_default_as_the_estimators_own_setting(
 
 def test_pushtrack_select_is_a_choice_without_a_value():
     sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
-                              pushtrack=(("select", ("grasp", "mode")),))
+                              pushtrack=(("select", ("held_mean", "mode")),))
     mine = [s for s in sweep if s.estimator == "pushtrack"]
     assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack select=mode"]
     assert mine[1].knob == "pushtrack_select" and math.isnan(mine[1].value)

@@ -36,7 +36,7 @@ __all__ = ["PushTrackParams", "SELECT_RULES", "Actions", "FilterResult", "push",
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
 #: The rules by which the estimate is chosen among the refined particles (``PushTrackParams.select``).
-SELECT_RULES = ("cost", "posterior", "grasp", "mode")
+SELECT_RULES = ("cost", "posterior", "grasp", "mode", "held_mean")
 
 
 @dataclass(frozen=True)
@@ -130,13 +130,18 @@ class PushTrackParams:
         refinement, each island's particles weighted by its share of the islands' summed evidence
         (:func:`pipeline.retrieve.pushtrack.pool_islands`): one filter's resampling often keeps only one of the
         modes the contacts allow, and which one is a coin toss of its draws (docs/retrieval.md, "Islands").
-    select : {"cost", "posterior", "grasp", "mode"}
+    select : {"cost", "posterior", "grasp", "mode", "held_mean"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
-        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); (default, "grasp")
+        minus the particle's log-weight ("posterior": the trajectory's evidence counts too); ("grasp")
         the lowest posterior among the particles held by the paper grasp, of those aimed at each refined
         particle, that holds the largest share of the refined set weighted by exp(-posterior) (the Bayes
-        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs"); or ("mode")
-        the particle whose own paper grasp holds that largest share (measured and not the default, ibid.).
+        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs"); ("mode")
+        the particle whose own paper grasp holds that largest share (measured and not the default, ibid.); or
+        (default, "held_mean") the posterior mean of the particles "grasp" chooses among: those that grasp holds
+        whose yaw is within ``mean_yaw`` of the "grasp" particle's, weighted by exp(-posterior) (docs/retrieval.md,
+        "The posterior mean of what the grasp holds").
+    mean_yaw : float, radians
+        Yaw window of "held_mean" around the chosen particle (0.05: the box grasp's tolerance).
     """
 
     n_particles: int = 512
@@ -167,7 +172,8 @@ class PushTrackParams:
     starts: int = 6
     start_margin: float = 10.0
     islands: int = 4
-    select: str = "grasp"
+    select: str = "held_mean"
+    mean_yaw: float = 0.05
     constraints: ClassVar[dict[str, Constraint]] = {
         "n_particles": integer(8, MAX_PARTICLES), "substeps": integer(1, 64), "starts": integer(1, 64),
         "islands": integer(1, 64),
@@ -177,7 +183,7 @@ class PushTrackParams:
                                                       "free_resolution", "sweep_spacing", "limit_scale")},
         "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0), "start_margin": number(0),
         **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
-                                        "free_tolerance")},
+                                        "free_tolerance", "mean_yaw")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
         "n_refine": integer(0, 256), "refine_growth": number(1)}
 

@@ -183,7 +183,8 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
     cost ("cost"), of lowest posterior cost (its cost minus its log-weight and the log prior of its pushed-or-left
     choices: "posterior"), or, for the grasp plan of ``scene``, the one whose paper grasp holds the largest share of
     the refined set weighted by exp(-posterior cost) ("mode", the lowest posterior cost among equals), or of
-    lowest posterior cost among the particles that grasp holds ("grasp")."""
+    lowest posterior cost among the particles that grasp holds ("grasp"), or the posterior mean of those of them
+    whose yaw agrees with that one's (:func:`held_mean`, "held_mean")."""
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))
     if not params.n_refine:
         return result.poses[order[0]], int(order[0])
@@ -192,7 +193,7 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
         k = argmin_tolerant(costs, 1e-9)
         return refined[k], int(top[k])
     post = costs - result.log_w[top] - result.choice[top]
-    if params.select in ("grasp", "mode"):
+    if params.select in ("grasp", "mode", "held_mean"):
         if scene is None:
             raise ValueError(f"select={params.select!r} needs the scene (its grasp plan)")
         # The Bayes decision for the grasp script: the posterior over yaw is often flat on the boxes, and its
@@ -202,9 +203,30 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
         share, held = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
         mode = int(np.lexsort((np.arange(len(post)), tie_key(post, 1e-9), -tie_key(share, 1e-9)))[0])
         k = mode if params.select == "mode" else argmin_tolerant(np.where(held[mode], post, np.inf), 1e-9)
+        if params.select == "held_mean":
+            return held_mean(prim, refined, post, held[mode], k, params.mean_yaw), int(top[k])
         return refined[k], int(top[k])
     k = argmin_tolerant(post, 1e-9)
     return refined[k], int(top[k])
+
+
+def held_mean(prim: Primitive, poses: np.ndarray, post: np.ndarray, held: np.ndarray, k: int,
+              yaw_window: float) -> np.ndarray:
+    """The posterior mean COM pose (3,) of the refined particles ``poses`` (H, 3) that one grasp holds (``held``
+    (H,) bool, ``k`` among them) and whose primitive yaw is within ``yaw_window`` (radians, modulo the shape's
+    symmetry; any yaw for a can) of particle k's, weighted by exp(-``post``) (H,): centre and yaw averaged in the
+    primitive's frame, yaw as k's plus the mean wrapped difference. Where the refined particles split into groups
+    of equal cost a grasp-width apart, the mean sits between them and the grasp aimed at it holds both
+    (docs/retrieval.md, "The posterior mean of what the grasp holds")."""
+    pp = primitive_pose(prim, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+    sym = prim.symmetry
+    dy = (pp[:, 2] - pp[k, 2] + sym / 2) % sym - sym / 2 if sym > 0 else np.zeros(len(pp))
+    near = np.asarray(held, dtype=bool) & (np.abs(dy) <= yaw_window)
+    near[k] = True
+    w = np.where(near, exp(-(post - np.min(post[near]))), 0.0)
+    w = w / np.sum(w)
+    centre = np.sum(pp[:, :2] * w[:, None], axis=0)
+    return com_pose(prim, np.array([centre[0], centre[1], pp[k, 2] + np.sum(dy * w)]))
 
 
 def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
