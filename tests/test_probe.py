@@ -177,10 +177,20 @@ def test_a_contact_whose_force_the_hypothesis_surface_does_not_face_is_not_expla
     assert explaining(BOX, upright, on_face, 0.025, np.array([0.0, 3.0]), 180.0, 0.015).any()
     assert explaining(BOX, upright, on_face, 0.025, np.array([np.nan, np.nan]), 60.0, 0.015).any()
     assert explaining(BOX, upright, on_face, 0.025, np.zeros(2), 60.0, 0.015).any()
-    # a corner's normals span a quarter turn: near one, any direction is explained
+    # a corner's normals span a quarter turn: near one, a force within 60 deg of that cone is explained, and only
+    # such a force (the +x, +y corner: its cone runs from +x to +y)
     corner = np.array([0.031, 0.079])
     assert explaining(BOX, upright, corner, 0.025, np.array([0.0, 1.0]), 60.0, 0.015).any()
+    assert explaining(BOX, upright, corner, 0.025, np.array([1.0, 1.0]), 60.0, 0.015).any()  # inside the cone
+    assert explaining(BOX, upright, corner, 0.025, np.array([-0.5, 1.0]), 60.0, 0.015).any()  # 27 deg beyond +y
+    assert not explaining(BOX, upright, corner, 0.025, np.array([-1.0, 0.2]), 60.0, 0.015).any()  # 79 deg beyond
+    assert not explaining(BOX, upright, corner, 0.025, np.array([-1.0, -1.0]), 60.0, 0.015).any()  # into the box
     assert not explaining(BOX, upright, corner, 0.025, np.array([0.0, -1.0]), 60.0, 0.0).any()
+    # the same corner of a turned hypothesis: the cone turns with it
+    quarter = np.array([[0.0, 0.0, np.pi / 2]])
+    turned_corner = np.array([-0.079, 0.031])  # the +x, +y corner turned a quarter: cone from +y to -x
+    assert explaining(BOX, quarter, turned_corner, 0.025, np.array([-1.0, 1.0]), 60.0, 0.015).any()
+    assert not explaining(BOX, quarter, turned_corner, 0.025, np.array([1.0, -1.0]), 60.0, 0.015).any()
     # the set explains the contact when one of its hypotheses does, in position and direction
     both = np.vstack([turned, upright])
     assert explaining(BOX, both, on_face, 0.025, np.array([1.0, 0.0]), 60.0, 0.015).any()

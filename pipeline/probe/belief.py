@@ -295,9 +295,10 @@ def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, toleranc
 
     With the contact's ``force`` (2,), N, on the gripper (it pushes the gripper out of the object, along the
     object's outward normal within the friction cone), the hypothesis must also turn its surface there to face
-    it: its outward normal within ``max_angle_deg`` of the force, unless the point lies within ``corner`` (m) of
-    one of a box's corners, whose normals span a quarter turn (docs/retrieval.md, "Attributing a probe contact
-    by its direction")."""
+    it: its outward normal within ``max_angle_deg`` of the force, or, where the point lies within ``corner`` (m)
+    of one of a box's corners, the corner's normal cone (the quarter turn between its two faces' normals) within
+    ``max_angle_deg`` of the force (docs/retrieval.md, "Attributing a probe contact by its direction", "A corner
+    faces a quarter turn, not every way")."""
     pp, local, sd, grad = _surface_at(target, poses, point)
     near = np.abs(sd[:, 0]) <= tolerance
     f = None if force is None else np.asarray(force, dtype=np.float64).reshape(2)
@@ -309,7 +310,14 @@ def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, toleranc
     if target.kind == "box" and corner > 0.0:
         hx, hy = target.half[:2]
         d_corner = np.hypot(np.abs(local[:, 0, 0]) - hx, np.abs(local[:, 0, 1]) - hy)
-        facing |= d_corner <= corner
+        # the force in each hypothesis's frame, projected on the two outward normals of the nearest corner: inside
+        # the cone both projections are >= 0; outside, the nearer normal is the cone's nearest direction
+        fl = rotate(f[None, None, :], pp[:, None, 2], inverse=True)[:, 0, :]
+        along_x = fl[:, 0] * np.sign(local[:, 0, 0])
+        along_y = fl[:, 1] * np.sign(local[:, 0, 1])
+        cone_cos = np.where((along_x >= 0.0) & (along_y >= 0.0), 1.0,
+                            np.maximum(along_x, along_y) / math.hypot(f[0], f[1]))
+        facing |= (d_corner <= corner) & (cone_cos >= math.cos(math.radians(max_angle_deg)))
     return near & facing
 
 

@@ -36,7 +36,8 @@ class ProbeParams:
     attribute_angle_deg : float, degrees
         ... and turns its outward normal there within this angle of the contact force (60; 180: position only),
     attribute_corner : float, metres
-        ... or puts one of a box's corners within this distance of it (0.015).
+        ... or puts one of a box's corners within this distance of it with the corner's normal cone (the quarter
+        turn between its faces' normals) within that angle of the force (0.015).
     misfit_tolerance : float, metres
         When the probe contacts attributed to the target lie farther than this (median) from the set's estimate,
         the segment is not the target's: the next-ranked one is taken (0.006).
