@@ -171,17 +171,16 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
     not a spread probe, the line is the one whose contact lies farthest from them."""
     lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
     spread = mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None
-    for touching, keepout, graph in reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan),
-                                             params.plan.link_radius):
+    limits = reaching(sensing, transit_limits(sensing, target, belief, outline, params.plan), params.plan.link_radius)
+    if any(sensing.blocked):
+        # Last resort: the positions near a transit's contact were left out on suspicion (the object met may lie
+        # across some of them only); a gripper walled in by them would stop probing with the set still wide.
+        limits.append((np.asarray(sensing.touching, dtype=bool), None, None))
+    for touching, keepout, graph in limits:
         plan = choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
                             obstacles, lines, spread, touching=touching, keepout=keepout, graph=graph)
         if plan is not None:
             return plan
-    if any(sensing.blocked):
-        # Last resort: the positions near a transit's contact were left out on suspicion (the object met may lie
-        # across some of them only); a gripper walled in by them would stop probing with the set still wide.
-        return choose_probe(target, belief.poses, belief.weights, belief.best, sensing.visited, outline, params.plan,
-                            obstacles, lines, spread, touching=np.asarray(sensing.touching, dtype=bool))
     return None
 
 

@@ -33,7 +33,7 @@ from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
 __all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "filter_from_best_start", "filter_islands",
-           "pool_islands", "refine_final", "final_pose", "PLAUSIBLE_SET"]
+           "pool_islands", "refine_final", "final_pose", "held_mean", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
