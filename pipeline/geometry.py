@@ -21,13 +21,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["wrap_angle", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
+__all__ = ["wrap_angle", "wrap_symmetric", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
            "primitive_sdf", "primitive_of", "primitive_pose", "com_pose", "outline_point"]
 
 
 def wrap_angle(a):
     """Angle(s) in radians, any shape, wrapped to [-pi, pi); returns a float64 ndarray of the same shape."""
-    return (np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+    return wrap_symmetric(a, 2.0 * np.pi)
+
+
+def wrap_symmetric(a, period: float):
+    """Angle(s) in radians, any shape, wrapped to [-period/2, period/2): the difference between two yaws of a
+    shape that looks the same after a turn of ``period`` (pi for a box, :attr:`Primitive.symmetry`). A float64
+    ndarray of the same shape; zeros for ``period`` 0 (a cylinder: every yaw is the same shape)."""
+    a = np.asarray(a, dtype=np.float64)
+    if period <= 0.0:
+        return np.zeros_like(a)
+    return (a + period / 2) % period - period / 2
 
 
 def rot2(yaw: float) -> np.ndarray:
@@ -148,8 +158,7 @@ class Primitive:
         if self.kind == "cylinder":
             yaw = 0.0
         else:
-            sym = self.symmetry
-            yaw = float((pose[2] + sym / 2) % sym - sym / 2)
+            yaw = float(wrap_symmetric(pose[2], self.symmetry))
         xy = c - rotate(self.centre, yaw)
         return np.array([xy[0], xy[1], yaw])
 

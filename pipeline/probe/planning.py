@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.portable import log
-from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate
+from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate, wrap_symmetric
 from pipeline.retrieve.evidence import gripper_lattice
 from pipeline.probe.transit import Keepout, path_to, transit_graph
 
@@ -206,10 +206,8 @@ def agreement(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     c = prim.centre_world(poses)
     near = np.linalg.norm(c - c[best], axis=1) <= position_tolerance
-    sym = prim.symmetry
-    if sym > 0.0:
-        dy = (poses[:, 2] - poses[best, 2] + sym / 2) % sym - sym / 2
-        near &= np.abs(dy) <= yaw_tolerance
+    if prim.symmetry > 0.0:
+        near &= np.abs(wrap_symmetric(poses[:, 2] - poses[best, 2], prim.symmetry)) <= yaw_tolerance
     return float(np.sum(np.asarray(weights)[near]) / max(np.sum(weights), 1e-300))
 
 

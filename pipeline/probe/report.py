@@ -12,6 +12,7 @@ import numpy as np
 
 from pipeline import schema
 from pipeline.atomic import write_text
+from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 
 __all__ = ["run_stats", "probe_lines", "times_path", "save_times"]
@@ -51,7 +52,7 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     poses = t.column("obj_pose")
     before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
-    turn = abs((after[2] - before[2] + np.pi) % (2 * np.pi) - np.pi)
+    turn = abs(float(wrap_angle(after[2] - before[2])))
     try:
         times = json.loads(times_path(path).read_text())
     except (OSError, ValueError):

@@ -31,7 +31,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
-from pipeline.geometry import Primitive, com_pose, outline_point, primitive_pose, primitive_sdf, rotate, wrap_angle
+from pipeline.geometry import (Primitive, com_pose, outline_point, primitive_pose, primitive_sdf, rotate, wrap_angle,
+                               wrap_symmetric)
 from pipeline.portable import argmin_tolerant, exp, tie_key
 from pipeline.spd import solve_spd
 from pipeline.retrieve.plausible_kernel import CONTACT, FREE, piece_terms, piece_terms_each
@@ -350,7 +351,7 @@ def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry
     if symmetry == 0.0:
         near = np.ones((len(idx), len(idx)), dtype=bool)
     else:
-        dyaw = (yaw[idx][:, None] - yaw[idx][None, :] + symmetry / 2) % symmetry - symmetry / 2
+        dyaw = wrap_symmetric(yaw[idx][:, None] - yaw[idx][None, :], symmetry)
         near = np.abs(dyaw) < params.yaw_agreement
     if params.pose_rule == "vote":
         votes = np.sum(near * w[None, :], axis=1)

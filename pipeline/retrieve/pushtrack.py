@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.isolate import isolate_run, isolation_surface
-from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate
+from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate, wrap_symmetric
 from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
 from pipeline.retrieve.estimators import Segment, estimate_plausible, paper_segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
@@ -219,8 +219,7 @@ def held_mean(prim: Primitive, poses: np.ndarray, post: np.ndarray, held: np.nda
     of equal cost a grasp-width apart, the mean sits between them and the grasp aimed at it holds both
     (docs/retrieval.md, "The posterior mean of what the grasp holds")."""
     pp = primitive_pose(prim, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
-    sym = prim.symmetry
-    dy = (pp[:, 2] - pp[k, 2] + sym / 2) % sym - sym / 2 if sym > 0 else np.zeros(len(pp))
+    dy = wrap_symmetric(pp[:, 2] - pp[k, 2], prim.symmetry)
     near = np.asarray(held, dtype=bool) & (np.abs(dy) <= yaw_window)
     near[k] = True
     w = np.where(near, exp(-(post - np.min(post[near]))), 0.0)
