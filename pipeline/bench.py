@@ -25,6 +25,9 @@ from pipeline.anchors import ANCHOR_DIR, contact_error_cm, load_contacts_stream,
 
 REFERENCE_FILE = ANCHOR_DIR / "reference.json"
 DEFAULT_REFERENCE_SCRIPT = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "ref_tracker_bench.py"
+#: Seconds of replay after which the authors' harness stops a rerun, its own default (``stucco bench track
+#: --reference-budget`` sets another).
+REFERENCE_BUDGET_S = 180.0
 
 
 def _peak_rss_mb() -> float:
@@ -147,7 +150,7 @@ def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighti
 
 
 def run_reference_worker(T: int, N: int, python: str, script: str | Path = DEFAULT_REFERENCE_SCRIPT,
-                         seed: int = 0, budget_s: float = 180.0, streams: str | Path | None = None) -> dict:
+                         seed: int = 0, budget_s: float = REFERENCE_BUDGET_S, streams: str | Path | None = None) -> dict:
     """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors).
 
     The harness reads ``stream_T{T}.npz`` beside its script. For a count it has no file for (T=300: the streams
@@ -185,7 +188,7 @@ def recorded_reference() -> dict:
 
 def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int = 3, acc_seeds: int = 5,
                 streams: str | Path | None = None, reference_python: str | None = None,
-                reference_budget_s: float = 180.0, methods=("stucco",), threads=(1, 2), echo=print) -> dict:
+                reference_budget_s: float = REFERENCE_BUDGET_S, methods=("stucco",), threads=(1, 2), echo=print) -> dict:
     """Print the speed table, the accuracy table and the weighting comparison; return every figure.
 
     ``reference_budget_s``: seconds of replay after which the authors' harness stops a rerun (its own default,
@@ -205,9 +208,10 @@ def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int =
     for N in N_list:
         for T in T_list:
             key = f"T{T}_N{N}"
-            rr = run_reference_worker(T, N, reference_python, streams=streams, budget_s=reference_budget_s) \
-                if reference_python else \
-                ref["timing"].get(key)
+            if reference_python:
+                rr = run_reference_worker(T, N, reference_python, streams=streams, budget_s=reference_budget_s)
+            else:
+                rr = ref["timing"].get(key)
             for thr in threads:
                 runs = sorted((run_worker(T, N, streams=streams, threads=thr) for _ in range(repeats)),
                               key=lambda r: r["cpu_s"])

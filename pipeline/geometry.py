@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["wrap_angle", "wrap_symmetric", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw", "Primitive",
-           "primitive_sdf", "primitive_of", "primitive_pose", "com_pose", "outline_point"]
+__all__ = ["wrap_angle", "wrap_symmetric", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw",
+           "Primitive", "primitive_sdf", "primitive_of", "primitive_pose", "com_pose", "outline_point"]
 
 
 def wrap_angle(a):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pipeline.anchors import ANCHOR_DIR, load_contacts_stream
-from pipeline.bench import WorkerError, run_reference_worker
+from pipeline.bench import REFERENCE_BUDGET_S, WorkerError, run_reference_worker
 
 STAND_IN = '''
 import argparse, json, os
@@ -74,3 +74,11 @@ def test_a_failing_harness_is_one_line_naming_the_count(harness):
     harness.write_text("raise SystemExit('no torch here')\n")
     with pytest.raises(WorkerError, match=r"T=300, N=100\) failed with exit code 1: no torch here"):
         run_reference_worker(300, 100, sys.executable, harness, streams=ANCHOR_DIR)
+
+
+def test_the_clis_default_budget_is_the_harness_default():
+    # The CLI keeps numpy out of its import, so it repeats the figure: the two must stay one fact.
+    from stucco_cli.bench import bench_track
+
+    option = next(p for p in bench_track.params if p.name == "reference_budget")
+    assert option.default == REFERENCE_BUDGET_S
