@@ -45,11 +45,15 @@ from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, use
               help="How the retrieval scenes are collected [the retrieval default, scripted: the paper's protocol]; "
                    "scripted+probe: the active protocol, probes until the target's pose is known, then a grasp for "
                    "the whole plausible set (docs/retrieval.md, \"Active retrieval\").")
+@click.option("--estimator-stream", "estimator_stream", type=click.IntRange(min=0), default=0, show_default=True,
+              help="The pose estimators' random stream: 0 the default; 1, 2, ... rerun every stochastic estimator "
+                   "with independent draws on the same segments, to see how much of a grasp success is its luck "
+                   "(docs/evaluation.md, \"The estimator's own randomness\"; use one --out per stream).")
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
              estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str,
-             scheduler: str | None, policy: str | None) -> None:
+             scheduler: str | None, policy: str | None, estimator_stream: int) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     for opt, d in (("--out", out_dir), ("--snapshot", snapshot_dir)):
@@ -59,7 +63,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes, scene_files
 
     if suite == "training":
-        if backend != "loky" or quick or from_runs or snapshot_dir:
+        if backend != "loky" or quick or from_runs or snapshot_dir or estimator_stream:
             raise click.UsageError("--suite training takes --scenes, --seeds, --methods, --out, -j, --max-actions")
         from stucco_cli.study import training
 
@@ -101,7 +105,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs),
                          estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes),
-                         policy=policy)
+                         policy=policy, estimator_stream=estimator_stream)
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 

@@ -35,11 +35,14 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
 @click.option("--grasp/--no-grasp", default=True, show_default=True,
               help="Simulate the grasp at each estimate (pybullet).")
+@click.option("--stream", type=click.IntRange(min=0), default=0, show_default=True,
+              help="The estimator's random stream: 0 the default; 1, 2, ... independent reruns of a stochastic "
+                   "estimator on the same segments (recorded in the metadata).")
 @click.option("--print", "print_table", is_flag=True, help="Print one line per run to stdout.")
 @pass_settings
 def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: Path, cand_path: Path | None,
              estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
-             print_table: bool) -> None:
+             stream: int, print_table: bool) -> None:
     """Estimate the target pose of every run from its segments and grasp it in simulation."""
     from pipeline.grasp import GraspParams
     from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
@@ -61,7 +64,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         fields = getattr(registry.resolve(registry.estimator(estimator).params), "__dataclass_fields__", {})
         own = {"n_hypotheses": hypotheses} if hypotheses is not None and "n_hypotheses" in fields else None
         config = RetrieveConfig(method=method, estimator=estimator, params=params, estimator_params=own,
-                                grasp=grasp, grasp_params=GraspParams())
+                                grasp=grasp, grasp_params=GraspParams(), stream=stream)
         table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, config, seed=settings.seed,
                                  jobs=settings.jobs, progress=run_bar(settings, "retrieve"))
     if print_table:

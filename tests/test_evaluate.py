@@ -161,6 +161,7 @@ def test_cli_prints_the_table_of_a_finished_grid(copy):
     (["--seeds", "3-1"], r"Invalid value for --seeds: seed range '3-1': end before start"),
     (["--estimators", "plausible,icp"], r"Invalid value for --estimators: unknown estimator 'icp'; expected some of "
                                         r"plausible, paper"),
+    (["--estimator-stream", "-1"], r"Invalid value for '--estimator-stream': -1 is not in the range x>=0"),
 ])
 def test_bad_options_fail_with_one_line(tmp_path, args, match):
     from stucco_cli.main import cli
@@ -178,3 +179,39 @@ def test_parsers_keep_table_ii_order():
     assert parse_methods("all") == ("stucco", "birch", "dbscan", "kmeans", "gmphd")
     assert parse_scenes("TC,FB,TC") == ("TC", "FB")
     assert parse_scenes("all") == ("FB", "BC", "IB", "TC")
+
+
+def test_an_estimator_stream_is_recorded_and_refused_in_a_folder_of_another(copy):
+    # Stream 0 is the default and left out of evaluation.json (folders made before the option still resume).
+    assert "estimator_stream" not in json.loads((copy / "evaluation.json").read_text())
+    with pytest.raises(ValueError, match=r"was made with estimator_stream=None, this evaluation asks for "
+                                         r"estimator_stream=1"):
+        _run(copy, EvalConfig(root_seed=0, max_actions=12, restarts=5, estimator_stream=1))
+    assert EvalConfig(estimator_stream=2).to_dict()["estimator_stream"] == 2
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="estimator_stream must be a non-negative integer"):
+            EvalConfig(estimator_stream=bad)
+
+
+def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tmp_path):
+    # A folder of stream 1 replaying the same stored run: the same segments, the stochastic estimators' draws
+    # differ, deterministically.
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    shutil.copy(partition(evaluated, "runs", "IB", 0), runs / "IB-000.parquet")
+    cfg = dict(root_seed=0, restarts=5, estimators=("pushtrack",), source=str(runs))
+    outs = {}
+    for name, stream in (("s1", 1), ("s1again", 1), ("s0", 0)):
+        out = tmp_path / name
+        evaluate(out, ["IB"], [0], ("stucco",), EvalConfig(**cfg, estimator_stream=stream), jobs=1, progress=False)
+        outs[name] = out
+    seg = {k: partition(o, "segments", "IB", 0, "stucco").read_bytes() for k, o in outs.items()}
+    assert seg["s1"] == seg["s0"]
+    cand = {k: read_kind(o, "candidates").drop_columns(["estimator"]) for k, o in outs.items()}
+    assert cand["s1"].equals(cand["s1again"])
+    assert not cand["s1"].equals(cand["s0"])
+    assert json.loads((outs["s1"] / "evaluation.json").read_text())["estimator_stream"] == 1
+    meta = schema.read_metadata(partition(outs["s1"], "retrieval", "IB", 0, "stucco", "pushtrack"))["params"]
+    assert meta["stream"] == 1
+    meta0 = schema.read_metadata(partition(outs["s0"], "retrieval", "IB", 0, "stucco", "pushtrack"))["params"]
+    assert "stream" not in meta0

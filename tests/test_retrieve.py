@@ -537,7 +537,8 @@ def test_retrieval_table_rejects_duplicate_runs():
     from pipeline.retrieve import retrieval_table
 
     row = {c.name: None for c in RETRIEVAL_COLUMNS}
-    row.update(run="FB/0", scene="FB", seed=0, method="stucco", estimator="paper", target="cracker_box", x_m=0.0, y_m=0.0, yaw_rad=0.0,
+    row.update(run="FB/0", scene="FB", seed=0, method="stucco", estimator="paper", target="cracker_box", x_m=0.0,
+               y_m=0.0, yaw_rad=0.0,
                segment=0, n_points=3, n_segments=1, penetration_m=0.0, low_confidence=False, notes="",
                true_x_m=0.0, true_y_m=0.0, true_yaw_rad=0.0, position_error_m=0.0, yaw_error_rad=0.0,
                grasp_outcome="", icp_s=0.01)
@@ -612,3 +613,32 @@ def test_the_paper_choice_is_computed_once_for_the_estimators_that_start_from_it
     np.testing.assert_array_equal(again.pose, first.pose)
     other = estimators.paper_choice(segs, fb_run, panda, RetrievalParams(), retrieval_rng(1, fb_run.run))
     assert len(calls) == 3 and other.segment == first.segment  # other generators: computed
+
+def test_retrieval_streams_are_independent_and_stream_0_is_the_default():
+    from pipeline.retrieve.runs import _STREAM, run_key
+
+    old = [np.random.default_rng(c) for c in np.random.SeedSequence([3, run_key("FB-001"), _STREAM]).spawn(3)]
+    assert [g.integers(2 ** 62) for g in retrieval_rng(3, "FB-001")] == [g.integers(2 ** 62) for g in old]
+    assert [g.integers(2 ** 62) for g in retrieval_rng(3, "FB-001", 0)] == [g.integers(2 ** 62) for g in
+                                                                           retrieval_rng(3, "FB-001")]
+    draws = {(s, i): g.integers(2 ** 62) for s in range(4) for i, g in enumerate(retrieval_rng(3, "FB-001", s))}
+    assert len(set(draws.values())) == len(draws)  # no generator of any stream repeats another's
+    assert [g.integers(2 ** 62) for g in retrieval_rng(3, "FB-001", 2)] == [draws[(2, i)] for i in range(3)]
+    for bad in (-1, 1.0, True):
+        with pytest.raises(ValueError, match="stream must be a non-negative integer"):
+            retrieval_rng(3, "FB-001", bad)
+
+
+def test_cli_retrieve_stream_reruns_the_estimators_draws(stage_inputs):
+    tmp, seg, runs = stage_inputs
+    base = ["-q", "--seed", "0", "retrieve", "--segments", str(seg), "--runs", str(runs), "--no-grasp",
+            "--hypotheses", "16"]
+    for name, extra in (("s0", []), ("s1", ["--stream", "1"]), ("s1b", ["--stream", "1"])):
+        r = _invoke(base + ["--out", str(tmp / f"{name}.parquet"), *extra])
+        assert r.exit_code == 0, r.output
+    cand = {k: pq.read_table(tmp / f"{k}.candidates.parquet") for k in ("s0", "s1", "s1b")}
+    assert cand["s1"].equals(cand["s1b"]) and not cand["s1"].equals(cand["s0"])
+    assert read_metadata(tmp / "s1.parquet")["params"]["stream"] == 1
+    assert "stream" not in read_metadata(tmp / "s0.parquet")["params"]
+    bad = _invoke(base + ["--out", str(tmp / "x.parquet"), "--stream", "-1"])
+    assert bad.exit_code == 2 and "--stream" in bad.output and not (tmp / "x.parquet").exists()

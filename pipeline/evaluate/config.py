@@ -59,6 +59,10 @@ class EvalConfig:
         retrieval scenes (``scripted``, the paper's protocol). ``scripted+probe`` is the active protocol (probes,
         then the grasp for the plausible set; docs/retrieval.md, "Active retrieval"). Left out of
         ``evaluation.json`` when None, so folders made before it still resume.
+    estimator_stream : int
+        The estimators' random stream (:class:`pipeline.retrieve.RetrieveConfig` ``stream``): 0, the default;
+        k >= 1 reruns every stochastic estimator with other draws on the same segments (docs/evaluation.md,
+        "The estimator's own randomness"). Left out of ``evaluation.json`` when 0.
     """
 
     root_seed: int = 0
@@ -70,8 +74,12 @@ class EvalConfig:
     estimators: tuple[str, ...] = registry.estimator_names()
     scene_files: tuple[tuple[str, str, str], ...] = ()
     policy: str | None = None
+    estimator_stream: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.estimator_stream, int) or isinstance(self.estimator_stream, bool) \
+                or self.estimator_stream < 0:
+            raise ValueError(f"estimator_stream must be a non-negative integer, got {self.estimator_stream!r}")
         if self.policy is not None:
             registry.policy(self.policy)  # ValueError naming the registered policies
         object.__setattr__(self, "estimators", tuple(self.estimators))
@@ -94,6 +102,8 @@ class EvalConfig:
             del out["scene_files"]
         if self.policy is None:
             del out["policy"]
+        if not self.estimator_stream:
+            del out["estimator_stream"]
         return out
 
     @property

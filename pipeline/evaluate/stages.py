@@ -117,7 +117,7 @@ def run_retrieve(p: dict[str, Path], method: str, cfg: EvalConfig, estimator: st
     t0 = time.perf_counter()
     config = RetrieveConfig(method=method, estimator=estimator,
                             params=RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot), grasp=cfg.grasp,
-                            grasp_params=GraspParams())
+                            grasp_params=GraspParams(), stream=cfg.estimator_stream)
     retrieve_file(p["segments"], p["runs"], p["retrieval"], p["candidates"], config, seed=cfg.root_seed, jobs=1)
     write_wall(p["retrieval"], time.perf_counter() - t0)
 

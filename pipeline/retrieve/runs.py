@@ -140,8 +140,9 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
             continue  # a missing run is the stage's own error
         seed = schema.read_metadata(path).get("seed")
         if isinstance(seed, int) and isinstance(seg_seed, int) and seed != seg_seed:
-            raise schema.SchemaError(path, None, None, f"collected with root seed {seed}, but {segments_path.name} "
-                                                       f"was made with seed {seg_seed}: not the run it was tracked from")
+            raise schema.SchemaError(path, None, None,
+                                     f"collected with root seed {seed}, but {segments_path.name} was made with seed "
+                                     f"{seg_seed}: not the run it was tracked from")
         entry = recorded.get(name)
         if entry is not None and schema.file_digest(path) != entry:
             raise schema.SchemaError(path, None, None, f"not the run {name} that {segments_path.name} derives from "
@@ -209,9 +210,17 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
 _STREAM = int.from_bytes(hashlib.sha256(b"retrieve").digest()[:4], "little")
 
 
-def retrieval_rng(seed: int, run: str) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator]:
+def retrieval_rng(seed: int, run: str, stream: int = 0
+                  ) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator]:
     """(model points, ICP restarts, pose hypotheses) generators of one run:
     SeedSequence([seed, run_key(run), STREAM]).spawn(3). Children are keyed by their index, so the first two are
-    the streams the paper's estimator always had."""
-    return tuple(np.random.default_rng(c)
-                 for c in np.random.SeedSequence([int(seed), run_key(run), _STREAM]).spawn(3))
+    the streams the paper's estimator always had.
+
+    ``stream`` k >= 1 gives an independent set of three, SeedSequence([seed, run_key(run), STREAM, k]).spawn(3):
+    the same estimator rerun on the same segments with other random draws, to see how much of a grasp success is
+    the estimator's luck (``stucco evaluate --estimator-stream``; docs/evaluation.md, "The estimator's own
+    randomness"). Stream 0 is the default and what every earlier table was made with."""
+    if not isinstance(stream, (int, np.integer)) or isinstance(stream, bool) or stream < 0:
+        raise ValueError(f"stream must be a non-negative integer, got {stream!r}")
+    entropy = [int(seed), run_key(run), _STREAM] + ([int(stream)] if stream else [])
+    return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(entropy).spawn(3))

@@ -44,6 +44,9 @@ class RetrieveConfig:
     grasp : bool
         Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
     grasp_params : GraspParams
+    stream : int
+        The estimator's random stream (:func:`pipeline.retrieve.runs.retrieval_rng`): 0, the default; k >= 1 an
+        independent rerun of a stochastic estimator. Recorded in the metadata when not 0.
     """
 
     method: str | None = None
@@ -52,8 +55,11 @@ class RetrieveConfig:
     estimator_params: Any = None
     grasp: bool = True
     grasp_params: GraspParams = GraspParams()
+    stream: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.stream, int) or isinstance(self.stream, bool) or self.stream < 0:
+            raise ValueError(f"stream must be a non-negative integer, got {self.stream!r}")
         if self.method is not None:
             registry.tracker(self.method)  # ValueError naming the registered methods
         spec = registry.estimator(self.estimator)
@@ -61,8 +67,10 @@ class RetrieveConfig:
 
     def metadata(self) -> dict:
         """The provenance ``params`` of the retrieval and candidates tables."""
+        # (the stream only when not 0: tables of the default stream keep the bytes they always had)
+        extra = {"stream": self.stream} if self.stream else {}
         return retrieval_metadata(self.estimator, self.params, self.estimator_params, method=self.method,
-                                  grasp=self.grasp, grasp_params=self.grasp_params if self.grasp else None)
+                                  grasp=self.grasp, grasp_params=self.grasp_params if self.grasp else None, **extra)
 
 
 def final_segments_by_run(segments: pa.Table) -> dict[str, list[Segment]]:
@@ -117,8 +125,9 @@ class RunOutput:
 def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int,
                   history: History | None = None) -> RunOutput:
     method, estimator = config.method, config.estimator
-    est = estimate(estimator, segs, info, load_robot(config.params.robot), retrieval_rng(root_seed, info.run),
-                   config.params, config.estimator_params, history=history)
+    est = estimate(estimator, segs, info, load_robot(config.params.robot),
+                   retrieval_rng(root_seed, info.run, config.stream), config.params, config.estimator_params,
+                   history=history)
     truth = info.true_pose
     pos_err, yaw_err = pose_error(info.target, est.pose, truth)
     row = dict(run=info.run, scene=info.scene.name, seed=info.seed, method=method, estimator=estimator,
@@ -149,9 +158,9 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
              segments_path: str = "<segments>") -> tuple[pa.Table, pa.Table]:
     """The ``retrieve`` stage: a segments table and the collected runs in, retrieval and candidates tables out.
 
-    Every run file in ``run_dir`` (or the one run file it names) gets one row: a run absent from the segments table had no tracked contact
-    (an empty segmentation) and is estimated as such (flagged ``no_points``). A run of the segments table
-    without a run file is an error.
+    Every run file in ``run_dir`` (or the one run file it names) gets one row: a run absent from the segments
+    table had no tracked contact (an empty segmentation) and is estimated as such (flagged ``no_points``). A run
+    of the segments table without a run file is an error.
 
     Parameters
     ----------
