@@ -150,7 +150,8 @@ def run_worker(T: int, N: int, *, method: str = "stucco", seed: int = 0, weighti
 
 
 def run_reference_worker(T: int, N: int, python: str, script: str | Path = DEFAULT_REFERENCE_SCRIPT,
-                         seed: int = 0, budget_s: float = REFERENCE_BUDGET_S, streams: str | Path | None = None) -> dict:
+                         seed: int = 0, budget_s: float = REFERENCE_BUDGET_S,
+                         streams: str | Path | None = None) -> dict:
     """Rerun the authors' implementation on the same stream through their harness (see ../shared/anchors).
 
     The harness reads ``stream_T{T}.npz`` beside its script. For a count it has no file for (T=300: the streams
@@ -188,7 +189,8 @@ def recorded_reference() -> dict:
 
 def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int = 3, acc_seeds: int = 5,
                 streams: str | Path | None = None, reference_python: str | None = None,
-                reference_budget_s: float = REFERENCE_BUDGET_S, methods=("stucco",), threads=(1, 2), echo=print) -> dict:
+                reference_budget_s: float = REFERENCE_BUDGET_S, methods=("stucco",), threads=(1, 2),
+                echo=print) -> dict:
     """Print the speed table, the accuracy table and the weighting comparison; return every figure.
 
     ``reference_budget_s``: seconds of replay after which the authors' harness stops a rerun (its own default,
@@ -241,7 +243,8 @@ def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int =
                 refs = (f"{ra['fmi_mean']:>6.3f}±{ra['fmi_std']:<6.3f} {ra['ce_cm_mean']:>6.2f}±{ra['ce_cm_std']:<6.2f}"
                         if ra else "")
                 echo(f"{T:>4} {weighting:>10} {fmi.mean():>6.3f}±{fmi.std():<6.3f} {ce.mean():>6.2f}±{ce.std():<6.2f} "
-                     f"{np.mean([x['total_s'] for x in rows]):>6.2f} | {refs} {untracked_contact_error_cm(stream):>12.2f}")
+                     f"{np.mean([x['total_s'] for x in rows]):>6.2f} | {refs} "
+                     f"{untracked_contact_error_cm(stream):>12.2f}")
                 results["accuracy"].append(dict(T=T, weighting=weighting, fmi=fmi.tolist(), ce_cm=ce.tolist()))
     others = [m for m in methods if m != "stucco"]
     if others:

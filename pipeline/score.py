@@ -193,7 +193,8 @@ def summary_lines(scores: pa.Table) -> list[str]:
         gtxt = "  -" if not len(g) else f"{100 * g.mean():3.0f}"
         pem = np.nanmedian(pe[m]) if np.isfinite(pe[m]).any() else math.nan
         yem = np.nanmedian(ye[m]) if np.isfinite(ye[m]).any() else math.nan
-        lines.append(f"{key[0]:<6} {key[1]:<8} {key[2]:<9} runs {int(m.sum()):>3}  GS {gtxt} %  FMI {ms(f)}  CE {ms(ce)} cm  "
+        lines.append(f"{key[0]:<6} {key[1]:<8} {key[2]:<9} runs {int(m.sum()):>3}  GS {gtxt} %  "
+                     f"FMI {ms(f)}  CE {ms(ce)} cm  "
                      f"pos err median {pem * 100:.1f} cm  yaw err median {yem:.2f} rad")
     return lines
 

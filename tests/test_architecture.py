@@ -164,12 +164,14 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                     "pipeline.retrieve.paper", "pipeline.retrieve.online", "pipeline.retrieve.plausible",
                     "pipeline.retrieve.evidence",
                     "pipeline.retrieve.estimators", "pipeline.retrieve.runs", "pipeline.retrieve.tables",
-                    "pipeline.grasp", "pipeline.grasp_rule", "pipeline.sim", "pipeline.robot", "pipeline.policies", "pipeline.components",
+                    "pipeline.grasp", "pipeline.grasp_rule", "pipeline.sim", "pipeline.robot", "pipeline.policies",
+                    "pipeline.components",
                     "pipeline.metrics", "pipeline.labels",
                     "pipeline.retrieve.plausible_kernel", "pipeline.retrieve.resistance", "pipeline.detection")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
-                            "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum", "pipeline.spd",
+                            "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum",
+                            "pipeline.spd",
                             "pipeline.environment")),
 )
 

@@ -47,7 +47,8 @@ def test_write_text_and_save_figure(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png", "sub"]
 
 
-_HOLD = "import sys, time\nfrom pipeline.atomic import exclusive\nwith exclusive(sys.argv[1]):\n    print('held', flush=True)\n    time.sleep(60)\n"
+_HOLD = ("import sys, time\nfrom pipeline.atomic import exclusive\nwith exclusive(sys.argv[1]):\n"
+         "    print('held', flush=True)\n    time.sleep(60)\n")
 
 
 def test_one_writer_per_folder_and_a_killed_holder_releases_it(tmp_path):

@@ -14,7 +14,8 @@ def test_imported_modules_reads_module_level_and_lazy_imports_and_skips_relative
     assert imported_modules([source]) == ["collections", "csv", "json.decoder", "os", "xml.dom"]
 
 
-def test_a_lazily_imported_module_gets_its_pyc_even_where_writing_is_turned_off_and_broken_ones_are_skipped(tmp_path, monkeypatch):
+def test_a_lazily_imported_module_gets_its_pyc_even_where_writing_is_turned_off_and_broken_ones_are_skipped(
+        tmp_path, monkeypatch):
     library = tmp_path / "lib"
     library.mkdir()
     (library / "stucco_lazy_probe_module.py").write_text("VALUE = 1\n")

@@ -58,7 +58,8 @@ def test_primitive_sdf_matches_the_primitive_and_its_gradient_is_a_finite_differ
         com = com_pose(prim, pp)
         assert np.allclose(sd, prim.signed_distance(q, com), atol=1e-12)
         h = 1e-7
-        num = np.stack([(primitive_sdf(prim, q + [h, 0])[0] - sd) / h, (primitive_sdf(prim, q + [0, h])[0] - sd) / h], -1)
+        num = np.stack([(primitive_sdf(prim, q + [h, 0])[0] - sd) / h,
+                        (primitive_sdf(prim, q + [0, h])[0] - sd) / h], -1)
         away = np.abs(np.abs(q) - np.asarray(prim.half[:2] if prim.kind == "box" else [9, 9])).min(axis=1) > 1e-4
         ok = np.linalg.norm(num - g, axis=1) < 1e-4
         assert ok[away].mean() > 0.97  # kinks of the box (medial axis) aside

@@ -104,8 +104,8 @@ def _segments(run="FB/4"):
 
 
 def _retrieval(run="FB/4", seed=4, **over):
-    row = dict(run=run, scene="FB", seed=seed, method="stucco", estimator="plausible", target="cracker_box", x_m=0.3, y_m=0.004,
-               yaw_rad=0.05, segment=0, n_points=3, n_segments=2, position_var_m2=1e-4, icp_rmse_m=0.002,
+    row = dict(run=run, scene="FB", seed=seed, method="stucco", estimator="plausible", target="cracker_box", x_m=0.3,
+               y_m=0.004, yaw_rad=0.05, segment=0, n_points=3, n_segments=2, position_var_m2=1e-4, icp_rmse_m=0.002,
                penetration_m=0.0, low_confidence=False, notes="", true_x_m=0.3, true_y_m=0.0, true_yaw_rad=0.0,
                position_error_m=0.004, yaw_error_rad=0.05, grasp_success=True, grasp_outcome="ok", icp_s=0.1,
                grasp_s=0.5)
@@ -151,8 +151,8 @@ def test_score_run_without_points_and_without_grasp(tmp_path):
 def test_scores_one_row_per_scene_seed_method():
     t = pa.table({c.name: pa.array([None], type=c.type) for c in SCORES_COLUMNS})
     t = t.set_column(0, "scene", pa.array(["FB"])).set_column(1, "seed", pa.array([1], pa.int64()))
-    vals = dict(method="stucco", estimator="plausible", run="FB/1", position_error_m=0.0, yaw_error_rad=0.0, low_confidence=False,
-                n_points=0, n_segments=0, retrieve_s=0.0, wall_s=0.0)
+    vals = dict(method="stucco", estimator="plausible", run="FB/1", position_error_m=0.0, yaw_error_rad=0.0,
+                low_confidence=False, n_points=0, n_segments=0, retrieve_s=0.0, wall_s=0.0)
     for k, v in vals.items():
         i = t.column_names.index(k)
         t = t.set_column(i, k, pa.array([v], type=t.schema.field(k).type))

@@ -2,7 +2,8 @@
 
 Every job runs collect -> isolate -> track -> segment -> retrieve -> score by calling the stage functions (the
 same calls, parameters and metadata as the CLI), and keeps each stage's table in its own folder of the output
-directory, one file per partition, so each folder opens as one table (:mod:`pipeline.layout`). One role per module (docs/evaluation.md):
+directory, one file per partition, so each folder opens as one table (:mod:`pipeline.layout`). One role per module
+(docs/evaluation.md):
 
 * :mod:`~pipeline.evaluate.config`: the grid's names, :class:`EvalConfig` (``DIR/evaluation.json``), :class:`Job`;
 * :mod:`~pipeline.evaluate.freshness`: which stages of a job are out of date (``make`` on recorded digests);
@@ -35,7 +36,8 @@ from pipeline.layout import CONFIG, KINDS, PART, STAGES, WALL, partition
 from pipeline.parallel import map_jobs
 
 __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGES", "STAGE_COLUMNS", "PART", "WALL",
-           "CONFIG", "EvalConfig", "Job", "JobResult", "Evaluation", "parse_scenes", "scene_files", "parse_methods", "partition",
+           "CONFIG", "EvalConfig", "Job", "JobResult", "Evaluation", "parse_scenes", "scene_files", "parse_methods",
+           "partition",
            "stale_stages", "prepare_run", "run_job", "evaluate", "read_kind", "gather_scores", "write_report",
            "snapshot", "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded", "BACKENDS",
            "parallel_backend", "map_jobs"]

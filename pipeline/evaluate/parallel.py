@@ -20,11 +20,11 @@ BACKENDS = ("loky", "dask")
 
 @contextmanager
 def parallel_backend(backend: str = "loky", scheduler: str | None = None):
-    """Where :func:`~pipeline.parallel.map_jobs` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's Dask backend on the
-    ``distributed`` scheduler at ``scheduler``, e.g. ``tcp://10.0.0.5:8786``; the optional extra
+    """Where :func:`~pipeline.parallel.map_jobs` runs jobs: ``"loky"`` (local processes) or ``"dask"`` (joblib's
+    Dask backend on the ``distributed`` scheduler at ``scheduler``, e.g. ``tcp://10.0.0.5:8786``; the optional extra
     ``stucco[dask]``). Job functions write their own files under the evaluation directory, so Dask workers
-    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`~pipeline.parallel.map_jobs` for Dask (-1: every
-    worker of the cluster), or None for loky."""
+    must see the same filesystem path. Yields the ``jobs`` value to pass to :func:`~pipeline.parallel.map_jobs` for
+    Dask (-1: every worker of the cluster), or None for loky."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     if backend == "loky":

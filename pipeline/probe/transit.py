@@ -156,11 +156,11 @@ def grasp_via(start: np.ndarray, pre: np.ndarray, keepout: Keepout, scale: float
               params: GraspParams = GraspParams()) -> np.ndarray:
     """A waypoint for the grasp's move to its pre-grasp point when the straight move from ``start`` (2,) would
     come closer to the target than ``keepout.margin`` (it would push or turn it before the fingers close;
-    docs/retrieval.md, "The grasp's move goes around the target"). Candidates lie around ``pre`` (2,) at each of ``radii`` (m) in
-    ``directions`` directions; both moves (:func:`grasp_transit` to the waypoint, then to ``pre``) must keep the
-    margin, and the shortest such route wins (ties to the first candidate). A gripper that starts closer than the
-    margin (the policy's return can end against the target) only has to move no closer on its first action.
-    Returns the waypoints (V, 2), metres: none when the straight move keeps the margin or no candidate does."""
+    docs/retrieval.md, "The grasp's move goes around the target"). Candidates lie around ``pre`` (2,) at each of
+    ``radii`` (m) in ``directions`` directions; both moves (:func:`grasp_transit` to the waypoint, then to ``pre``)
+    must keep the margin, and the shortest such route wins (ties to the first candidate). A gripper that starts
+    closer than the margin (the policy's return can end against the target) only has to move no closer on its first
+    action. Returns the waypoints (V, 2), metres: none when the straight move keeps the margin or no candidate does."""
     start = np.asarray(start, dtype=np.float64).reshape(2)
     pre = np.asarray(pre, dtype=np.float64).reshape(2)
     first_need = min(keepout.margin, float(keepout.clearance(start[None, :])[0]))

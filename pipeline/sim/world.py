@@ -6,8 +6,8 @@ Only what the scene's effects ask for is built: walls, friction overrides, movab
 steps; the per-step contact wrench and ground truth are computed only when asked
 (:func:`pipeline.sim.effects.read_contacts`).
 
-Physics (as in the authors' code): time step 1/240 s, gravity (0, 0, -10), a static ground plane (lateral friction 1.0 as in
-pybullet_data's plane.urdf; the retrieval tasks override it). Objects are primitive boxes and cylinders
+Physics (as in the authors' code): time step 1/240 s, gravity (0, 0, -10), a static ground plane (lateral friction
+1.0 as in pybullet_data's plane.urdf; the retrieval tasks override it). Objects are primitive boxes and cylinders
 (``createCollisionShape`` + ``createMultiBody``, with ``useMaximalCoordinates``: single-link bodies become plain
 btRigidBody objects, which the solver handles about 3x faster than the btMultiBody the authors' URDFs gave;
 measured in docs/simulation.md) with their link frame at the scene's position, the primitive
