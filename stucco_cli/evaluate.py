@@ -111,7 +111,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
 
 def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: int, figures: bool,
          snapshot_dir: Path | None, backend: str = "loky", scheduler: str | None = None) -> None:
-    from pipeline.evaluate import evaluate as run_evaluate, write_snapshot
+    from pipeline.evaluate import config_lines, evaluate as run_evaluate, write_snapshot
     from pipeline.report import claims, table_ii, to_markdown
 
     with user_errors("evaluate"):
@@ -122,7 +122,7 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
     rows = table_ii(ev.scores)
     if settings.verbosity >= 0:
         click.echo(to_markdown(rows), nl=False)
-        for line in claims(rows):
+        for line in claims(rows) + config_lines(cfg):
             click.echo(line)
         from pipeline.probe.report import probe_lines  # runs of the active protocol: their probes
 

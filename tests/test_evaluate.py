@@ -215,3 +215,5 @@ def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tm
     assert meta["stream"] == 1
     meta0 = schema.read_metadata(partition(outs["s0"], "retrieval", "IB", 0, "stucco", "pushtrack"))["params"]
     assert "stream" not in meta0
+    assert "random stream 1 (--estimator-stream" in (outs["s1"] / "report.md").read_text()
+    assert "random stream" not in (outs["s0"] / "report.md").read_text()

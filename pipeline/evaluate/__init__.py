@@ -24,7 +24,7 @@ last bits of Open3D's ICP, which vary from run to run anyway), and a stage rerun
 (:func:`pipeline.schema.write_table`).
 """
 from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES, EvalConfig, Job, parse_methods,
-                                      parse_scenes, scene_files)
+                                      parse_scenes, scene_files, config_lines)
 from pipeline.evaluate.freshness import stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_run, run_job
 from pipeline.evaluate.parallel import BACKENDS, parallel_backend, single_threaded
@@ -40,4 +40,4 @@ __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGES"
            "partition",
            "stale_stages", "prepare_run", "run_job", "evaluate", "read_kind", "gather_scores", "write_report",
            "snapshot", "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded", "BACKENDS",
-           "parallel_backend", "map_jobs"]
+           "parallel_backend", "map_jobs", "config_lines"]

@@ -17,7 +17,7 @@ from pipeline.retrieve.params import MAX_COUNT
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 
 __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
-           "parse_methods", "check_config", "scene_files"]
+           "parse_methods", "check_config", "scene_files", "config_lines"]
 
 #: The paper's Table II tasks, in its order.
 SCENES = ("FB", "BC", "IB", "TC")
@@ -226,3 +226,12 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
                              f"{k}={want.get(k)!r}; use another --out (or delete {out})")
         return
     write_text(path, json.dumps(want, indent=1, sort_keys=True) + "\n")
+
+
+def config_lines(cfg: EvalConfig) -> list[str]:
+    """What the report says of a configuration that changes its numbers beyond the grid itself: the estimators'
+    random stream when it is not the default (docs/evaluation.md, "The estimator's own randomness")."""
+    if cfg.estimator_stream:
+        return [f"pose estimators run with random stream {cfg.estimator_stream} (--estimator-stream; the "
+                "default and every published table: 0)"]
+    return []

@@ -15,7 +15,7 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from pipeline.atomic import exclusive
-from pipeline.evaluate.config import EvalConfig, Job, check_config
+from pipeline.evaluate.config import EvalConfig, Job, check_config, config_lines
 from pipeline.evaluate.freshness import figure_stale, run_stale, stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_one, run_job
 from pipeline.evaluate.parallel import parallel_backend
@@ -129,7 +129,7 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         # Runs of the active protocol add its probes to the report (docs/retrieval.md, "Active retrieval").
         from pipeline.probe.report import probe_lines  # imported here: it reads the run files only when writing
 
-        write_report(out, scores, tuple(probe_lines(out, job_list)))
+        write_report(out, scores, tuple(config_lines(cfg)) + tuple(probe_lines(out, job_list)))
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
             stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
