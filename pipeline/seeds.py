@@ -6,10 +6,23 @@ rerun alone on one run draws exactly what it drew inside ``stucco evaluate`` (do
 from __future__ import annotations
 
 import hashlib
+import operator
 
 import numpy as np
 
-__all__ = ["run_key", "run_rng"]
+__all__ = ["run_key", "run_rng", "check_stream"]
+
+
+def check_stream(stream, name: str = "stream") -> int:
+    """``stream`` as a plain int: a non-negative integer (numpy's included, ``bool`` not); ValueError naming
+    ``name`` otherwise. The pose estimators' random stream (:func:`pipeline.retrieve.runs.retrieval_rng`)."""
+    try:
+        value = operator.index(stream) if not isinstance(stream, (bool, np.bool_)) else -1
+    except TypeError:
+        value = -1
+    if value < 0:
+        raise ValueError(f"{name} must be a non-negative integer, got {stream!r}")
+    return int(value)
 
 
 def run_key(run: str) -> int:

@@ -10,6 +10,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pyarrow.dataset as ds
 import pytest
 from click.testing import CliRunner
@@ -184,13 +185,14 @@ def test_parsers_keep_table_ii_order():
 def test_an_estimator_stream_is_recorded_and_refused_in_a_folder_of_another(copy):
     # Stream 0 is the default and left out of evaluation.json (folders made before the option still resume).
     assert "estimator_stream" not in json.loads((copy / "evaluation.json").read_text())
-    with pytest.raises(ValueError, match=r"was made with estimator_stream=None, this evaluation asks for "
+    with pytest.raises(ValueError, match=r"was made with estimator_stream=0, this evaluation asks for "
                                          r"estimator_stream=1"):
         _run(copy, EvalConfig(root_seed=0, max_actions=12, restarts=5, estimator_stream=1))
     assert EvalConfig(estimator_stream=2).to_dict()["estimator_stream"] == 2
-    for bad in (-1, True, 1.5):
+    for bad in (-1, True, 1.5, "1"):
         with pytest.raises(ValueError, match="estimator_stream must be a non-negative integer"):
             EvalConfig(estimator_stream=bad)
+    assert EvalConfig(estimator_stream=np.int64(3)).to_dict()["estimator_stream"] == 3  # numpy's ints are ints
 
 
 def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tmp_path):
@@ -217,3 +219,15 @@ def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tm
     assert "stream" not in meta0
     assert "random stream 1 (--estimator-stream" in (outs["s1"] / "report.md").read_text()
     assert "random stream" not in (outs["s0"] / "report.md").read_text()
+    # From the CLI: the stream-1 folder resumes with stream 1 (nothing to do) and refuses the default stream.
+    from stucco_cli.main import cli
+
+    args = ["--seed", "0", "evaluate", "--from-runs", str(runs), "--methods", "stucco", "--estimators", "pushtrack",
+            "--restarts", "5", "--no-figures", "--out", str(outs["s1"])]
+    res = CliRunner().invoke(cli, args + ["--estimator-stream", "1"])
+    assert res.exit_code == 0, res.output
+    assert "1 job(s): 0 run, 1 already done" in res.stderr and "random stream 1 (--estimator-stream" in res.stdout
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1
+    assert "was made with estimator_stream=1, this evaluation asks for estimator_stream=0" in res.output
+    assert "Traceback" not in res.output

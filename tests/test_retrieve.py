@@ -614,6 +614,7 @@ def test_the_paper_choice_is_computed_once_for_the_estimators_that_start_from_it
     other = estimators.paper_choice(segs, fb_run, panda, RetrievalParams(), retrieval_rng(1, fb_run.run))
     assert len(calls) == 3 and other.segment == first.segment  # other generators: computed
 
+
 def test_retrieval_streams_are_independent_and_stream_0_is_the_default():
     from pipeline.retrieve.runs import _STREAM, run_key
 
@@ -624,6 +625,9 @@ def test_retrieval_streams_are_independent_and_stream_0_is_the_default():
     draws = {(s, i): g.integers(2 ** 62) for s in range(4) for i, g in enumerate(retrieval_rng(3, "FB-001", s))}
     assert len(set(draws.values())) == len(draws)  # no generator of any stream repeats another's
     assert [g.integers(2 ** 62) for g in retrieval_rng(3, "FB-001", 2)] == [draws[(2, i)] for i in range(3)]
+    # nor what stream 0's generators would spawn (a SeedSequence's spawn key extends its entropy)
+    spawned = {g.integers(2 ** 62) for k in range(3) for g in retrieval_rng(3, "FB-001")[k].spawn(3)}
+    assert not spawned & set(draws.values())
     for bad in (-1, 1.0, True):
         with pytest.raises(ValueError, match="stream must be a non-negative integer"):
             retrieval_rng(3, "FB-001", bad)

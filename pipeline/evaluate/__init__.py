@@ -23,8 +23,8 @@ last bits of Open3D's ICP, which vary from run to run anyway), and a stage rerun
 <stage>`` reproduces its file (byte for byte for isolate, track and segment). Outputs are written atomically
 (:func:`pipeline.schema.write_table`).
 """
-from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES, EvalConfig, Job, parse_methods,
-                                      parse_scenes, scene_files, config_lines)
+from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES, EvalConfig, Job, config_lines,
+                                      parse_methods, parse_scenes, scene_files)
 from pipeline.evaluate.freshness import stale_stages
 from pipeline.evaluate.jobs import JobResult, prepare_run, run_job
 from pipeline.evaluate.parallel import BACKENDS, parallel_backend, single_threaded
@@ -37,7 +37,6 @@ from pipeline.parallel import map_jobs
 
 __all__ = ["SCENES", "METHODS", "KINDS", "QUICK_SCENES", "QUICK_SEEDS", "STAGES", "STAGE_COLUMNS", "PART", "WALL",
            "CONFIG", "EvalConfig", "Job", "JobResult", "Evaluation", "parse_scenes", "scene_files", "parse_methods",
-           "partition",
-           "stale_stages", "prepare_run", "run_job", "evaluate", "read_kind", "gather_scores", "write_report",
-           "snapshot", "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded", "BACKENDS",
-           "parallel_backend", "map_jobs", "config_lines"]
+           "config_lines", "partition", "stale_stages", "prepare_run", "run_job", "evaluate", "read_kind",
+           "gather_scores", "write_report", "snapshot", "write_snapshot", "SNAPSHOT_SCORE_COLUMNS", "single_threaded",
+           "BACKENDS", "parallel_backend", "map_jobs"]

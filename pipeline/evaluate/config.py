@@ -15,6 +15,7 @@ from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline import registry
 from pipeline.retrieve.params import MAX_COUNT
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
+from pipeline.seeds import check_stream
 
 __all__ = ["SCENES", "METHODS", "QUICK_SCENES", "QUICK_SEEDS", "EvalConfig", "Job", "parse_scenes",
            "parse_methods", "check_config", "scene_files", "config_lines"]
@@ -77,9 +78,7 @@ class EvalConfig:
     estimator_stream: int = 0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.estimator_stream, int) or isinstance(self.estimator_stream, bool) \
-                or self.estimator_stream < 0:
-            raise ValueError(f"estimator_stream must be a non-negative integer, got {self.estimator_stream!r}")
+        object.__setattr__(self, "estimator_stream", check_stream(self.estimator_stream, "estimator_stream"))
         if self.policy is not None:
             registry.policy(self.policy)  # ValueError naming the registered policies
         object.__setattr__(self, "estimators", tuple(self.estimators))
@@ -222,8 +221,10 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
                              f"(or delete {out})")
         if diff:
             k = diff[0]
-            raise ValueError(f"{out}: was made with {k}={have.get(k)!r}, this evaluation asks for "
-                             f"{k}={want.get(k)!r}; use another --out (or delete {out})")
+            # (a field left out of evaluation.json holds its default)
+            default = getattr(EvalConfig(), k, None)
+            raise ValueError(f"{out}: was made with {k}={have.get(k, default)!r}, this evaluation asks for "
+                             f"{k}={want.get(k, default)!r}; use another --out (or delete {out})")
         return
     write_text(path, json.dumps(want, indent=1, sort_keys=True) + "\n")
 
@@ -233,5 +234,6 @@ def config_lines(cfg: EvalConfig) -> list[str]:
     random stream when it is not the default (docs/evaluation.md, "The estimator's own randomness")."""
     if cfg.estimator_stream:
         return [f"pose estimators run with random stream {cfg.estimator_stream} (--estimator-stream; the "
-                "default and every published table: 0)"]
+                "default and every published table: 0); runs of the active protocol keep their policy's pose and "
+                "grasp"]
     return []

@@ -15,7 +15,7 @@ from pipeline import schema
 from pipeline.geometry import Primitive
 from pipeline.detection import contact_forces
 from pipeline.retrieve.model import target_primitive
-from pipeline.seeds import run_key
+from pipeline.seeds import check_stream, run_key
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 
 __all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
@@ -208,6 +208,9 @@ def run_files_by_name(directory: str | Path) -> dict[str, Path]:
 
 #: Third entry of retrieval's SeedSequence: keeps its draws independent of the tracker's stream of the run.
 _STREAM = int.from_bytes(hashlib.sha256(b"retrieve").digest()[:4], "little")
+#: Fourth entry for the streams k >= 1: without it, stream k's generators would be those that stream 0's k-th
+#: generator spawns (a SeedSequence's spawn key is appended to its entropy).
+_OTHER_STREAM = int.from_bytes(hashlib.sha256(b"retrieve-stream").digest()[:4], "little")
 
 
 def retrieval_rng(seed: int, run: str, stream: int = 0
@@ -216,11 +219,11 @@ def retrieval_rng(seed: int, run: str, stream: int = 0
     SeedSequence([seed, run_key(run), STREAM]).spawn(3). Children are keyed by their index, so the first two are
     the streams the paper's estimator always had.
 
-    ``stream`` k >= 1 gives an independent set of three, SeedSequence([seed, run_key(run), STREAM, k]).spawn(3):
-    the same estimator rerun on the same segments with other random draws, to see how much of a grasp success is
-    the estimator's luck (``stucco evaluate --estimator-stream``; docs/evaluation.md, "The estimator's own
+    ``stream`` k >= 1 gives an independent set of three, SeedSequence([seed, run_key(run), STREAM, OTHER,
+    k]).spawn(3): every estimator rerun on the same segments with other random draws (the paper's model points and
+    ICP restarts, which the others' segment choice shares, and their own), to see how much of a grasp success is
+    the estimators' luck (``stucco evaluate --estimator-stream``; docs/evaluation.md, "The estimator's own
     randomness"). Stream 0 is the default and what every earlier table was made with."""
-    if not isinstance(stream, (int, np.integer)) or isinstance(stream, bool) or stream < 0:
-        raise ValueError(f"stream must be a non-negative integer, got {stream!r}")
-    entropy = [int(seed), run_key(run), _STREAM] + ([int(stream)] if stream else [])
+    stream = check_stream(stream)
+    entropy = [int(seed), run_key(run), _STREAM] + ([_OTHER_STREAM, stream] if stream else [])
     return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(entropy).spawn(3))

@@ -20,6 +20,7 @@ from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
 from pipeline.retrieve.tables import candidates_table, retrieval_table
 from pipeline.robot import load_robot
+from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
 
 __all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file"]
@@ -58,8 +59,7 @@ class RetrieveConfig:
     stream: int = 0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.stream, int) or isinstance(self.stream, bool) or self.stream < 0:
-            raise ValueError(f"stream must be a non-negative integer, got {self.stream!r}")
+        object.__setattr__(self, "stream", check_stream(self.stream))
         if self.method is not None:
             registry.tracker(self.method)  # ValueError naming the registered methods
         spec = registry.estimator(self.estimator)
