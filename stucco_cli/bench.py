@@ -131,13 +131,17 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")
+@click.option("--streams", "stream_list", default="0", show_default=True,
+              help="The pose estimators' random streams, comma-separated: each setting's pose is estimated once per "
+                   "stream on the same segments and its GS is their mean (0 1 2 to compare stochastic estimators "
+                   "fairly; docs/evaluation.md, \"The estimator's own randomness\").")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
 @click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_select, baselines, out_dir,
-                   jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_select, stream_list, baselines,
+                   out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -151,6 +155,9 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
+    streams = tuple(dict.fromkeys(_ints("--streams", stream_list, 0, 1_000_000)))
+    if not streams:
+        raise click.BadParameter("at least one stream is needed", param_hint="--streams")
     sweep = accuracy_settings(_ints("--N", n_list), _ints("--restarts", restart_list, 1, 1000),
                               _floats("--sdf-mm", sdf_list, 0.25, 20.0),
                               hypotheses=_ints("--hypotheses", hyp_list, 1, 4096),
@@ -166,11 +173,13 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
-                               jobs=jobs or settings.jobs, progress=settings.progress)
+                               jobs=jobs or settings.jobs, progress=settings.progress, streams=streams)
         rows = summarise_settings(table)
         write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
         png = pareto_figure(rows, out_dir / "pareto.png")
     click.echo(summary_markdown(rows), nl=False)
+    if streams != (0,):
+        click.echo(f"GS: the mean over estimator streams {', '.join(map(str, streams))}")
     k = [r["setting"] for r in rows if r.get("knee")]
     if k:
         click.echo(f"knee (cheapest N within 10% of the best median CE of the N sweep): {k[0]}")

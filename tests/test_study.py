@@ -122,6 +122,33 @@ def test_bench_accuracy_cli_tiny_grid(tmp_path):
     assert (out / "pareto.png").stat().st_size > 0
 
 
+def test_bench_accuracy_over_estimator_streams(tmp_path):
+    # Two streams: one row per (setting, run, stream); the tracking (CE, FMI) shared, GS their mean, runs counted once.
+    out = tmp_path / "acc"
+    res = CliRunner().invoke(cli, ["-q", "bench", "accuracy", "--scenes", "FB", "--seeds", "0", "--N", "30",
+                                   "--restarts", "", "--sdf-mm", "", "--hypotheses", "", "--free-mm", "",
+                                   "--no-paper-estimator", "--pushtrack-particles", "64", "--pushtrack-refine", "",
+                                   "--pushtrack-substeps", "", "--pushtrack-starts", "", "--pushtrack-islands", "",
+                                   "--pushtrack-select", "", "--baselines", "", "--streams", "0,1",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "GS: the mean over estimator streams 0, 1" in res.output
+    rows = list(csv.DictReader(open(out / "accuracy.csv")))
+    assert [(r["setting"], r["stream"]) for r in rows] == [("stucco N=30", "0"), ("stucco N=30", "1"),
+                                                          ("stucco pushtrack n_particles=64", "0"),
+                                                          ("stucco pushtrack n_particles=64", "1")]
+    for a, b in (rows[:2], rows[2:]):
+        assert a["contact_error_cm"] == b["contact_error_cm"] and a["fmi"] == b["fmi"]
+    assert rows[2]["position_error_m"] != rows[3]["position_error_m"]  # pushtrack's particles redrawn
+    summary = {r["setting"]: r for r in csv.DictReader(open(out / "summary.csv"))}
+    pt = summary["stucco pushtrack n_particles=64"]
+    assert pt["runs"] == "1"
+    assert float(pt["gs"]) == sum(r["grasp_success"] == "true" for r in rows[2:]) / 2
+    assert {r["grasp_success"] for r in rows} <= {"true", "false"}
+    bad = CliRunner().invoke(cli, ["bench", "accuracy", "--streams", "-1", "--out", str(tmp_path / "x")])
+    assert bad.exit_code == 2 and "--streams" in bad.output
+
+
 def test_bench_accuracy_rejects_training_scene(tmp_path):
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--scenes", "SELECT1", "--out", str(tmp_path)])
     assert res.exit_code == 2
