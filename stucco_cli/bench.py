@@ -155,7 +155,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    streams = tuple(dict.fromkeys(_ints("--streams", stream_list, 0, 1_000_000)))
+    streams = _ints("--streams", stream_list, 0, 1_000_000)
     if not streams:
         raise click.BadParameter("at least one stream is needed", param_hint="--streams")
     sweep = accuracy_settings(_ints("--N", n_list), _ints("--restarts", restart_list, 1, 1000),
@@ -178,8 +178,9 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
         write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
         png = pareto_figure(rows, out_dir / "pareto.png")
     click.echo(summary_markdown(rows), nl=False)
-    if streams != (0,):
-        click.echo(f"GS: the mean over estimator streams {', '.join(map(str, streams))}")
+    ran = list(dict.fromkeys(table.column("stream").to_pylist()))  # the streams as accuracy_bench ran them
+    if ran != [0]:
+        click.echo(f"GS: the mean over estimator streams {', '.join(map(str, ran))}")
     k = [r["setting"] for r in rows if r.get("knee")]
     if k:
         click.echo(f"knee (cheapest N within 10% of the best median CE of the N sweep): {k[0]}")
