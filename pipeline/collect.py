@@ -220,7 +220,7 @@ class CollectResult:
     discarded: str | None
     wall_s: float
     sim_s: float
-    probe_s: list | None = None  # a policy's decision times (s), e.g. the probing policy's; kept out of the file
+    probe_s: dict | None = None  # a policy's wall times (s), e.g. the probing policy's; kept out of the file
 
 
 def _fixed_list(a: np.ndarray) -> pa.Array:
@@ -372,7 +372,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     result = CollectResult(scene=scene.name, seed=int(seed), path=None, n_actions=table.num_rows,
                        n_contact=int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False))),
                        touched=touched, discarded=discarded, wall_s=time.perf_counter() - t0, sim_s=sim_s,
-                       probe_s=getattr(mover, "decision_s", None))
+                       probe_s=getattr(mover, "times", None))
     return table, params, result
 
 

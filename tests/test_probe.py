@@ -301,8 +301,9 @@ def test_collect_scripted_plus_probe_marks_probe_actions_and_records_the_log():
     assert not flags[:20].any() and flags[20:].all() and table.num_rows > 20
     log = params["probe"]
     assert log["probes"] <= 1 and log["actions"] == table.num_rows - 20
-    assert len(res.probe_s) == log["probes"] + 1 and log["params"]["budget"] == 1
-    assert "decision_s" not in log  # wall times stay out of the file
+    assert len(res.probe_s["decision_s"]) == log["probes"] + 1 and log["params"]["budget"] == 1
+    assert res.probe_s["prior_s"] > 0.0  # the pushes' prior was computed, once
+    assert "decision_s" not in log and "prior_s" not in log  # wall times stay out of the file
     again, params2, _ = collect_run(sc, 104, policy="scripted+probe", max_actions=20,
                                     policy_params=dataclasses.replace(ProbeParams(), budget=1))
     assert _parquet_bytes(again) == _parquet_bytes(table) and params2 == params  # the same run, byte for byte

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow as pa
 
-from pipeline.portable import exp
+from pipeline.portable import argmin_tolerant, exp
 from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
@@ -31,7 +31,7 @@ from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, fit_segment
+from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, fit_segment
 from pipeline.retrieve.resistance import resisting_choice, segment_fits
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
@@ -61,6 +61,13 @@ class Sensing:
         Actions of the scripted part.
     method : str
         Tracking method (``stucco`` or a baseline of :mod:`pipeline.methods`).
+
+    Attributes
+    ----------
+    prior : callable or None
+        COM poses (B, 3) -> the prior cost (B,) the scripted part's pushes put on them
+        (:meth:`pipeline.probe.history.HistoryPrior.cost`), set once the scripted part is observed; every set
+        fitted from this sensing adds it (:func:`pose_set`). None: no prior.
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
@@ -81,6 +88,7 @@ class Sensing:
         self.probe_points: list[np.ndarray] = []
         self.probe_steps: list[int] = []
         self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
+        self.prior: Callable[[np.ndarray], np.ndarray] | None = None
 
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order)."""
@@ -244,7 +252,7 @@ def misfit(target: Primitive, belief: PoseSet, points: np.ndarray) -> float:
 def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf,
              rng: np.random.Generator, probe_points: np.ndarray, probe_steps: np.ndarray, probe_others: np.ndarray,
              plausible: PlausibleParams = PlausibleParams(n_hypotheses=16, iterations=20), probe_growth: float = 1.25,
-             max_seeds: int = 8) -> PoseSet:
+             max_seeds: int = 8, prior: Callable[[np.ndarray], np.ndarray] | None = None) -> PoseSet:
     """The plausible set from the scripted part's target segment plus the probes' contacts on the target.
 
     The plausible estimator's fit (:func:`pipeline.retrieve.plausible.fit_segment`): the segment's tracked points
@@ -261,6 +269,9 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
         Probe contacts attributed to the target.
     probe_others : ndarray, shape (R, 2)
         Probe contacts attributed to other objects.
+    prior : callable, optional
+        COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost (:attr:`Sensing.prior`); the
+        fit's pose rule must then be "best" (the lowest cost).
     """
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
@@ -281,10 +292,15 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     # At most max_seeds ICP starts besides the random ones: a decision must take well under half a second.
     seeds = choice.seeds[:max_seeds] if len(choice.seeds) else None
     fit = fit_segment(target, pts, sigma, free, others, plausible, rng, seeds)
-    cost = fit.terms.total
-    keep = np.flatnonzero(fit.plausible)
+    cost, chosen, keep = fit.terms.total, fit.chosen, np.flatnonzero(fit.plausible)
+    if prior is not None:
+        # the pushes' prior (pipeline.probe.history) added to every hypothesis's fit: the set and its estimate
+        # (the lowest cost, as the fit's "best" rule) are drawn again from the sums
+        cost = cost + prior(fit.poses)
+        keep = np.flatnonzero(cost <= cost.min() + plausible.margin)
+        chosen = int(keep[argmin_tolerant(cost[keep], COST_TIE)])
     w = exp(-(cost[keep] - cost[keep].min()))
-    return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
+    return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, chosen)),
                    segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"],
                    cost=float(cost[keep].min()))
 

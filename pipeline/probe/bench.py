@@ -31,7 +31,7 @@ __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise"
 
 BUDGETS = (0, 1, 2, 4, 8)
 FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_error_m", "yaw_error_rad",
-          "decision_s_median", "decision_s_max", "moved_m", "turned_rad", "wide")
+          "decision_s_median", "decision_s_max", "prior_s", "moved_m", "turned_rad", "wide")
 
 
 def stop_decision(history: list[dict], budget: int, need: int, agree: float) -> int:
@@ -100,7 +100,8 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
         out.append(dict(scene=scene.name, seed=seed, budget=b, probes=k, success=bool(res.success),
                         outcome=res.outcome, position_error_m=pe, yaw_error_rad=ye,
                         decision_s_median=float(np.median(dec)) if dec.size else None,
-                        decision_s_max=float(np.max(dec)) if dec.size else None, moved_m=st["moved_m"],
+                        decision_s_max=float(np.max(dec)) if dec.size else None, prior_s=st["prior_s"],
+                        moved_m=st["moved_m"],
                         turned_rad=st["turned_rad"],
                         wide=max(history[k]["share"], history[k].get("held", 0.0)) < params.plan.agree_share))
     return out
@@ -121,7 +122,8 @@ def budget_rows(pairs: list[tuple[str, int]], runs: str | Path, budgets: tuple[i
 
 
 def summarise(rows: list[dict]) -> list[dict]:
-    """Per scene and budget: runs, GS %, mean probes, decision time (median of the runs' medians, largest), median
+    """Per scene and budget: runs, GS %, mean probes, decision time (median of the runs' medians, largest), the
+    pushes' prior's time per run (median), median
     displacement of the target by the probes (mm, rad), runs whose set was still wide."""
     out = []
     for sc in dict.fromkeys(r["scene"] for r in rows):
@@ -129,10 +131,12 @@ def summarise(rows: list[dict]) -> list[dict]:
             sel = [r for r in rows if r["scene"] == sc and r["budget"] == b]
             med = [r["decision_s_median"] for r in sel if r["decision_s_median"] is not None]
             mx = [r["decision_s_max"] for r in sel if r["decision_s_max"] is not None]
+            prior = [r["prior_s"] for r in sel if r.get("prior_s")]
             out.append(dict(scene=sc, budget=b, runs=len(sel), gs_pct=100.0 * np.mean([r["success"] for r in sel]),
                             probes_mean=float(np.mean([r["probes"] for r in sel])),
                             decision_s_median=float(np.median(med)) if med else float("nan"),
                             decision_s_max=float(np.max(mx)) if mx else float("nan"),
+                            prior_s_median=float(np.median(prior)) if prior else float("nan"),
                             moved_mm_median=1000.0 * float(np.median([r["moved_m"] for r in sel])),
                             turned_rad_median=float(np.median([r["turned_rad"] for r in sel])),
                             wide=int(sum(r["wide"] for r in sel))))

@@ -24,12 +24,13 @@ class ScriptedProbePolicy(ScriptedPolicy):
                  max_actions: int | None = None, params: ProbeParams | None = None) -> None:
         super().__init__(scene, policy_rng, noise_rng, max_actions, params)
         self.probe = params if params is not None else ProbeParams()
-        #: Wall time (s) of each probe decision of the run, kept out of the run file (CollectResult.probe_s).
-        self.decision_s: list[float] | None = None
+        #: The run's wall times, kept out of the run file (CollectResult.probe_s): ``decision_s`` (s, a list: each
+        #: probe decision) and ``prior_s`` (s: the pushes' prior, once).
+        self.times: dict | None = None
 
     def after(self, world, rows: list, summarize: Callable, table: Callable, seed: int, root_seed: int
               ) -> dict[str, Any]:
         """Probe in ``world`` after the scripted ``rows`` (appending the probe actions to them); what the run's
         metadata records under ``probe`` (no wall time: the same command writes the same file)."""
-        meta, self.decision_s = run_policy(world, self.scene, seed, root_seed, rows, summarize, table, self.probe)
+        meta, self.times = run_policy(world, self.scene, seed, root_seed, rows, summarize, table, self.probe)
         return meta

@@ -64,6 +64,23 @@ class ProbeParams:
         "A contact once given to another object, tried again".
     method : str
         Tracking method of the policy's belief (``stucco``).
+    history : str
+        The prior the scripted part's pushes put on every set (:mod:`pipeline.probe.history`): ``pushtrack`` (the
+        pushtrack estimator's refined set after the scripted part) or ``off`` (docs/retrieval.md, "What the
+        pushes said: a prior from pushtrack").
+    history_yaw_band : float, radians
+        The prior costs nothing within this yaw of one of its poses, modulo the shape's symmetry (0.8: a box
+        turned a quarter turn, 1.57 rad, is what it rules out; nearby yaws are the probes' to decide).
+    history_yaw_sigma : float, radians
+        Beyond the band, the cost grows as a Gaussian of this sigma (0.2).
+    history_reach : float, metres
+        ... and within this distance of one of its poses' centres (0.10: a prior pose farther off lies on
+        another object);
+    history_reach_sigma : float, metres
+        ... beyond it, a Gaussian of this sigma (0.05).
+    history_floor : float
+        Share of a uniform prior mixed in: the prior never costs more than -log(floor) (0.05: 3.0, less than a
+        contact left unexplained costs, so contacts that contradict the prior win).
     plan : PlanParams
     """
 
@@ -86,6 +103,12 @@ class ProbeParams:
     clutter_cost: float = 0.3
     reattribute: str = "fit"
     method: str = "stucco"
+    history: str = "pushtrack"
+    history_yaw_band: float = 0.8
+    history_yaw_sigma: float = 0.2
+    history_reach: float = 0.10
+    history_reach_sigma: float = 0.05
+    history_floor: float = 0.05
     plan: PlanParams = field(default_factory=PlanParams)
 
     constraints: ClassVar[dict[str, Constraint]] = {
@@ -98,6 +121,10 @@ class ProbeParams:
         "clutter_cost": number(0),
         "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),
+        "history": rule("pushtrack or off", lambda v: v in ("pushtrack", "off")),
+        **{name: number(0) for name in ("history_yaw_band", "history_reach")},
+        **{name: number(0, lo_open=True) for name in ("history_yaw_sigma", "history_reach_sigma")},
+        "history_floor": number(0, 1, lo_open=True),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
         "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}
 
@@ -120,6 +147,8 @@ class ProbeLog:
         Actions recorded by the policy (transits, steps, back-offs).
     decision_s : list of float, seconds
         Wall time of each decision (belief update + planning), the last one deciding to stop.
+    prior_s : float, seconds
+        Wall time of the pushes' prior, once per run before the first decision (0 without one).
     contacts : list of bool
         Whether each probe ended in a detected contact.
     share : float
@@ -149,6 +178,7 @@ class ProbeLog:
     probes: int = 0
     actions: int = 0
     decision_s: list = field(default_factory=list)
+    prior_s: float = 0.0
     contacts: list = field(default_factory=list)
     share: float = 0.0
     agreed: bool = False

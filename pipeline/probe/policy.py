@@ -15,6 +15,7 @@ contact) and back off by ``backoff``. A contact during the transit ends the prob
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -23,6 +24,7 @@ import pyarrow as pa
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.belief import (NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, explaining, misfit,
                                    pose_set, surface_distance)
+from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, ProbePlan, agreement, choose_probe, gripper_outline
@@ -38,7 +40,8 @@ __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
               start: np.ndarray, params: ProbeParams = ProbeParams(),
               grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None,
-              grasp_share: Callable[[PoseSet], float] | None = None, mass: float = float("nan")) -> ProbeLog:
+              grasp_share: Callable[[PoseSet], float] | None = None, mass: float = float("nan"),
+              scene=None) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -65,6 +68,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     mass : float, kg
         The target's known mass: a heavy target's segment is the one that resisted the pushes
         (:func:`pipeline.probe.belief.choose_target`).
+    scene : pipeline.scenes.Scene, optional
+        The run's scene (its geometry, not its state): with it and ``params.history`` "pushtrack", the pushtrack
+        estimator's set after the scripted part is every set's prior (:mod:`pipeline.probe.history`).
 
     Returns
     -------
@@ -74,6 +80,12 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method)
     sensing.observe(rows)
     seen = rows.num_rows
+    log = ProbeLog()
+    if scene is not None and params.history == "pushtrack":
+        t0 = time.perf_counter()
+        found = history_prior(rows, sensing.segments(), scene, run, root_seed, sensing.sdf, params)
+        sensing.prior = None if found is None else partial(found.cost, target)
+        log.prior_s = time.perf_counter() - t0
     t0 = time.perf_counter()  # the first decision includes the segment choice
     choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
                             steps=np.array(sensing.steps), force=np.array(sensing.forces), mass=mass)
@@ -81,7 +93,6 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     choice = choices[0] if choices else NO_TARGET
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
     need = required_contacts(target, params)
-    log = ProbeLog()
     belief = None
     limit, gave_way = params.budget, False  # the limit is raised once, when the segment gives way
     while True:
@@ -328,7 +339,7 @@ def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, ro
     pts = np.asarray(sensing.probe_points, dtype=np.float64).reshape(-1, 2)
     on = np.isin(steps, np.asarray(list(target_steps), dtype=np.int64))
     return pose_set(choice, target, sensing.visited, np.asarray(sensing.steps), sensing.sdf,
-                    retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on])
+                    retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on], prior=sensing.prior)
 
 
 def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:
@@ -347,7 +358,8 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
     Each probe action is simulated by ``world.act`` (no replay noise), summarised by ``summarize`` (the collect
     stage's :func:`pipeline.collect.summarize_action`) and appended to ``rows`` with the columns the scripted
     actions have; ``table()`` builds the run's table from ``rows``. Returns what the run file's metadata records
-    under ``probe`` (the parameters and the :class:`ProbeLog` but its wall times) and the decision times (s).
+    under ``probe`` (the parameters and the :class:`ProbeLog` but its wall times) and those wall times
+    (``decision_s``: a list; ``prior_s``; seconds).
     """
     params = params if params is not None else ProbeParams()
     scale = scene.action_scale
@@ -372,7 +384,8 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
         return choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).share
 
     log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path, grasp_share,
-                    mass=target_mass(scene))
+                    mass=target_mass(scene), scene=scene)
     meta = {"params": params.to_dict(), **log.to_dict()}
-    meta.pop("decision_s")  # wall times would make the run file differ between identical runs
-    return meta, log.decision_s
+    for wall in ("decision_s", "prior_s"):
+        meta.pop(wall)  # wall times would make the run file differ between identical runs
+    return meta, {"decision_s": log.decision_s, "prior_s": log.prior_s}

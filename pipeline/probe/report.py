@@ -25,10 +25,25 @@ def times_path(path: str | Path) -> Path:
     return path.with_name(path.stem + ".probe_s.json")
 
 
-def save_times(path: str | Path, seconds) -> None:
-    """Write the decision times (s) of the run file ``path`` beside it (atomically); nothing for ``None``."""
-    if seconds is not None:
-        write_text(times_path(path), json.dumps([round(float(v), 6) for v in seconds]))
+def save_times(path: str | Path, times: dict | None) -> None:
+    """Write the policy's wall times of the run file ``path`` beside it (atomically): ``times`` holds
+    ``decision_s`` (a list, s) and ``prior_s`` (s); nothing for ``None``."""
+    if times is not None:
+        write_text(times_path(path), json.dumps({"decision_s": [round(float(v), 6) for v in times["decision_s"]],
+                                                 "prior_s": round(float(times.get("prior_s", 0.0)), 6)}))
+
+
+def _read_times(path: str | Path) -> tuple[list[float], float | None]:
+    """(decision times, prior time or None) from a run file's side file; a side file written before the prior
+    was timed holds the list of decision times alone; none at all (e.g. a run copied by evaluate --from-runs
+    without it): ([], None)."""
+    try:
+        times = json.loads(times_path(path).read_text())
+    except (OSError, ValueError):
+        return [], None
+    if isinstance(times, list):
+        return [float(v) for v in times], None
+    return [float(v) for v in times.get("decision_s", [])], float(times.get("prior_s", 0.0))
 
 
 def run_stats(path: str | Path, rows: int | None = None) -> dict:
@@ -37,7 +52,8 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     Returns
     -------
     dict
-        ``probes`` (made), ``decision_s`` (list, seconds, from :func:`times_path`; empty without it), ``flagged``,
+        ``probes`` (made), ``decision_s`` (list, seconds, from :func:`times_path`; empty without it),
+        ``prior_s`` (seconds, the pushes' prior; None when not recorded), ``flagged``,
         ``moved_m`` (target's centre of mass moved between the end of the scripted part and ``rows``),
         ``turned_rad`` (|yaw change| over the same).
     """
@@ -53,11 +69,8 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     turn = abs(float(wrap_angle(after[2] - before[2])))
-    try:
-        times = json.loads(times_path(path).read_text())
-    except (OSError, ValueError):
-        times = []  # e.g. a run copied by evaluate --from-runs without its side file
-    return {"probes": int(meta.get("probes", 0)), "decision_s": [float(v) for v in times],
+    times, prior = _read_times(path)
+    return {"probes": int(meta.get("probes", 0)), "decision_s": times, "prior_s": prior,
             "flagged": meta.get("flagged", ""), "moved_m": math.hypot(*(after[:2] - before[:2])),
             "turned_rad": float(turn)}
 
@@ -80,5 +93,11 @@ def probe_lines(out: str | Path, jobs) -> list[str]:
             f"({np.max(dec) if dec.size else float('nan'):.3f} s max), "
             f"budget spent without a stop in {sum(bool(s['flagged']) for s in st)}, target moved by probing "
             f"{1000 * np.median([s['moved_m'] for s in st]):.1f} mm / "
-            f"{np.median([s['turned_rad'] for s in st]):.3f} rad (median)")
+            f"{np.median([s['turned_rad'] for s in st]):.3f} rad (median)" + _prior_text(st))
     return lines
+
+
+def _prior_text(stats: list[dict]) -> str:
+    """", the pushes' prior X s per run (median, largest)" over the runs that timed one, else ""."""
+    prior = [s["prior_s"] for s in stats if s["prior_s"]]
+    return f", the pushes' prior {np.median(prior):.2f} s per run median ({np.max(prior):.2f} s max)" if prior else ""

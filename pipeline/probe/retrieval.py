@@ -8,14 +8,18 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from functools import partial
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
+import pyarrow as pa
 
 from pipeline import schema
 from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
+from pipeline.probe.history import history_prior
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
@@ -23,7 +27,7 @@ from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
 
-__all__ = ["ActiveResult", "active_set", "active_grasp", "active_row"]
+__all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 
 
 @dataclass
@@ -78,6 +82,8 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method)
     sensing.observe(table.slice(0, int(state["rows"])))
+    sensing.prior = recorded_prior(info, table.slice(0, n_scripted), sensing, root_seed, method,
+                                   (meta.get("params") or {}))
     choices = choose_target(sensing.segments(), info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
                             retrieval_rng(root_seed, info.run), steps=np.array(sensing.steps),
                             force=np.array(sensing.forces), mass=target_mass(info.scene))
@@ -91,6 +97,26 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
         if given is not None:
             return given[3], meta
     return belief, meta
+
+
+#: (key, prior) of the last :func:`recorded_prior` in this process (``stucco bench probe`` asks again per decision).
+_LAST_PRIOR: list = []
+
+
+def recorded_prior(info: RunInfo, scripted: pa.Table, sensing: Sensing, root_seed: int, method: str,
+                   recorded: dict) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The prior the policy put on its sets (:mod:`pipeline.probe.history`), recomputed from the run's scripted
+    rows ``scripted`` and ``sensing``'s segments, as the run's recorded probe parameters ``recorded`` say
+    (``history``; none for a run file written before the policy had one)."""
+    if recorded.get("history", "off") != "pushtrack":
+        return None
+    names = [f.name for f in fields(ProbeParams) if f.name.startswith("history")]
+    params = ProbeParams(**{k: recorded[k] for k in names if k in recorded})
+    key = (str(info.path), scripted.num_rows, method, root_seed, params)
+    if not (_LAST_PRIOR and _LAST_PRIOR[0][0] == key):
+        found = history_prior(scripted, sensing.segments(), info.scene, info.run, root_seed, sensing.sdf, params)
+        _LAST_PRIOR[:] = [(key, None if found is None else partial(found.cost, info.target))]
+    return _LAST_PRIOR[0][1]
 
 
 def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: GraspParams = GraspParams(),

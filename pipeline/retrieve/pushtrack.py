@@ -13,10 +13,11 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.grasp_rule import own_grasp_shares
@@ -32,17 +33,18 @@ from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, 
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["pushtrack_estimator", "observed_actions", "free_space_of", "filter_from_best_start", "filter_islands",
+__all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of", "filter_from_best_start", "filter_islands",
            "pool_islands", "refine_final", "final_pose", "held_mean", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
 
 
-def observed_actions(info: RunInfo, sdf) -> tuple[np.ndarray, np.ndarray]:
+def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Contact point (K, 2) at the end of every action (NaN without) and the gripper's in-contact displacement
-    (K, 2) (0 without), metres, re-isolated from the run file with the isolate stage's defaults."""
-    cols, _, _ = isolate_run(pq.read_table(info.path), *isolation_surface(sdf))
+    (K, 2) (0 without), metres, re-isolated with the isolate stage's defaults from ``table`` (the run's
+    ``sim_run`` rows; the run file's when None)."""
+    cols, _, _ = isolate_run(pq.read_table(info.path) if table is None else table, *isolation_surface(sdf))
     inc = np.asarray(cols["in_contact"], dtype=bool)
     f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
     contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
@@ -228,23 +230,50 @@ def held_mean(prim: Primitive, poses: np.ndarray, post: np.ndarray, held: np.nda
     return com_pose(prim, np.array([centre[0], centre[1], pp[k, 2] + np.sum(dy * w)]))
 
 
-def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
-                        params: RetrievalParams, own: PushTrackParams) -> Estimate:
-    """The registry's factory (:class:`pipeline.registry.EstimatorSpec`): the paper's segment choice, then the
-    final pose of the particle filter over the chosen segment's contacts at their own steps.
+@dataclass
+class Tracked:
+    """One run's filter over the chosen segment (:func:`track_segment`).
 
-    Falls back to the plausible estimator when the chosen segment has no isolated contact in the run file (a
-    segmentation made from other contacts). Candidates: the :data:`PLAUSIBLE_SET` highest-weight particles, before
-    the refinement (``restart`` = particle, ``icp_rmse_m`` = distance of the last target contact to the surface,
-    ``valid`` = weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres,
-    ``chosen`` = the particle whose refinement is the estimate, when among them).
+    Attributes
+    ----------
+    segment : Segment
+        The segment the paper's choice picked.
+    contact : ndarray, shape (K, 2)
+        Every action's isolated contact point (NaN without), metres.
+    touch : ndarray, shape (K,), bool
+        The actions the filter took as touching the target.
+    points : ndarray, shape (T, 2)
+        The target's contacts (the segment's points when none was isolated).
+    result : FilterResult
+    free, others : ndarray, shape (F, 2), (O, 2)
+        The free space after the last push and the other segments' points near the target, for the refinement
+        (empty with ``n_refine`` 0).
+    """
+
+    segment: Segment
+    contact: np.ndarray
+    touch: np.ndarray
+    points: np.ndarray
+    result: FilterResult
+    free: np.ndarray
+    others: np.ndarray
+
+
+def track_segment(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                  params: RetrievalParams, own: PushTrackParams, table: pa.Table | None = None
+                  ) -> tuple[Estimate | None, Tracked | None]:
+    """The paper's segment choice, then the particle filter over its contacts at their own steps.
+
+    ``table``: the run's ``sim_run`` rows (read from ``info.path`` when None; the active protocol passes the
+    scripted part's). Returns (None, the filter), or (the estimate to report instead, None): the paper's when no
+    segment is chosen, the plausible estimator's when the segment has no isolated contact in the rows.
     """
     t0 = time.perf_counter()
     paper, seg = paper_segment(segments, info, sdf, params, rngs, t0)
     if seg is None:
-        return paper
+        return paper, None
     target = info.target
-    contact, push = observed_actions(info, sdf)
+    contact, push = observed_actions(info, sdf, table)
     if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
         # (the other actions keep their isolated contacts: another segment's contact may push the target)
         contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
@@ -259,7 +288,7 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
     if result is None:
         est = estimate_plausible(segments, info, sdf, params, PlausibleParams(), rngs)
         est.icp_s = time.perf_counter() - t0
-        return est
+        return est, None
     result = filter_islands(target, actions, free_points, own, rngs[2], result)
     free = others = np.zeros((0, 2))
     if own.n_refine:
@@ -270,6 +299,44 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
                                  centre, radius)
         others = np.vstack([s.points for s in segments if s.id != seg.id] or [np.zeros((0, 2))])
         others = others[np.hypot(*(others - centre).T) <= radius]
+    return None, Tracked(seg, contact, touch, pts, result, free, others)
+
+
+def pushtrack_set(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                  params: RetrievalParams, own: PushTrackParams, table: pa.Table | None = None
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The filter's refined set at the end of the rows (:func:`refine_final`): COM poses (H, 3) and their
+    posterior weights (H,) (exp(-posterior cost), summing to 1), or None when the filter does not run (no segment
+    chosen, or none of its contacts isolated). The active protocol's prior over the target's pose after the
+    scripted part (docs/retrieval.md, "What the pushes said: a prior from pushtrack")."""
+    own = replace(own, n_refine=max(own.n_refine, 1))
+    _, tracked = track_segment(segments, info, sdf, rngs, params, own, table)
+    if tracked is None:
+        return None
+    result = tracked.result
+    top, refined, costs = refine_final(info.target, result, tracked.free, tracked.others, own)
+    post = costs - result.log_w[top] - result.choice[top]
+    w = exp(-(post - np.min(post)))
+    return refined, w / np.sum(w)
+
+
+def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
+                        params: RetrievalParams, own: PushTrackParams) -> Estimate:
+    """The registry's factory (:class:`pipeline.registry.EstimatorSpec`): the paper's segment choice, then the
+    final pose of the particle filter over the chosen segment's contacts at their own steps (:func:`track_segment`).
+
+    Falls back to the plausible estimator when the chosen segment has no isolated contact in the run file (a
+    segmentation made from other contacts). Candidates: the :data:`PLAUSIBLE_SET` highest-weight particles, before
+    the refinement (``restart`` = particle, ``icp_rmse_m`` = distance of the last target contact to the surface,
+    ``valid`` = weight within e^-2 of the best, ``position_var_m2`` = weighted variance of the particles' centres,
+    ``chosen`` = the particle whose refinement is the estimate, when among them).
+    """
+    t0 = time.perf_counter()
+    fallback, tracked = track_segment(segments, info, sdf, rngs, params, own)
+    if tracked is None:
+        return fallback
+    target, seg, contact, touch, pts = info.target, tracked.segment, tracked.contact, tracked.touch, tracked.points
+    result, free, others = tracked.result, tracked.free, tracked.others
     best_pose, best = final_pose(target, result, free, others, own, info.scene)
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
