@@ -118,7 +118,7 @@ def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, 
         raise AssertionError("no probe was planned")
 
     log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
-                               ProbeParams(budget=0, switch_probes=switch_probes))
+                               ProbeParams(budget=0, switch_probes=switch_probes), scene=load_scene("TC"))
     assert calls["give_way"] == 1 and log.switches == 1 and log.probes == 0
     assert (calls["plan"] > 0) == bool(switch_probes)  # once per limit from the first that reaches (next_probe)
     assert log.flagged == ("no_reachable_probe" if switch_probes else "budget_spent")
@@ -162,7 +162,7 @@ def test_an_agreeing_set_on_bunched_contacts_at_the_budgets_end_is_flagged_not_s
         raise AssertionError("no probe")
 
     log = policy_mod.probe_run(no_act, lambda: table, "TC/0", 0, prim, start,
-                               ProbeParams(budget=0, min_target_contacts=0))
+                               ProbeParams(budget=0, min_target_contacts=0), scene=load_scene("TC"))
     assert log.agreed and log.flagged == "budget_spent" and log.probes == 0
 
 

@@ -9,12 +9,13 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
 from pipeline import schema
 from pipeline.geometry import Primitive, com_pose
 from pipeline.probe.belief import Sensing, TargetChoice, pose_set
-from pipeline.probe.history import HistoryPrior, history_prior, scripted_info
+from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.params import ProbeParams
 from pipeline.probe.report import run_stats, save_times, times_path
 from pipeline.probe.retrieval import recorded_prior
@@ -29,10 +30,10 @@ CAN = Primitive(kind="cylinder", half=(0.04,), centre=np.zeros(2), yaw=0.0)
 CAP = -math.log(ProbeParams().history_floor)
 
 
-def _prior(poses, weights=None, **kw):
+def _prior(poses, weights=None, segment=0, **kw):
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     w = np.full(len(poses), 1.0 / len(poses)) if weights is None else np.asarray(weights, dtype=np.float64)
-    return HistoryPrior(poses, w, ProbeParams(**kw))
+    return HistoryPrior(poses, w, segment, ProbeParams(**kw))
 
 
 def test_cost_is_nothing_within_the_band_and_the_cap_at_a_quarter_turn():
@@ -54,7 +55,8 @@ def test_cost_weighs_the_priors_modes_and_never_exceeds_the_cap():
     assert c[0] == pytest.approx(-math.log(floor + (1 - floor) * 0.8), rel=2e-3)
     assert c[1] == pytest.approx(-math.log(floor + (1 - floor) * 0.2), rel=2e-3)
     assert c[1] > c[0] and 0.0 <= c[2] <= c[0]  # pi/4 is within 0.8 rad of both
-    far = prior.cost(BOX, np.array([[5.0, 5.0, 1.0], [-1e6, 1e6, 0.0]]))
+    with np.errstate(over="raise", invalid="raise"):  # no overflow however far off
+        far = prior.cost(BOX, np.array([[5.0, 5.0, 1.0], [-1e6, 1e6, 0.0], [1e300, -1e300, 0.0]]))
     assert np.all(np.isfinite(far)) and np.allclose(far, CAP)  # another object's place: the cap, no more
 
 
@@ -109,7 +111,13 @@ def test_the_prior_of_a_stored_run_is_pushtracks_set_and_reads_no_ground_truth(s
     assert np.all(found.weights >= 0) and found.weights.sum() == pytest.approx(1.0)
     again = history_prior(table, sensing.segments(), info.scene, info.run, 0, sensing.sdf)
     assert np.array_equal(found.poses, again.poses) and np.array_equal(found.weights, again.weights)
-    assert np.all(np.isnan(scripted_info(table, info.scene, info.run).final_poses))
+    # no ground truth is read: the recorded poses scrambled, the same prior
+    junk = table.set_column(table.column_names.index("obj_pose"), "obj_pose",
+                            pa.array([[[9.0] * len(b) for b in v] for v in table.column("obj_pose").to_pylist()],
+                                     type=table.schema.field("obj_pose").type))
+    blind = history_prior(junk, sensing.segments(), info.scene, info.run, 0, sensing.sdf)
+    assert np.array_equal(found.poses, blind.poses) and np.array_equal(found.weights, blind.weights)
+    assert found.segment in [s.id for s in sensing.segments()]
     # (the set's yaw, judged against the recorded truth here only)
     _, prim = target_primitive(info.scene)
     truth = info.true_pose
@@ -126,8 +134,9 @@ def test_a_run_file_from_before_the_prior_is_retrieved_without_one(scripted_run)
     table, info, sensing = scripted_run
     assert recorded_prior(info, table, sensing, 0, "stucco", {}) is None
     assert recorded_prior(info, table, sensing, 0, "stucco", {"history": "off"}) is None
-    cost = recorded_prior(info, table, sensing, 0, "stucco", {"history": "pushtrack", "history_floor": 0.5})
-    assert cost is not None and np.max(cost(np.array([[9.0, 9.0, 0.0]]))) == pytest.approx(-math.log(0.5))
+    prior = recorded_prior(info, table, sensing, 0, "stucco", {"history": "pushtrack", "history_floor": 0.5})
+    assert prior is not None and prior.params.history_floor == 0.5
+    assert np.max(prior.cost(info.target, np.array([[9.0, 9.0, 0.0]]))) == pytest.approx(-math.log(0.5))
 
 
 def test_times_side_files_old_and_new(tmp_path):
@@ -147,3 +156,56 @@ def test_bad_history_parameters_are_refused():
                 {"history_reach": -0.1}):
         with pytest.raises(ValueError):
             ProbeParams(**bad)
+
+
+def test_the_prior_applies_only_to_sets_of_the_segment_it_tracked():
+    from pipeline.probe.policy import prior_for
+
+    class _Sensed:
+        prior = _prior([[0.3, 0.0, 0.0]], segment=2)
+
+    mine = TargetChoice(2, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
+    other = TargetChoice(5, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
+    assert prior_for(_Sensed(), mine, BOX) is not None and prior_for(_Sensed(), other, BOX) is None
+    _Sensed.prior = None
+    assert prior_for(_Sensed(), mine, BOX) is None
+
+
+def test_the_policy_needs_the_scene_for_its_prior():
+    from pipeline.probe.policy import probe_run
+
+    table = schema.read_run(REG / "TC-000.parquet")
+    prim = target_primitive(load_scene("TC"))[1]
+    with pytest.raises(ValueError, match="scene"):
+        probe_run(lambda dx, dy: {}, lambda: table, "TC/0", 0, prim, np.zeros(2), ProbeParams())
+
+
+def test_the_retrieve_stage_recomputes_the_policys_prior_bit_for_bit(tmp_path, monkeypatch):
+    from pipeline.collect import collect_file
+    from pipeline.probe import policy as policy_mod
+    from pipeline.probe.retrieval import active_set
+
+    seen = []
+    real = policy_mod.history_prior
+
+    def spy(*a, **k):
+        seen.append(real(*a, **k))
+        return seen[-1]
+
+    monkeypatch.setattr(policy_mod, "history_prior", spy)
+    path = tmp_path / "TC-104.parquet"
+    collect_file(load_scene("TC"), 104, path, policy="scripted+probe", max_actions=20,
+                 policy_params=ProbeParams(budget=1))
+    assert len(seen) == 1 and seen[0] is not None  # computed once, and found
+    info = load_run(path)
+    table = schema.read_run(path)
+    n0 = int(np.argmax(np.asarray(table.column("probe").to_pylist(), dtype=bool)))
+    assert n0 == 20
+    recorded = (schema.read_metadata(path)["params"]["probe"])["params"]
+    sensing = Sensing(info.run, 0, info.ee[0], n0)
+    sensing.observe(table.slice(0, n0))
+    again = recorded_prior(info, table.slice(0, n0), sensing, 0, "stucco", recorded)
+    assert again.segment == seen[0].segment
+    assert np.array_equal(again.poses, seen[0].poses) and np.array_equal(again.weights, seen[0].weights)
+    belief, _ = active_set(info, 0)
+    assert np.all(np.isfinite(belief.weights))

@@ -132,7 +132,7 @@ def test_set_of_one_pose_from_the_start_makes_no_probe(stored_run, monkeypatch):
     table, start, prim = stored_run
     monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 1.0)
     params = ProbeParams(min_target_contacts=0)
-    log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, params)
+    log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, params, scene=load_scene("TC"))
     assert log.probes == 0 and log.actions == 0 and log.agreed and log.flagged == ""
     assert len(log.decision_s) == 1 and log.history[0]["rows"] == table.num_rows
 
@@ -140,7 +140,7 @@ def test_set_of_one_pose_from_the_start_makes_no_probe(stored_run, monkeypatch):
 def test_budget_spent_with_the_set_still_wide_grasps_anyway_flagged(stored_run, monkeypatch):
     table, start, prim = stored_run
     monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
-    log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, ProbeParams(budget=0))
+    log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, ProbeParams(budget=0), scene=load_scene("TC"))
     assert log.probes == 0 and not log.agreed and log.flagged == "budget_spent"
     # the grasp goes ahead on the wide set
     sc = load_scene("TC")
@@ -389,7 +389,7 @@ def test_a_wide_set_that_one_grasp_holds_stops_the_probing(stored_run, monkeypat
     monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
     log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start,
                     ProbeParams(min_target_contacts=0, budget=0 if probes_expected is None else 8),
-                    grasp_share=lambda belief: held)
+                    grasp_share=lambda belief: held, scene=load_scene("TC"))
     assert log.probes == 0 and not log.agreed
     assert log.history[0]["stop"] == (held == 1.0) and log.history[0]["held"] == held
     assert log.flagged == ("" if held == 1.0 else "budget_spent")

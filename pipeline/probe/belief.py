@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import pyarrow as pa
 
-from pipeline.portable import argmin_tolerant, exp
+from pipeline.portable import exp
 from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
@@ -31,7 +31,7 @@ from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
 from pipeline.retrieve.paper import estimate_run
 from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import COST_TIE, PlausibleParams, fit_segment
+from pipeline.retrieve.plausible import PlausibleParams, fit_segment
 from pipeline.retrieve.resistance import resisting_choice, segment_fits
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
@@ -64,10 +64,10 @@ class Sensing:
 
     Attributes
     ----------
-    prior : callable or None
-        COM poses (B, 3) -> the prior cost (B,) the scripted part's pushes put on them
-        (:meth:`pipeline.probe.history.HistoryPrior.cost`), set once the scripted part is observed; every set
-        fitted from this sensing adds it (:func:`pose_set`). None: no prior.
+    prior : pipeline.probe.history.HistoryPrior or None
+        The prior the scripted part's pushes put on the target's pose, set once the scripted part is observed: its
+        ``segment`` (the one it tracked) and ``cost(target, poses)``; the sets fitted to that segment from this
+        sensing add it (:func:`pipeline.probe.policy.set_from_steps`). None: no prior.
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
@@ -88,7 +88,7 @@ class Sensing:
         self.probe_points: list[np.ndarray] = []
         self.probe_steps: list[int] = []
         self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
-        self.prior: Callable[[np.ndarray], np.ndarray] | None = None
+        self.prior: Any = None
 
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order)."""
@@ -270,8 +270,8 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     probe_others : ndarray, shape (R, 2)
         Probe contacts attributed to other objects.
     prior : callable, optional
-        COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost (:attr:`Sensing.prior`); the
-        fit's pose rule must then be "best" (the lowest cost).
+        COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost before the set is drawn
+        (:func:`pipeline.retrieve.plausible.fit_segment`; the pushes' prior, :mod:`pipeline.probe.history`).
     """
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
@@ -291,16 +291,11 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     others = others[np.linalg.norm(others - centre, axis=1) <= radius]
     # At most max_seeds ICP starts besides the random ones: a decision must take well under half a second.
     seeds = choice.seeds[:max_seeds] if len(choice.seeds) else None
-    fit = fit_segment(target, pts, sigma, free, others, plausible, rng, seeds)
-    cost, chosen, keep = fit.terms.total, fit.chosen, np.flatnonzero(fit.plausible)
-    if prior is not None:
-        # the pushes' prior (pipeline.probe.history) added to every hypothesis's fit: the set and its estimate
-        # (the lowest cost, as the fit's "best" rule) are drawn again from the sums
-        cost = cost + prior(fit.poses)
-        keep = np.flatnonzero(cost <= cost.min() + plausible.margin)
-        chosen = int(keep[argmin_tolerant(cost[keep], COST_TIE)])
+    fit = fit_segment(target, pts, sigma, free, others, plausible, rng, seeds, prior)
+    cost = fit.terms.total + fit.prior
+    keep = np.flatnonzero(fit.plausible)
     w = exp(-(cost[keep] - cost[keep].min()))
-    return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, chosen)),
+    return PoseSet(poses=fit.poses[keep], weights=w / w.sum(), best=int(np.searchsorted(keep, fit.chosen)),
                    segment=choice.segment, notes=[] if choice.segment >= 0 else ["no_segment"],
                    cost=float(cost[keep].min()))
 

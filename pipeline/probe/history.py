@@ -5,9 +5,9 @@ no memory of how the target was pushed. The ``pushtrack`` estimator (:mod:`pipel
 the pose through the scripted part's pushes and rarely mistakes a box for one turned a quarter turn, the pose
 the policy's set most often settles on wrongly (docs/retrieval.md, "What the pushes said: a prior from
 pushtrack"). Run once on the scripted part's rows, its refined set becomes a prior cost on every hypothesis of the
-policy's sets: flat within ``history_yaw_band`` of the prior's poses' yaws (so the probes alone decide between
-nearby yaws) and within ``history_reach`` of their centres, rising beyond, capped at -log ``history_floor`` (so
-contacts that contradict the prior still win; :class:`~pipeline.probe.params.ProbeParams`).
+sets the policy fits to the segment it tracked: flat within ``history_yaw_band`` of the prior's poses' yaws (so the
+probes alone decide between nearby yaws) and within ``history_reach`` of their centres, rising beyond, capped at
+-log ``history_floor`` (so contacts that contradict the prior still win; :class:`~pipeline.probe.params.ProbeParams`).
 """
 from __future__ import annotations
 
@@ -17,18 +17,16 @@ from typing import Sequence
 import numpy as np
 import pyarrow as pa
 
-from pipeline.detection import contact_forces
 from pipeline.geometry import Primitive, primitive_pose, wrap_symmetric
 from pipeline.portable import exp, log
 from pipeline.probe.params import ProbeParams
 from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.model import target_primitive
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.pushmodel import PushTrackParams
 from pipeline.retrieve.pushtrack import pushtrack_set
-from pipeline.retrieve.runs import RunInfo, retrieval_rng
+from pipeline.retrieve.runs import info_from_table, retrieval_rng
 
-__all__ = ["HistoryPrior", "history_prior", "scripted_info"]
+__all__ = ["HistoryPrior", "history_prior"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +39,9 @@ class HistoryPrior:
         COM poses (x, y, yaw), metres and radians.
     weights : ndarray, shape (H,)
         Their posterior weights, summing to 1.
+    segment : int
+        The segment pushtrack tracked (the estimators' choice): the prior is about that segment's object, and only
+        the sets fitted to it add it.
     params : ProbeParams
         The prior's shape: ``history_yaw_band``, ``history_yaw_sigma``, ``history_reach``, ``history_reach_sigma``,
         ``history_floor``.
@@ -48,34 +49,25 @@ class HistoryPrior:
 
     poses: np.ndarray
     weights: np.ndarray
+    segment: int
     params: ProbeParams = ProbeParams()
 
     def cost(self, target: Primitive, poses: np.ndarray) -> np.ndarray:
         """Prior cost (B,) of COM poses (B, 3), in the plausible fit's units (squared sigmas / 2, nats):
-        -log(floor + (1 - floor) * support), the support being the prior's weight near each pose."""
+        -log(floor + (1 - floor) * support), the support being the prior's weight near each pose: 0 within the band
+        and the reach of the prior's poses, -log(floor) (3.0) far from all of them."""
         p = self.params
         pp = primitive_pose(target, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
         qq = primitive_pose(target, self.poses)
         dpos = np.hypot(pp[:, None, 0] - qq[None, :, 0], pp[:, None, 1] - qq[None, :, 1])
-        z = (np.maximum(dpos - p.history_reach, 0.0) / p.history_reach_sigma) ** 2
+        # (each shoulder's distance in sigmas is clipped at 100, where exp(-z / 2) is 0 anyway: no overflow for poses
+        # far off)
+        z = np.minimum(np.maximum(dpos - p.history_reach, 0.0) / p.history_reach_sigma, 100.0) ** 2
         if target.symmetry:  # a can's yaw is nothing to go by
             dyaw = np.abs(wrap_symmetric(pp[:, None, 2] - qq[None, :, 2], target.symmetry))
-            z = z + (np.maximum(dyaw - p.history_yaw_band, 0.0) / p.history_yaw_sigma) ** 2
+            z = z + np.minimum(np.maximum(dyaw - p.history_yaw_band, 0.0) / p.history_yaw_sigma, 100.0) ** 2
         support = np.sum(exp(-0.5 * z) * self.weights[None, :], axis=1)
         return -log(p.history_floor + (1.0 - p.history_floor) * np.minimum(support, 1.0))
-
-
-def scripted_info(table: pa.Table, scene, run: str) -> RunInfo:
-    """What the pushtrack estimator reads of a run (:class:`pipeline.retrieve.runs.RunInfo`), from its
-    ``sim_run`` rows alone: the gripper's path, the steps and the contact forces. The final poses (ground truth,
-    recorded for scoring only) are NaN, so nothing downstream can read them."""
-    col = lambda c: np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)  # noqa: E731
-    ee = np.vstack([[col("ee_start_x_m")[0], col("ee_start_y_m")[0]], np.column_stack([col("ee_x_m"), col("ee_y_m")])])
-    tid, prim = target_primitive(scene)
-    return RunInfo(run=run, path=None, scene=scene, seed=int(table.column("seed")[0].as_py()), ee=ee,
-                   steps=np.asarray(table.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=np.full((len(scene.body_names), 3), np.nan), target_id=tid, target=prim,
-                   policy="scripted", contact_force=contact_forces(table))
 
 
 def history_prior(table: pa.Table, segments: Sequence[Segment], scene, run: str, root_seed: int, sdf,
@@ -86,9 +78,12 @@ def history_prior(table: pa.Table, segments: Sequence[Segment], scene, run: str,
     would refine on those rows. None when pushtrack does not filter (no segment, or no isolated contact on it)."""
     if table.num_rows == 0 or not segments:
         return None
-    info = scripted_info(table, scene, run)
+    info = info_from_table(table, scene)  # the final poses NaN: no ground truth is read
     found = pushtrack_set(segments, info, sdf, retrieval_rng(root_seed, run), RetrievalParams(), PushTrackParams(),
                           table)
     if found is None:
         return None
-    return HistoryPrior(np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64), params)
+    poses, weights = np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64)
+    if len(poses) == 0 or not (np.all(np.isfinite(poses)) and np.all(np.isfinite(weights)) and weights.sum() > 0):
+        return None  # (a refinement that failed is no evidence)
+    return HistoryPrior(poses, weights / weights.sum(), int(found[2]), params)

@@ -34,7 +34,7 @@ from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "required_contacts",
-           "give_way_at_budget", "bunched", "guarded_move", "retrace"]
+           "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
@@ -69,8 +69,9 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         The target's known mass: a heavy target's segment is the one that resisted the pushes
         (:func:`pipeline.probe.belief.choose_target`).
     scene : pipeline.scenes.Scene, optional
-        The run's scene (its geometry, not its state): with it and ``params.history`` "pushtrack", the pushtrack
-        estimator's set after the scripted part is every set's prior (:mod:`pipeline.probe.history`).
+        The run's scene (its geometry, not its state); needed with ``params.history`` "pushtrack": the pushtrack
+        estimator's set after the scripted part is then the prior of every set fitted to the segment it tracked
+        (:mod:`pipeline.probe.history`).
 
     Returns
     -------
@@ -81,10 +82,12 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()
-    if scene is not None and params.history == "pushtrack":
+    if params.history == "pushtrack":
+        if scene is None:
+            raise ValueError("the pushes' prior (ProbeParams.history 'pushtrack') needs the run's scene; pass "
+                             "scene= or history='off'")
         t0 = time.perf_counter()
-        found = history_prior(rows, sensing.segments(), scene, run, root_seed, sensing.sdf, params)
-        sensing.prior = None if found is None else partial(found.cost, target)
+        sensing.prior = history_prior(rows, sensing.segments(), scene, run, root_seed, sensing.sdf, params)
         log.prior_s = time.perf_counter() - t0
     t0 = time.perf_counter()  # the first decision includes the segment choice
     choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
@@ -334,12 +337,22 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
 def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
                    target_steps) -> PoseSet:
     """:func:`pipeline.probe.belief.pose_set` with the probe contacts of ``target_steps`` on the target and the
-    others elsewhere (the stream of the fit's random starts: the estimator's, :func:`retrieval_rng`)."""
+    others elsewhere (the stream of the fit's random starts: the estimator's, :func:`retrieval_rng`) and the
+    pushes' prior where it is about ``choice``'s segment (:func:`prior_for`)."""
     steps = np.asarray(sensing.probe_steps, dtype=np.int64)
     pts = np.asarray(sensing.probe_points, dtype=np.float64).reshape(-1, 2)
     on = np.isin(steps, np.asarray(list(target_steps), dtype=np.int64))
     return pose_set(choice, target, sensing.visited, np.asarray(sensing.steps), sensing.sdf,
-                    retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on], prior=sensing.prior)
+                    retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on],
+                    prior=prior_for(sensing, choice, target))
+
+
+def prior_for(sensing: Sensing, choice: TargetChoice, target: Primitive) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The pushes' prior cost (COM poses (B, 3) -> (B,)) for a set fitted to ``choice``: ``sensing.prior``'s when
+    it tracked that segment, None otherwise (after a switch to another segment the prior is about another
+    object)."""
+    prior = sensing.prior
+    return partial(prior.cost, target) if prior is not None and prior.segment == choice.segment else None
 
 
 def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:

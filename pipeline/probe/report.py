@@ -29,8 +29,9 @@ def save_times(path: str | Path, times: dict | None) -> None:
     """Write the policy's wall times of the run file ``path`` beside it (atomically): ``times`` holds
     ``decision_s`` (a list, s) and ``prior_s`` (s); nothing for ``None``."""
     if times is not None:
-        write_text(times_path(path), json.dumps({"decision_s": [round(float(v), 6) for v in times["decision_s"]],
-                                                 "prior_s": round(float(times.get("prior_s", 0.0)), 6)}))
+        decisions = [round(float(v), 6) for v in times.get("decision_s") or []]
+        write_text(times_path(path), json.dumps({"decision_s": decisions,
+                                                 "prior_s": round(float(times.get("prior_s") or 0.0), 6)}))
 
 
 def _read_times(path: str | Path) -> tuple[list[float], float | None]:
@@ -43,7 +44,8 @@ def _read_times(path: str | Path) -> tuple[list[float], float | None]:
         return [], None
     if isinstance(times, list):
         return [float(v) for v in times], None
-    return [float(v) for v in times.get("decision_s", [])], float(times.get("prior_s", 0.0))
+    prior = times.get("prior_s")
+    return [float(v) for v in times.get("decision_s") or []], None if prior is None else float(prior)
 
 
 def run_stats(path: str | Path, rows: int | None = None) -> dict:

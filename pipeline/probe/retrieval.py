@@ -9,9 +9,7 @@ from __future__ import annotations
 import hashlib
 import time
 from dataclasses import dataclass, fields
-from functools import partial
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pyarrow as pa
@@ -19,7 +17,7 @@ import pyarrow as pa
 from pipeline import schema
 from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
-from pipeline.probe.history import history_prior
+from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
@@ -104,18 +102,21 @@ _LAST_PRIOR: list = []
 
 
 def recorded_prior(info: RunInfo, scripted: pa.Table, sensing: Sensing, root_seed: int, method: str,
-                   recorded: dict) -> Callable[[np.ndarray], np.ndarray] | None:
+                   recorded: dict) -> HistoryPrior | None:
     """The prior the policy put on its sets (:mod:`pipeline.probe.history`), recomputed from the run's scripted
     rows ``scripted`` and ``sensing``'s segments, as the run's recorded probe parameters ``recorded`` say
-    (``history``; none for a run file written before the policy had one)."""
+    (``history``; none for a run file written before the policy had one). With the policy's tracking method it is
+    the policy's prior, bit for bit; with another method (``method``, a baseline through the same policy) it is
+    the prior that method's own segments give, as for the rest of its set."""
     if recorded.get("history", "off") != "pushtrack":
         return None
     names = [f.name for f in fields(ProbeParams) if f.name.startswith("history")]
     params = ProbeParams(**{k: recorded[k] for k in names if k in recorded})
-    key = (str(info.path), scripted.num_rows, method, root_seed, params)
+    digest = hashlib.sha256(Path(info.path).read_bytes()).digest() if info.path is not None else None
+    key = (str(info.path), digest, scripted.num_rows, method, root_seed, params)
     if not (_LAST_PRIOR and _LAST_PRIOR[0][0] == key):
         found = history_prior(scripted, sensing.segments(), info.scene, info.run, root_seed, sensing.sdf, params)
-        _LAST_PRIOR[:] = [(key, None if found is None else partial(found.cost, info.target))]
+        _LAST_PRIOR[:] = [(key, found)]
     return _LAST_PRIOR[0][1]
 
 

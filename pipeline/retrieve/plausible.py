@@ -26,7 +26,7 @@ hypothesis at once: arrays (hypotheses, points, 2), no loop over points or hypot
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 
@@ -315,6 +315,9 @@ class SegmentFit:
         Deepest free-space point inside the target at each hypothesis (0: none).
     outlier_fraction : ndarray, shape (B,)
         Share of the points farther from the surface than ``outlier_sigmas`` of their sigma.
+    prior : ndarray, shape (B,)
+        A prior cost added to each hypothesis's ``terms.total`` before the plausible set and the estimate were drawn
+        (:func:`fit_segment`'s ``prior``; zeros without one).
     """
 
     poses: np.ndarray
@@ -327,6 +330,7 @@ class SegmentFit:
     rms: np.ndarray
     penetration: np.ndarray
     outlier_fraction: np.ndarray
+    prior: np.ndarray | None = None
 
     @property
     def best_cost(self) -> float:
@@ -368,16 +372,20 @@ def consensus(yaw: np.ndarray, cost: np.ndarray, plausible: np.ndarray, symmetry
 
 
 def fit_segment(prim: Primitive, points: np.ndarray, sigma: np.ndarray, free: np.ndarray, others: np.ndarray,
-                params: PlausibleParams, rng: np.random.Generator, seeds: np.ndarray | None = None) -> SegmentFit:
+                params: PlausibleParams, rng: np.random.Generator, seeds: np.ndarray | None = None,
+                prior: Callable[[np.ndarray], np.ndarray] | None = None) -> SegmentFit:
     """Hypotheses, plausible set and consensus for one segment's points (M, 2) with sigmas (M,).
 
-    ``seeds``: further starting COM poses (S, 3), e.g. ICP results, refined with the random starts.
+    ``seeds``: further starting COM poses (S, 3), e.g. ICP results, refined with the random starts. ``prior``: COM
+    poses (B, 3) -> a prior cost (B,) added to each refined hypothesis's cost before the set and the estimate are
+    drawn (the active protocol's prior from the pushes, :mod:`pipeline.probe.history`).
     """
     init = initial_poses(prim, points, params.n_hypotheses, rng)
     if seeds is not None and len(seeds):
         init = np.vstack([init, primitive_pose(prim, np.asarray(seeds, dtype=np.float64).reshape(-1, 3))])
     pose, terms = refine(prim, init, points, sigma, free, others, params)
-    total = terms.total
+    extra = np.zeros(len(pose)) if prior is None else np.asarray(prior(com_pose(prim, pose)), dtype=np.float64)
+    total = terms.total + extra
     plausible = total <= total.min() + params.margin
     sd_all, _ = primitive_sdf(prim, _to_local(points, pose)[0])
     u2 = (sd_all / params.uniform_sigma) ** 2
@@ -395,4 +403,4 @@ def fit_segment(prim: Primitive, points: np.ndarray, sigma: np.ndarray, free: np
     else:
         pen = np.zeros(len(pose))
     return SegmentFit(poses=com_pose(prim, pose), terms=terms, plausible=plausible, agree=agree, chosen=chosen,
-                      share=share, spread=spread, rms=rms, penetration=pen, outlier_fraction=outliers)
+                      share=share, spread=spread, rms=rms, penetration=pen, outlier_fraction=outliers, prior=extra)

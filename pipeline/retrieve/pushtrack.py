@@ -33,8 +33,9 @@ from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, 
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.tables import run_candidates
 
-__all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of", "filter_from_best_start", "filter_islands",
-           "pool_islands", "refine_final", "final_pose", "held_mean", "PLAUSIBLE_SET"]
+__all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of",
+           "filter_from_best_start", "filter_islands", "pool_islands", "refine_final", "posterior_costs", "final_pose",
+           "held_mean", "PLAUSIBLE_SET"]
 
 #: Particles kept as the run's candidates (the plausible set): the highest weights.
 PLAUSIBLE_SET = 64
@@ -178,6 +179,12 @@ def refine_final(target: Primitive, result: FilterResult, free: np.ndarray, othe
     return top, com_pose(target, pose), terms.total
 
 
+def posterior_costs(result: FilterResult, top: np.ndarray, costs: np.ndarray) -> np.ndarray:
+    """Posterior cost (H,) of the refined particles ``top`` (H,) of costs ``costs`` (H,) (:func:`refine_final`):
+    the cost minus the particle's log-weight and the log prior of its pushed-or-left choices."""
+    return costs - result.log_w[top] - result.choice[top]
+
+
 def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: np.ndarray,
                params: PushTrackParams, scene=None) -> tuple[np.ndarray, int]:
     """The estimate of a filtered run: (COM pose (3,), index of the particle it comes from). The highest-weight
@@ -194,7 +201,7 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
     if params.select == "cost":
         k = argmin_tolerant(costs, 1e-9)
         return refined[k], int(top[k])
-    post = costs - result.log_w[top] - result.choice[top]
+    post = posterior_costs(result, top, costs)
     if params.select in ("grasp", "mode", "held_mean"):
         if scene is None:
             raise ValueError(f"select={params.select!r} needs the scene (its grasp plan)")
@@ -304,20 +311,19 @@ def track_segment(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequenc
 
 def pushtrack_set(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
                   params: RetrievalParams, own: PushTrackParams, table: pa.Table | None = None
-                  ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The filter's refined set at the end of the rows (:func:`refine_final`): COM poses (H, 3) and their
-    posterior weights (H,) (exp(-posterior cost), summing to 1), or None when the filter does not run (no segment
-    chosen, or none of its contacts isolated). The active protocol's prior over the target's pose after the
-    scripted part (docs/retrieval.md, "What the pushes said: a prior from pushtrack")."""
+                  ) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """The filter's refined set at the end of the rows (:func:`refine_final`): COM poses (H, 3), their posterior
+    weights (H,) (exp(-posterior cost), summing to 1) and the segment tracked, or None when the filter does not run
+    (no segment chosen, or none of its contacts isolated). The active protocol's prior over the target's pose after
+    the scripted part (docs/retrieval.md, "What the pushes said: a prior from pushtrack")."""
     own = replace(own, n_refine=max(own.n_refine, 1))
     _, tracked = track_segment(segments, info, sdf, rngs, params, own, table)
     if tracked is None:
         return None
-    result = tracked.result
-    top, refined, costs = refine_final(info.target, result, tracked.free, tracked.others, own)
-    post = costs - result.log_w[top] - result.choice[top]
+    top, refined, costs = refine_final(info.target, tracked.result, tracked.free, tracked.others, own)
+    post = posterior_costs(tracked.result, top, costs)
     w = exp(-(post - np.min(post)))
-    return refined, w / np.sum(w)
+    return refined, w / np.sum(w), int(tracked.segment.id)
 
 
 def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],

@@ -18,7 +18,7 @@ from pipeline.retrieve.model import target_primitive
 from pipeline.seeds import check_stream, run_key
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 
-__all__ = ["RunInfo", "load_run", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
+__all__ = ["RunInfo", "load_run", "info_from_table", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,7 +28,7 @@ class RunInfo:
     Attributes
     ----------
     run : str
-    path : Path
+    path : Path or None
     scene : pipeline.scenes.Scene
     seed : int
     ee : ndarray, shape (K + 1, 2), metres
@@ -48,7 +48,7 @@ class RunInfo:
     """
 
     run: str
-    path: Path
+    path: Path | None
     scene: Any
     seed: int
     ee: np.ndarray
@@ -80,17 +80,25 @@ def load_run(path: str | Path) -> RunInfo:
     if bodies is not None and list(bodies) != list(scene.body_names):
         raise schema.SchemaError(path, "obj_pose", None, f"bodies {bodies} differ from scene {scene.name}'s "
                                                          f"{list(scene.body_names)}; was the scene file edited?")
-    f64 = lambda c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)  # noqa: E731
-    ee = np.vstack([[f64("ee_start_x_m")[0], f64("ee_start_y_m")[0]], np.column_stack([f64("ee_x_m"), f64("ee_y_m")])])
     final = np.asarray(t.column("obj_pose")[t.num_rows - 1].as_py(), dtype=np.float64).reshape(-1, 3)
     if final.shape[0] != len(scene.body_names):
         raise schema.SchemaError(path, "obj_pose", t.num_rows - 1,
                                  f"has {final.shape[0]} bodies; scene {scene.name} has {len(scene.body_names)}")
+    return info_from_table(t, scene, path, final, str(params.get("policy") or "scripted"))
+
+
+def info_from_table(t: pa.Table, scene: Scene, path: Path | None = None, final: np.ndarray | None = None,
+                    policy: str = "scripted") -> RunInfo:
+    """The :class:`RunInfo` of a run's ``sim_run`` rows ``t`` collected in ``scene``: the gripper's path, the
+    steps and the contact forces from the rows; ``final`` the bodies' final poses (B, 3), NaN when None (then
+    nothing of the rows' recorded poses, ground truth, is read: the probing policy's view of its run)."""
+    f64 = lambda c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)  # noqa: E731
+    ee = np.vstack([[f64("ee_start_x_m")[0], f64("ee_start_y_m")[0]], np.column_stack([f64("ee_x_m"), f64("ee_y_m")])])
+    final = np.full((len(scene.body_names), 3), np.nan) if final is None else final
     tid, prim = target_primitive(scene)
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=final, target_id=tid, target=prim, policy=str(params.get("policy") or "scripted"),
-                   contact_force=contact_forces(t))
+                   final_poses=final, target_id=tid, target=prim, policy=policy, contact_force=contact_forces(t))
 
 
 def run_scene(path: Path, params: dict) -> Scene:
