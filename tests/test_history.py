@@ -132,9 +132,11 @@ def test_no_segment_gives_no_prior(scripted_run):
 
 def test_a_run_file_from_before_the_prior_is_retrieved_without_one(scripted_run):
     table, info, sensing = scripted_run
-    assert recorded_prior(info, table, sensing, 0, "stucco", {}) is None
-    assert recorded_prior(info, table, sensing, 0, "stucco", {"history": "off"}) is None
-    prior = recorded_prior(info, table, sensing, 0, "stucco", {"history": "pushtrack", "history_floor": 0.5})
+    segments = sensing.segments()
+    assert recorded_prior(info, table, segments, sensing.sdf, 0, "stucco", {}) is None
+    assert recorded_prior(info, table, segments, sensing.sdf, 0, "stucco", {"history": "off"}) is None
+    prior = recorded_prior(info, table, segments, sensing.sdf, 0, "stucco",
+                           {"history": "pushtrack", "history_floor": 0.5})
     assert prior is not None and prior.params.history_floor == 0.5
     assert np.max(prior.cost(info.target, np.array([[9.0, 9.0, 0.0]]))) == pytest.approx(-math.log(0.5))
 
@@ -204,7 +206,8 @@ def test_the_retrieve_stage_recomputes_the_policys_prior_bit_for_bit(tmp_path, m
     recorded = (schema.read_metadata(path)["params"]["probe"])["params"]
     sensing = Sensing(info.run, 0, info.ee[0], n0)
     sensing.observe(table.slice(0, n0))
-    again = recorded_prior(info, table.slice(0, n0), sensing, 0, "stucco", recorded)
+    again = recorded_prior(info, table.slice(0, n0), sensing.segments(), sensing.sdf, 0, "stucco",
+                           recorded)
     assert again.segment == seen[0].segment
     assert np.array_equal(again.poses, seen[0].poses) and np.array_equal(again.weights, seen[0].weights)
     belief, _ = active_set(info, 0)

@@ -82,15 +82,16 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()
+    segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     if params.history == "pushtrack":
         if scene is None:
             raise ValueError("the pushes' prior (ProbeParams.history 'pushtrack') needs the run's scene; pass "
                              "scene= or history='off'")
         t0 = time.perf_counter()
-        sensing.prior = history_prior(rows, sensing.segments(), scene, run, root_seed, sensing.sdf, params)
+        sensing.prior = history_prior(rows, segments, scene, run, root_seed, sensing.sdf, params)
         log.prior_s = time.perf_counter() - t0
     t0 = time.perf_counter()  # the first decision includes the segment choice
-    choices = choose_target(sensing.segments(), target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
+    choices = choose_target(segments, target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
                             steps=np.array(sensing.steps), force=np.array(sensing.forces), mass=mass)
     rank = since = 0
     choice = choices[0] if choices else NO_TARGET

@@ -10,6 +10,7 @@ import hashlib
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -21,6 +22,7 @@ from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
+from pipeline.retrieve.estimators import Segment
 from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.resistance import target_mass
 from pipeline.retrieve.runs import RunInfo, retrieval_rng
@@ -80,9 +82,10 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method)
     sensing.observe(table.slice(0, int(state["rows"])))
-    sensing.prior = recorded_prior(info, table.slice(0, n_scripted), sensing, root_seed, method,
+    segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
+    sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
                                    (meta.get("params") or {}))
-    choices = choose_target(sensing.segments(), info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
+    choices = choose_target(segments, info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
                             retrieval_rng(root_seed, info.run), steps=np.array(sensing.steps),
                             force=np.array(sensing.forces), mass=target_mass(info.scene))
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
@@ -101,13 +104,13 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
 _LAST_PRIOR: list = []
 
 
-def recorded_prior(info: RunInfo, scripted: pa.Table, sensing: Sensing, root_seed: int, method: str,
-                   recorded: dict) -> HistoryPrior | None:
+def recorded_prior(info: RunInfo, scripted: pa.Table, segments: Sequence[Segment], sdf, root_seed: int,
+                   method: str, recorded: dict) -> HistoryPrior | None:
     """The prior the policy put on its sets (:mod:`pipeline.probe.history`), recomputed from the run's scripted
-    rows ``scripted`` and ``sensing``'s segments, as the run's recorded probe parameters ``recorded`` say
-    (``history``; none for a run file written before the policy had one). With the policy's tracking method it is
-    the policy's prior, bit for bit; with another method (``method``, a baseline through the same policy) it is
-    the prior that method's own segments give, as for the rest of its set."""
+    rows ``scripted`` and the tracker's ``segments`` of them (robot ``sdf``), as the run's recorded probe
+    parameters ``recorded`` say (``history``; none for a run file written before the policy had one). With the
+    policy's tracking method it is the policy's prior, bit for bit; with another method (``method``, a baseline
+    through the same policy) it is the prior that method's own segments give, as for the rest of its set."""
     if recorded.get("history", "off") != "pushtrack":
         return None
     names = [f.name for f in fields(ProbeParams) if f.name.startswith("history")]
@@ -115,7 +118,7 @@ def recorded_prior(info: RunInfo, scripted: pa.Table, sensing: Sensing, root_see
     digest = hashlib.sha256(Path(info.path).read_bytes()).digest() if info.path is not None else None
     key = (str(info.path), digest, scripted.num_rows, method, root_seed, params)
     if not (_LAST_PRIOR and _LAST_PRIOR[0][0] == key):
-        found = history_prior(scripted, sensing.segments(), info.scene, info.run, root_seed, sensing.sdf, params)
+        found = history_prior(scripted, segments, info.scene, info.run, root_seed, sdf, params)
         _LAST_PRIOR[:] = [(key, found)]
     return _LAST_PRIOR[0][1]
 
