@@ -40,11 +40,17 @@ PAPER_TABLE_II = {
 
 @dataclass(frozen=True)
 class ReportRow:
-    """Aggregates of one (scene, method, estimator) over its seeds ("" estimator: scores without the column)."""
+    """Aggregates of one (scene, method, estimator) over its seeds ("" estimator: scores without the column); a row
+    of ``report.csv`` (docs/evaluation.md, "report.csv").
+
+    ``estimator_stream`` is the pose estimators' random stream the scores were made with (``stucco evaluate
+    --estimator-stream``, 0 by default), so reports of several streams can be concatenated and told apart.
+    """
 
     scene: str
     method: str
     estimator: str
+    estimator_stream: int
     runs: int
     grasp_success_pct: float
     fmi_mean: float
@@ -66,9 +72,10 @@ def _ordered(values, order):
     return sorted(set(values), key=lambda v: (rank.get(v, len(rank)), v))
 
 
-def table_ii(scores) -> list[ReportRow]:
+def table_ii(scores, estimator_stream: int = 0) -> list[ReportRow]:
     """Aggregate a scores table (pyarrow) into one row per (scene, method, estimator), scenes and methods in paper
-    order, estimators in order of first appearance."""
+    order, estimators in order of first appearance; ``estimator_stream`` (the stream the scores were made with) is
+    copied into every row."""
     # Nulls (a run with no tracked points, or scored without a grasp) are "not measured": floats become NaN and
     # drop out of the statistics, and grasp success counts only runs where a grasp was attempted.
     col = {name: np.array([math.nan if v is None else v for v in scores.column(name).to_pylist()], dtype=float)
@@ -95,7 +102,7 @@ def table_ii(scores) -> list[ReportRow]:
 
         paper = PAPER_TABLE_II.get(sc, {}).get(m)
         rows.append(ReportRow(
-            scene=sc, method=m, estimator=e, runs=int(sel.sum()),
+            scene=sc, method=m, estimator=e, estimator_stream=int(estimator_stream), runs=int(sel.sum()),
             grasp_success_pct=100.0 * stat("grasp_success", np.mean),
             fmi_mean=stat("fmi", np.mean), fmi_std=stat("fmi", np.std),
             ce_cm_mean=stat("contact_error_cm", np.mean), ce_cm_std=stat("contact_error_cm", np.std),

@@ -5,6 +5,8 @@ that change files work on a copy.
 """
 from __future__ import annotations
 
+import csv
+import io
 import json
 import re
 import shutil
@@ -58,7 +60,7 @@ def test_every_stage_file_report_and_figure_are_written(evaluated):
         evaluated / "tracks" / "scene=IB" / "seed=0" / "method=stucco" / "part.parquet"
     md = (evaluated / "report.md").read_text()
     assert "| IB | ours (STUCCO) | 1 |" in md and "| IB | GM-PHD | 1 |" in md
-    assert (evaluated / "report.csv").read_text().startswith("scene,method,estimator,runs,grasp_success_pct")
+    assert (evaluated / "report.csv").read_text().startswith("scene,method,estimator,estimator_stream,runs,grasp_success_pct")
     assert figure_path(evaluated, "IB", 0).is_file() and (evaluated / "summary.png").is_file()
     assert json.loads((evaluated / "evaluation.json").read_text())["max_actions"] == 12
 
@@ -213,6 +215,10 @@ def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tm
     assert cand["s1"].equals(cand["s1again"])
     assert not cand["s1"].equals(cand["s0"])
     assert json.loads((outs["s1"] / "evaluation.json").read_text())["estimator_stream"] == 1
+    # report.csv says which stream made it, so reports of several streams can be concatenated.
+    streams = {k: {r["estimator_stream"] for r in csv.DictReader(io.StringIO((o / "report.csv").read_text()))}
+               for k, o in outs.items()}
+    assert streams == {"s1": {"1"}, "s1again": {"1"}, "s0": {"0"}}
     meta = schema.read_metadata(partition(outs["s1"], "retrieval", "IB", 0, "stucco", "pushtrack"))["params"]
     assert meta["stream"] == 1
     meta0 = schema.read_metadata(partition(outs["s0"], "retrieval", "IB", 0, "stucco", "pushtrack"))["params"]

@@ -83,6 +83,11 @@ def test_csv_round_trips_the_numbers(scores):
     assert float(rows[0]["grasp_success_pct"]) == pytest.approx(200 / 3)
     assert float(rows[0]["ce_cm_std"]) == pytest.approx(math.sqrt(2 / 3))
     assert float(rows[0]["paper_ce_cm_mean"]) == 0.72
+    assert {r["estimator_stream"] for r in rows} == {"0"}
+    again = list(csv.DictReader(io.StringIO(to_csv(table_ii(scores, estimator_stream=2)))))
+    assert {r["estimator_stream"] for r in again} == {"2"}
+    assert [{k: v for k, v in r.items() if k != "estimator_stream"} for r in again] == \
+        [{k: v for k, v in r.items() if k != "estimator_stream"} for r in rows]
 
 
 def test_claims_say_by_how_much_they_fall_short(scores):

@@ -73,10 +73,12 @@ def gather_scores(out: str | Path, job_list: Sequence[Job], estimators: Sequence
     return pa.concat_tables(tables, promote_options="permissive")
 
 
-def write_report(out: str | Path, scores: pa.Table, extra: tuple[str, ...] = ()) -> tuple[Path, Path]:
+def write_report(out: str | Path, scores: pa.Table, extra: tuple[str, ...] = (),
+                 estimator_stream: int = 0) -> tuple[Path, Path]:
     """``out/report.md`` (Table II with the paper's claims checked below it, then the ``extra`` lines, e.g. the
-    active protocol's probes) and ``out/report.csv``, atomically, from a scores table."""
-    rows = table_ii(scores)
+    active protocol's probes) and ``out/report.csv``, atomically, from a scores table made with the pose
+    estimators' random stream ``estimator_stream``."""
+    rows = table_ii(scores, estimator_stream)
     md = to_markdown(rows)
     notes = claims(rows) + list(extra)
     if notes:

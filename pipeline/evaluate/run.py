@@ -129,7 +129,8 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         # Runs of the active protocol add its probes to the report (docs/retrieval.md, "Active retrieval").
         from pipeline.probe.report import probe_lines  # imported here: it reads the run files only when writing
 
-        write_report(out, scores, tuple(config_lines(cfg)) + tuple(probe_lines(out, job_list)))
+        write_report(out, scores, tuple(config_lines(cfg)) + tuple(probe_lines(out, job_list)),
+                     estimator_stream=cfg.estimator_stream)
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
             stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
