@@ -236,7 +236,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
 @bench.command("probe")
 @click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
 @click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--budgets", default="0,1,2,4,8", show_default=True, help="Probe budgets.")
+@click.option("--budgets", default="0,1,2,4,8,12", show_default=True, help="Probe budgets.")
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench/probe/runs"), show_default=True,
               help="Run files of `collect --policy scripted+probe` (made here when missing).")

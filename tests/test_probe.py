@@ -393,3 +393,14 @@ def test_a_wide_set_that_one_grasp_holds_stops_the_probing(stored_run, monkeypat
     assert log.probes == 0 and not log.agreed
     assert log.history[0]["stop"] == (held == 1.0) and log.history[0]["held"] == held
     assert log.flagged == ("" if held == 1.0 else "budget_spent")
+
+
+def test_bench_probes_default_budgets_are_the_curves_budgets_and_end_at_the_policys():
+    # The CLI keeps numpy out of its import, so it repeats the list: the two must stay one fact, and the curve
+    # ends at the budget the policy runs with (the run files of `make reproduce-active` replay every budget).
+    from pipeline.probe.bench import BUDGETS
+    from stucco_cli.bench import bench_probe
+
+    option = next(p for p in bench_probe.params if p.name == "budgets")
+    assert tuple(int(b) for b in option.default.split(",")) == BUDGETS
+    assert BUDGETS[-1] == ProbeParams().budget

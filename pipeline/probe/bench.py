@@ -29,7 +29,7 @@ from pipeline.scenes import load_scene
 
 __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]
 
-BUDGETS = (0, 1, 2, 4, 8)
+BUDGETS = (0, 1, 2, 4, 8, 12)
 FIELDS = ("scene", "seed", "budget", "probes", "success", "outcome", "position_error_m", "yaw_error_rad",
           "decision_s_median", "decision_s_max", "prior_s", "moved_m", "turned_rad", "wide")
 

@@ -18,7 +18,8 @@ class ProbeParams:
     Attributes
     ----------
     budget : int
-        Most probes per run (8).
+        Most probes per run (12; 8 before: a set still wide after 8 probes is usually settled by the next few,
+        docs/retrieval.md, "A larger budget for the sets still wide").
     min_probes : int
         Probes made even if the set agrees from the start (0): a confident set can be confidently wrong.
     coarse_step, fine_step : float, metres
@@ -84,7 +85,7 @@ class ProbeParams:
     plan : PlanParams
     """
 
-    budget: int = 8
+    budget: int = 12
     min_probes: int = 0
     coarse_step: float = 0.02
     fine_step: float = 0.004
