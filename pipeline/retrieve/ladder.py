@@ -25,10 +25,12 @@ on the last rung, and on the ideal rungs the ideal points observed up to each st
 
 Ideal contact points are the run's recorded true contact of every action with a known body, carried with that
 body from its pose after the action to its final pose: exactly where each contact lies now. The point is the
-last one of the action's 8-step window that touches the action's body (``win_true_object``); an action whose
-window touches nothing falls back to its last true contact (``true_contact_x_m``); one whose window touches only
-other bodies gives none (its last contact is another body's: 12 of the 105 labelled actions of the four runs
-in ``data/regression``, whose points lay up to 19 cm off that body). A lost grasp is
+last one of the action's 8-step window that touches a body (``win_true_object``), and its body the one touched
+there: the contact the isolation reports is the window's, whatever body the action's label names (12 of the 105
+labelled actions of the four runs in ``data/regression`` end their window on another body than their label's;
+until 2026-11-27 these gave no point, so the ideal rungs missed, e.g., IB's push of the box at action 12). An
+action whose window touches nothing falls back to its last true contact (``true_contact_x_m``) and its label.
+A lost grasp is
 put down to ``wrong_segment`` (the estimate is more than 10 cm off, or its segment holds mostly other bodies'
 points), ``yaw`` (more than ``YAW_TOL``), ``position`` (more than ``POSITION_TOL``) or, with a good pose,
 ``grasp_rule``.
@@ -126,9 +128,10 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
     -------
     list of Segment
         Per body touched (segment id = body index in ``scene.body_names`` order): ``points`` (M, 2) m, the true
-        contact of each action labelled with that body (the last point of the action's 8-step window on that body;
-        without any contact in the window, the action's last true contact), expressed in the body's frame at its
-        pose after the action and put back at its final pose; ``steps`` (M,) the action indices, increasing.
+        contact of each action whose window ends on that body (the window's last point on a body; without any
+        contact in the window, the action's last true contact, given to the action's label), expressed in the
+        body's frame at its pose after the action and put back at its final pose; ``steps`` (M,) the action
+        indices, increasing.
     """
     t = pq.read_table(path, columns=["step", "win_true_contact_m", "win_true_object", "true_contact_x_m",
                                      "true_contact_y_m", "object_id", "obj_pose"])
@@ -140,10 +143,15 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
     last = np.array([np.nan if v is None else v for v in t.column("true_contact_x_m").to_pylist()]), \
         np.array([np.nan if v is None else v for v in t.column("true_contact_y_m").to_pylist()])
     poses = np.asarray(t.column("obj_pose").to_pylist(), dtype=np.float64).reshape(n, -1, 3)
-    on_body = (win_body == body[:, None]) & np.isfinite(win).all(axis=2) & (body[:, None] >= 0)
-    k = win.shape[1] - 1 - np.argmax(on_body[:, ::-1], axis=1)  # last window row on the action's body
-    xy = np.where(on_body.any(axis=1)[:, None], win[np.arange(n), k], np.nan)
-    quiet = ~(win_body >= 0).any(axis=1)  # the window touched nothing: the last contact is the only one recorded
+    # The isolation reports the contact of the window's last in-contact step, so the ideal point is the window's
+    # last true contact and its body the one touched there, not the action's label (the bucket rule of the
+    # labels may name a body the gripper left before the window: IB's action 12 is labelled the tomato can while
+    # its whole window is on the box, which moves 3 cm there).
+    touched = (win_body >= 0) & np.isfinite(win).all(axis=2)
+    k = win.shape[1] - 1 - np.argmax(touched[:, ::-1], axis=1)  # last window row that touches a body
+    xy = np.where(touched.any(axis=1)[:, None], win[np.arange(n), k], np.nan)
+    quiet = ~touched.any(axis=1)  # the window touched nothing: the last contact is the only one recorded
+    body = np.where(quiet, body, win_body[np.arange(n), k])
     xy[quiet] = np.column_stack(last)[quiet]
     keep = (body >= 0) & np.isfinite(xy).all(axis=1)
     out = []
