@@ -125,6 +125,9 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Contacts of the segment the pushtrack estimator's filter may start from ('' for none).")
 @click.option("--pushtrack-islands", "pt_islands", default="1,4", show_default=True,
               help="Independent filters the pushtrack estimator pools ('' for none).")
+@click.option("--pushtrack-motion", "pt_motion", default="push,sweep", show_default=True,
+              help="Pushing models of the pushtrack estimator: push (a point pusher), sweep (the gripper's slice), "
+                   "translate, static ('' for none).")
 @click.option("--pushtrack-select", "pt_select", default="held_mean,grasp", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
                    "grasp, mode, held_mean ('' for none).")
@@ -140,8 +143,8 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
 @click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_select, stream_list, baselines,
-                   out_dir, jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_motion, pt_select, stream_list,
+                   baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -149,7 +152,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.retrieve.pushmodel import SELECT_RULES
+    from pipeline.retrieve.pushmodel import MOTIONS, SELECT_RULES
     from pipeline.study import (accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
                                 summary_markdown, write_csv)
 
@@ -168,6 +171,7 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                                          ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
                                          ("starts", _ints("--pushtrack-starts", pt_starts, 1, 64)),
                                          ("islands", _ints("--pushtrack-islands", pt_islands, 1, 64)),
+                                         ("motion", _choices("--pushtrack-motion", pt_motion, MOTIONS, "choice")),
                                          ("select", _choices("--pushtrack-select", pt_select, SELECT_RULES,
                                                              "choice"))),
                               baselines=None if baselines is None else _methods(baselines, "--baselines", True))

@@ -99,6 +99,19 @@ def test_pushtrack_select_is_a_choice_without_a_value():
     assert mine[1].estimator_params == (("select", "mode"),)
 
 
+def test_pushtrack_motion_is_a_choice_the_default_push_runs_once():
+    sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
+                              pushtrack=(("motion", ("push", "sweep")),))
+    mine = [s for s in sweep if s.estimator == "pushtrack"]
+    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack motion=sweep"]
+    assert mine[1].estimator_params == (("motion", "sweep"),)
+
+
+def test_bench_accuracy_rejects_an_unknown_motion(tmp_path):
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--pushtrack-motion", "slide", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "--pushtrack-motion" in res.output and "'slide'" in res.output
+
+
 def test_bench_accuracy_rejects_an_unknown_select(tmp_path):
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--pushtrack-select", "best", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "--pushtrack-select" in res.output and "'best'" in res.output
@@ -110,7 +123,7 @@ def test_bench_accuracy_cli_tiny_grid(tmp_path):
                                    "--restarts", "5", "--sdf-mm", "1,4", "--hypotheses", "16",
                                    "--free-mm", "", "--no-paper-estimator", "--pushtrack-particles", "64",
                                    "--pushtrack-refine", "", "--pushtrack-substeps", "", "--pushtrack-starts", "",
-                                   "--pushtrack-islands", "", "--pushtrack-select", "",
+                                   "--pushtrack-islands", "", "--pushtrack-select", "", "--pushtrack-motion", "",
                                    "--baselines", "dbscan",
                                    "--out",
                                    str(out)])
@@ -129,7 +142,7 @@ def test_bench_accuracy_over_estimator_streams(tmp_path):
                                    "--restarts", "", "--sdf-mm", "", "--hypotheses", "", "--free-mm", "",
                                    "--no-paper-estimator", "--pushtrack-particles", "64", "--pushtrack-refine", "",
                                    "--pushtrack-substeps", "", "--pushtrack-starts", "", "--pushtrack-islands", "",
-                                   "--pushtrack-select", "", "--baselines", "", "--streams", "0,1",
+                                   "--pushtrack-select", "", "--pushtrack-motion", "", "--baselines", "", "--streams", "0,1",
                                    "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert "GS: the mean over estimator streams 0, 1" in res.output
