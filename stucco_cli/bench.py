@@ -237,6 +237,40 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
 
 
+@bench.command("pushes")
+@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
+              help="Evaluation directory made by `stucco evaluate` (its runs are used).")
+@click.option("--scenes", default="FB,BC,IB", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--replay/--no-replay", default=True, show_default=True,
+              help="Also replay each push in pybullet, the whole scene and the target alone.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/pushes"), show_default=True,
+              help="pushes.csv, pushes_summary.csv, pushes.png.")
+@pass_settings
+def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
+    """The pushing models against the simulator, push by push: each push of the target run by every pushtrack
+    pushing model from its recorded pose before (and replayed in pybullet), against its recorded pose after."""
+    writable_dir("--out", out_dir)
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes, partition
+    from pipeline.retrieve.push_bench import push_rows, summarise, summary_markdown, write_outputs
+
+    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
+        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
+                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
+    pairs = [(sc, s) for sc in parsed("--scenes", parse_scenes, scenes) for s in parsed("--seeds", parse_seeds, seeds)]
+    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
+    if missing:
+        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
+                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    with user_errors("bench pushes"):
+        rows = push_rows(runs_from, pairs, replay=replay, jobs=settings.jobs, progress=run_bar(settings, "pushes"))
+        paths = write_outputs(rows, out_dir)
+    click.echo(summary_markdown(summarise(rows)), nl=False)
+    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
+
+
 @bench.command("probe")
 @click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
 @click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
