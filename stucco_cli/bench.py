@@ -125,9 +125,10 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
               help="Contacts of the segment the pushtrack estimator's filter may start from ('' for none).")
 @click.option("--pushtrack-islands", "pt_islands", default="1,4", show_default=True,
               help="Independent filters the pushtrack estimator pools ('' for none).")
-@click.option("--pushtrack-motion", "pt_motion", default="push,sweep", show_default=True,
-              help="Pushing models of the pushtrack estimator: push (a point pusher), sweep (the gripper's slice), "
-                   "translate, static ('' for none).")
+@click.option("--pushtrack-motion", "pt_motion", default="tip,push,sweep", show_default=True,
+              help="Pushing models of the pushtrack estimator: tip (the gripper's slice, a box pushed on a long face "
+                   "tipped onto its leading edge), push (a point pusher), sweep (the slice), translate, static ('' "
+                   "for none).")
 @click.option("--pushtrack-select", "pt_select", default="held_mean,grasp", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
                    "grasp, mode, held_mean ('' for none).")

@@ -26,7 +26,8 @@ from pipeline.scenes import load_scene
 
 BOX = Primitive("box", (0.03, 0.08), np.array([0.0, 0.0]), 0.0, "box")
 C = limit_surface_length(BOX)
-P = PushTrackParams()
+#: The filter's mechanics with the point pusher (the synthetic actions have no gripper slice for "tip").
+P = PushTrackParams(motion="push")
 NO_FREE = lambda rows, centre: np.zeros((0, 2))  # noqa: E731
 #: A box task whose grasp plan ``select="mode"`` and ``"grasp"`` aim with (FB's, pipeline.grasp.PLANS).
 SCENE = load_scene("FB")
@@ -94,7 +95,7 @@ def test_mode_returns_the_pose_whose_grasp_holds_the_most_of_the_set():
     result = FilterResult(poses=poses, log_w=log_w, local=np.tile([[[0.03, 0.0]]], (4, 1, 1)), choice=np.zeros(4),
                           pushed=np.zeros(1), n_pushes=1, n_resampled=0)
     none = np.zeros((0, 2))
-    mode = PushTrackParams(select="mode")
+    mode = PushTrackParams(select="mode", motion="push")
     est, k = final_pose(BOX, result, none, none, mode, SCENE)
     assert k == 1 and pose_error(BOX, est, poses[1])[1] < 1e-6
     assert final_pose(BOX, result, none, none, PushTrackParams(select="grasp"), SCENE)[1] == 0
@@ -251,14 +252,14 @@ def test_pushed_through_another_object_the_filter_follows():
     touch = np.ones(13, dtype=bool)
     touch[6] = False
     a = Actions(ee_start=contact - push, ee_end=contact, touch=touch, contact=contact, push=push)
-    on = PushTrackParams(other_push=0.5)  # off by default (docs/retrieval.md)
+    on = PushTrackParams(other_push=0.5, motion="push")  # off by default (docs/retrieval.md)
     est = final_pose(BOX, run_filter(BOX, a, NO_FREE, on, np.random.default_rng(4)), np.zeros((0, 2)),
                      np.zeros((0, 2)), on, SCENE)[0]
     pos, yaw = pose_error(BOX, est, after)
     assert pos < 0.003 and yaw < 0.03
     # a quarter of the particles near that contact are pushed (the prior; the far ones and those injected later
     # have no choice), but the contacts after the push keep almost only those
-    quarter = PushTrackParams(other_push=0.25)
+    quarter = PushTrackParams(other_push=0.25, motion="push")
     r = run_filter(BOX, a, NO_FREE, quarter, np.random.default_rng(5))
     assert np.all(np.isin(r.choice, [0.0, math.log(0.25), math.log(0.75)]))
     assert np.sum(np.exp(r.log_w)[r.choice == math.log(0.25)]) > 0.9
@@ -316,7 +317,7 @@ def test_a_segment_that_begins_on_the_target_loses_nothing_by_the_starts():
 
 def test_one_start_is_the_filter_itself(begins_on_the_can):
     info, a, free_points, _ = begins_on_the_can
-    one = PushTrackParams(starts=1)
+    one = PushTrackParams(starts=1, motion="push")
     result, kept = filter_from_best_start(info.target, a, free_points, one, np.random.default_rng(7))
     plain = run_filter(info.target, a, free_points, one, np.random.default_rng(7))
     assert kept is a and np.array_equal(result.poses, plain.poses) and np.array_equal(result.log_w, plain.log_w)

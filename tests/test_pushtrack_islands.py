@@ -68,14 +68,14 @@ def test_an_island_without_evidence_gets_no_particles_and_all_without_share_equa
 
 def test_one_island_is_the_kept_filter():
     a = _still_box_actions()
-    p = PushTrackParams(islands=1)
+    p = PushTrackParams(islands=1, motion="push")
     first = run_filter(BOX, a, NO_FREE, p, np.random.default_rng(2))
     assert filter_islands(BOX, a, NO_FREE, p, np.random.default_rng(2), first) is first
 
 
 def test_islands_draw_their_own_streams_deterministically_without_advancing_the_generator():
     a = _still_box_actions()
-    p = PushTrackParams(islands=3, n_particles=64)
+    p = PushTrackParams(islands=3, n_particles=64, motion="push")
     rng = np.random.default_rng(5)
     state = rng.bit_generator.state
     first = run_filter(BOX, a, NO_FREE, p, np.random.default_rng(5))
@@ -92,7 +92,7 @@ def test_islands_draw_their_own_streams_deterministically_without_advancing_the_
 def test_pooled_islands_still_find_a_box_its_contacts_pin():
     # a still box touched on three faces: the pooled islands' estimate is as exact as one filter's
     a = _still_box_actions(9)
-    p = replace(PushTrackParams(), n_particles=128)
+    p = replace(PushTrackParams(motion="push"), n_particles=128)
     first = run_filter(BOX, a, NO_FREE, p, np.random.default_rng(1))
     pooled = filter_islands(BOX, a, NO_FREE, p, np.random.default_rng(1), first)
     est = final_pose(BOX, pooled, np.zeros((0, 2)), np.zeros((0, 2)), p, load_scene("FB"))[0]

@@ -99,12 +99,13 @@ def test_pushtrack_select_is_a_choice_without_a_value():
     assert mine[1].estimator_params == (("select", "mode"),)
 
 
-def test_pushtrack_motion_is_a_choice_the_default_push_runs_once():
+def test_pushtrack_motion_is_a_choice_the_default_tip_runs_once():
     sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
-                              pushtrack=(("motion", ("push", "sweep")),))
+                              pushtrack=(("motion", ("tip", "push", "sweep")),))
     mine = [s for s in sweep if s.estimator == "pushtrack"]
-    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack motion=sweep"]
-    assert mine[1].estimator_params == (("motion", "sweep"),)
+    assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack motion=push",
+                                      "stucco pushtrack motion=sweep"]
+    assert mine[1].estimator_params == (("motion", "push"),)
 
 
 def test_bench_accuracy_rejects_an_unknown_motion(tmp_path):
@@ -142,7 +143,8 @@ def test_bench_accuracy_over_estimator_streams(tmp_path):
                                    "--restarts", "", "--sdf-mm", "", "--hypotheses", "", "--free-mm", "",
                                    "--no-paper-estimator", "--pushtrack-particles", "64", "--pushtrack-refine", "",
                                    "--pushtrack-substeps", "", "--pushtrack-starts", "", "--pushtrack-islands", "",
-                                   "--pushtrack-select", "", "--pushtrack-motion", "", "--baselines", "", "--streams", "0,1",
+                                   "--pushtrack-select", "", "--pushtrack-motion", "", "--baselines", "",
+                                   "--streams", "0,1",
                                    "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert "GS: the mean over estimator streams 0, 1" in res.output

@@ -123,3 +123,42 @@ def test_the_filter_tracks_a_box_the_slice_pushed(disc):
     best = res.poses[np.argsort(res.log_w)[-10:]]
     sd = [BOX.signed_distance(a.contact[-1][None], p)[0] for p in best]
     assert np.median(np.abs(sd)) < 0.01
+
+
+def _corner_world(pose, corner):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.array([pose[0] + c * corner[0] - s * corner[1], pose[1] + s * corner[0] + c * corner[1]])
+
+
+def test_tip_turns_a_box_pushed_on_its_long_face_about_the_far_leading_corner(disc):
+    # The -x long face pushed in +x at y = +4 cm: the leading edge is x = +hx, and with the offset 4 cm the centre
+    # of rotation is max(hy, hy^2 / (3 * 0.04)) = hy along it on the far side: the corner (hx, -hy) stays put.
+    hx, hy = BOX.half
+    g0 = np.array([-hx - DISC_R - 0.001, 0.04])
+    out = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5,
+                     tip=True)[0]
+    assert out[2] < -0.1  # pushed above the centre in +x: it turns clockwise
+    assert np.hypot(*(_corner_world(out, (hx, -hy)) - [hx, -hy])) < 1e-6
+    # the same push without tipping (the limit surface) turns it less and moves that corner
+    flat = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5)[0]
+    assert abs(flat[2]) < abs(out[2]) and np.hypot(*(_corner_world(flat, (hx, -hy)) - [hx, -hy])) > 1e-3
+
+
+def test_tip_leaves_end_faces_and_cans_to_the_limit_surface(disc):
+    hx, hy = BOX.half
+    g0 = np.array([0.01, -hy - DISC_R - 0.001])  # the -y end face, pushed in +y
+    args = (target_outline(BOX), g0, g0 + [0.0, 0.02], 15, 0.05, 0.5)
+    assert np.array_equal(sweep_push(BOX, np.zeros((1, 3)), disc, *args, tip=True),
+                          sweep_push(BOX, np.zeros((1, 3)), disc, *args))
+    g0 = np.array([-CAN.half[0] - DISC_R - 0.001, 0.01])
+    args = (target_outline(CAN), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5)
+    assert np.array_equal(sweep_push(CAN, np.zeros((1, 3)), disc, *args, tip=True),
+                          sweep_push(CAN, np.zeros((1, 3)), disc, *args))
+
+
+def test_tip_pushes_a_centred_long_face_straight(disc):
+    hx, _ = BOX.half
+    g0 = np.array([-hx - DISC_R - 0.001, 0.0])
+    out = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5,
+                     tip=True)[0]
+    assert np.all(np.isfinite(out)) and abs(out[2]) < 1e-3 and out[0] == pytest.approx(0.019, abs=0.002)

@@ -79,8 +79,9 @@ def history_prior(table: pa.Table, segments: Sequence[Segment], scene, run: str,
     if table.num_rows == 0 or not segments:
         return None
     info = info_from_table(table, scene)  # the final poses NaN: no ground truth is read
-    found = pushtrack_set(segments, info, sdf, retrieval_rng(root_seed, run), RetrievalParams(), PushTrackParams(),
-                          table)
+    # the point pusher: the prior was chosen and checked with it (docs/retrieval.md, "What the pushes said")
+    found = pushtrack_set(segments, info, sdf, retrieval_rng(root_seed, run), RetrievalParams(),
+                          PushTrackParams(motion="push"), table)
     if found is None:
         return None
     poses, weights = np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64)

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.retrieve.pushtrack_params import MOTIONS, PushTrackParams
+from pipeline.retrieve.pushtrack_params import MOTIONS, SLICE_MOTIONS, PushTrackParams
 from pipeline.retrieve.quasistatic import limit_surface_length
 from pipeline.retrieve.runs import load_run
 from pipeline.retrieve.sweep import cached_gripper_slice, sweep_push, target_outline
@@ -94,10 +94,10 @@ def model_pose(motion: str, prim, case: PushCase, target_id: int, sdf, params: P
     from pipeline.retrieve.pushmodel import push
 
     pose = case.before[target_id][None, :]
-    if motion == "sweep":
+    if motion in SLICE_MOTIONS:
         c = limit_surface_length(prim) * params.sweep_limit_scale
         return sweep_push(prim, pose, cached_gripper_slice(sdf), target_outline(prim), case.ee_end - case.push,
-                          case.ee_end, params.sweep_substeps, c, params.friction)[0]
+                          case.ee_end, params.sweep_substeps, c, params.friction, motion == "tip")[0]
     c = limit_surface_length(prim) * params.limit_scale
     return push(prim, pose, case.contact - case.push, case.push, c, dataclasses.replace(params, motion=motion))[0]
 

@@ -2,10 +2,11 @@
 "The pushtrack estimator").
 
 The target's COM pose x_t = (x, y, yaw) changes only during the actions in which the gripper touches the target's
-segment. Such an action pushes the target: the pusher moves by its in-contact displacement d at the contact point,
-and the quasi-static model of planar pushing with an ellipsoidal limit surface (:mod:`pipeline.retrieve.quasistatic`)
-predicts the target's twist. Walls and other objects are not modelled: a
-noise term growing with the push length lets the contacts correct the prediction.
+segment. Such an action pushes the target by the gripper's in-contact displacement d: by default the gripper's
+slice sweeps over d and a box pushed on a long face turns about its leading edge (:mod:`pipeline.retrieve.sweep`,
+``motion`` "tip"); the point pusher at the contact drives the quasi-static model of planar pushing with an
+ellipsoidal limit surface (:mod:`pipeline.retrieve.quasistatic`, "push"). Walls and other objects are not modelled:
+a noise term growing with the push length lets the contacts correct the prediction.
 
 Observations weigh the particles at their own times: the contact point of a touching action lies on the target's
 surface at the pose after that action (robust Geman-McClure term), and the gripper's slice at the end of every
@@ -25,14 +26,15 @@ import numpy as np
 from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
 from pipeline.portable import atan2, logsumexp
 from pipeline.retrieve.pushtrack_kernel import free_depth_sums
-from pipeline.retrieve.pushtrack_params import MAX_PARTICLES, MOTIONS, SELECT_RULES, PushTrackParams
+from pipeline.retrieve.pushtrack_params import (MAX_PARTICLES, MOTIONS, SELECT_RULES, SLICE_MOTIONS,
+                                                PushTrackParams)
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
 from pipeline.retrieve.sweep import GripperSlice, sweep_push, target_outline
 from pipeline.track.resampling import systematic
 
 # (the parameters live in pipeline.retrieve.pushtrack_params; re-exported here, where the filter's callers look)
-__all__ = ["PushTrackParams", "MOTIONS", "SELECT_RULES", "Actions", "FilterResult", "push", "contact_loglik",
-           "free_loglik", "initial_particles", "run_filter", "MAX_PARTICLES"]
+__all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "Actions", "FilterResult", "push",
+           "contact_loglik", "free_loglik", "initial_particles", "run_filter", "MAX_PARTICLES"]
 
 
 @dataclass(frozen=True)
@@ -50,7 +52,7 @@ class Actions:
     push : ndarray, shape (K, 2), metres
         The gripper's displacement while in contact during the action (0 where none).
     gripper : GripperSlice or None
-        The gripper's slice (:func:`pipeline.retrieve.sweep.gripper_slice`): the pusher of ``motion`` "sweep".
+        The gripper's slice (:func:`pipeline.retrieve.sweep.gripper_slice`): the pusher of ``motion`` "sweep" and "tip".
     """
 
     ee_start: np.ndarray
@@ -179,13 +181,14 @@ def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarra
     """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
     ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`); with ``sweep`` (the
     gripper's slice, the target's outline, the slice's start and end positions) the slice's sweep instead. The
-    particles' earlier contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not with the noise
-    floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part of the model's
-    displacement each particle gets (default all)."""
+    particles' earlier contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not
+    with the noise floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part
+    of the model's displacement each particle gets (default all)."""
     out = pose.copy()
     a = pose[sel]
     if sweep is not None:
-        b = sweep_push(prim, a, sweep[0], sweep[1], sweep[2], sweep[3], params.sweep_substeps, c, params.friction)
+        b = sweep_push(prim, a, sweep[0], sweep[1], sweep[2], sweep[3], params.sweep_substeps, c, params.friction,
+                       params.motion == "tip")
     else:
         b = push(prim, a, contact - d, d, c, params)
     length = math.hypot(d[0], d[1])
@@ -212,7 +215,8 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     touched = np.flatnonzero(actions.touch)
     if len(touched) == 0:
         return None
-    c = limit_surface_length(prim) * (params.sweep_limit_scale if params.motion == "sweep" else params.limit_scale)
+    c = limit_surface_length(prim) * (params.sweep_limit_scale if params.motion in SLICE_MOTIONS
+                                      else params.limit_scale)
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
@@ -227,7 +231,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     if params.carry == "mixed":
         noisy = np.arange(len(pose)) % 2 == 1
     pushed = np.zeros(len(touched))
-    outline = target_outline(prim) if params.motion == "sweep" else None
+    outline = target_outline(prim) if params.motion in SLICE_MOTIONS else None
     if outline is not None and actions.gripper is None:
         raise ValueError("PushTrackParams.motion 'sweep' needs the gripper's slice (Actions.gripper)")
     j = 0

@@ -29,7 +29,7 @@ from pipeline.retrieve.evidence import cached_gripper_lattice, first_per_cell, f
 from pipeline.retrieve.paper import Estimate, confidence_notes
 from pipeline.retrieve.params import RetrievalParams
 from pipeline.retrieve.plausible import PlausibleParams, refine
-from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.retrieve.pushmodel import SLICE_MOTIONS, Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.retrieve.runs import RunInfo
 from pipeline.retrieve.sweep import cached_gripper_slice
 from pipeline.retrieve.tables import run_candidates
@@ -287,7 +287,7 @@ def track_segment(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequenc
         contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
     touch = np.isin(info.steps, np.asarray(seg.steps)) & np.all(np.isfinite(contact), axis=1)
     actions = Actions(ee_start=info.ee[:-1], ee_end=info.ee[1:], touch=touch, contact=contact, push=push,
-                      gripper=cached_gripper_slice(sdf) if own.motion == "sweep" else None)
+                      gripper=cached_gripper_slice(sdf) if own.motion in SLICE_MOTIONS else None)
     pts = contact[touch] if touch.any() else np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)
     _, radius = target_reach(target, pts)
     lattice = cached_gripper_lattice(sdf, own.free_resolution)

@@ -7,12 +7,14 @@ from typing import Any, ClassVar
 
 from pipeline.constraints import Constraint, check, integer, number, one_of
 
-__all__ = ["PushTrackParams", "MOTIONS", "SELECT_RULES", "MAX_PARTICLES"]
+__all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "MAX_PARTICLES"]
 
 #: Most particles: the filter holds (particles, free-space points) arrays per action.
 MAX_PARTICLES = 16384
 #: The pushing models (``PushTrackParams.motion``).
-MOTIONS = ("push", "sweep", "translate", "static")
+MOTIONS = ("push", "sweep", "tip", "translate", "static")
+#: The pushing models driven by the gripper's slice (:mod:`pipeline.retrieve.sweep`).
+SLICE_MOTIONS = ("sweep", "tip")
 #: The rules by which the estimate is chosen among the refined particles (``PushTrackParams.select``).
 SELECT_RULES = ("cost", "posterior", "grasp", "mode", "held_mean")
 
@@ -28,22 +30,25 @@ class PushTrackParams:
     substeps : int
         Integration steps of one push (4): the contact point and normal are re-found on the moved target at each.
     sweep_substeps : int
-        Steps of the gripper's sweep over one action's in-contact displacement (``motion`` "sweep"; 15).
+        Steps of the gripper's sweep over one action's in-contact displacement (``motion`` "sweep" or "tip"; 15).
     sweep_limit_scale : float
-        ``limit_scale`` of ``motion`` "sweep" (1.5: the scale that fits the simulated pushes best, a box resting
-        on its corners; docs/retrieval.md, "The gripper's slice pushes").
-    motion : {"push", "sweep", "translate", "static"}
+        ``limit_scale`` of ``motion`` "sweep" and "tip" (1.5: the scale that fits the simulated pushes best, a box
+        resting on its corners; docs/retrieval.md, "The gripper's slice pushes").
+    motion : {"push", "sweep", "tip", "translate", "static"}
         "push": the quasi-static pushing model from a point pusher at the contact minus the in-contact displacement;
         "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to
         its end position), the contact found where the slice meets each particle (:mod:`pipeline.retrieve.sweep`;
-        needs ``Actions.gripper``); "translate": the target moves by the pusher's displacement
-        projected on the contact normal, never turns (the tracker's assumption, §VI-A); "static": never moves
+        needs ``Actions.gripper``); "tip" (default): the slice, and a box pushed on a long face turns about a point
+        of its leading long edge, as a box tipped onto that edge does (docs/retrieval.md, "The gripper's slice
+        pushes"); "translate": the target moves by the pusher's displacement projected on the contact normal, never
+        turns (the tracker's assumption, §VI-A); "static": never moves
         (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
     friction : float
         Pusher-target friction coefficient of the pushing model (0.5).
     limit_scale : float
-        Factor on the limit surface's characteristic length (1.0: uniform pressure over the footprint; larger: the
-        support pressure nearer the footprint's edge, as a rigid box resting on its corners).
+        Factor on the limit surface's characteristic length of ``motion`` "push" (1.0: uniform pressure over the
+        footprint; larger: the support pressure nearer the footprint's edge, as a rigid box resting on its
+        corners).
     trans_noise : float
         Standard deviation of the position noise per metre pushed (0.3), plus ``noise_floor``.
     yaw_noise : float, rad per metre pushed
@@ -134,7 +139,7 @@ class PushTrackParams:
     substeps: int = 4
     sweep_substeps: int = 15
     sweep_limit_scale: float = 1.5
-    motion: str = "push"
+    motion: str = "tip"
     friction: float = 0.5
     limit_scale: float = 1.0
     trans_noise: float = 0.3

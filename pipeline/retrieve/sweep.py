@@ -137,7 +137,7 @@ def _grid_value(values, shape, strides, origin, resolution, outside, qx, qy):
 
 @njit(cache=True)
 def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values, shape, strides, origin,
-                 resolution, outside, g0x, g0y, g1x, g1y, substeps, c, mu):
+                 resolution, outside, g0x, g0y, g1x, g1y, substeps, c, mu, tip):
     """Move every COM pose of ``poses`` (N, 3), in place, as the gripper's slice sweeps from (g0x, g0y) to
     (g1x, g1y) in ``substeps`` steps (the module docstring).
 
@@ -155,6 +155,10 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
         The gripper's signed distance grid (:class:`GripperSlice`).
     c : float, metres
         The limit surface's characteristic length; ``mu`` the pusher-target friction coefficient.
+    tip : bool
+        A box pushed on a long face (its primitive's x axis) turns about a point of its leading long edge's line,
+        as a box tipped onto that edge (``PushTrackParams.motion`` "tip"); else the limit surface, as for its end
+        faces.
     """
     N = poses.shape[0]
     G = gpts.shape[0]
@@ -233,6 +237,32 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
             ux = dsx * frac
             uy = dsy * frac
             dn = dn * frac
+            if tip and not cylinder:
+                # the contact's offset and normal in the primitive's frame
+                qy = -sin_p * (px - cx) + cos_p * (py - cy)
+                nx_ = cos_p * mx + sin_p * my
+                ny_ = -sin_p * mx + cos_p * my
+                if abs(nx_) > abs(ny_):
+                    # A long face pushed: the box rests on its leading long edge and turns about a point of that
+                    # edge's line at max(hy, hy^2 / (3 |offset|)) on the far side (a uniform line support's
+                    # centre of rotation, never within the edge; docs/retrieval.md, "The gripper's slice pushes").
+                    lead = hx if nx_ > 0.0 else -hx
+                    e = qy if abs(qy) > 1e-9 else 1e-9
+                    dist = max(hy, hy * hy / (3.0 * abs(e)))
+                    oy = -dist if e > 0.0 else dist
+                    corx = cx + cos_p * lead - sin_p * oy
+                    cory = cy + sin_p * lead + cos_p * oy
+                    den = mx * -(py - cory) + my * (px - corx)  # m . perp(p - cor)
+                    if abs(den) > 1e-12:
+                        w = dn / den
+                        cw = math.cos(w)
+                        sw = math.sin(w)
+                        rx = x - corx
+                        ry = y - cory
+                        x = corx + cw * rx - sw * ry
+                        y = cory + sw * rx + cw * ry
+                        th += w
+                        continue
             # the quasi-static twist (pipeline.retrieve.quasistatic.push_step, with the contact and normal given)
             rx = px - x
             ry = py - y
@@ -266,7 +296,7 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
 
 
 def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: np.ndarray, g0: np.ndarray,
-               g1: np.ndarray, substeps: int, c: float, mu: float) -> np.ndarray:
+               g1: np.ndarray, substeps: int, c: float, mu: float, tip: bool = False) -> np.ndarray:
     """COM poses (N, 3) after the gripper's slice swept straight from ``g0`` to ``g1`` (2,), metres, against the
     target at ``poses`` (N, 3) (the module docstring); a pose the slice never reaches is returned as it was."""
     out = np.array(poses, dtype=np.float64, copy=True, order="C")
@@ -278,7 +308,7 @@ def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: 
     sweep_kernel(prim.kind == "cylinder", float(prim.half[0]), hy, float(prim.yaw), float(prim.centre[0]),
                  float(prim.centre[1]), out, front, np.ascontiguousarray(outline, dtype=np.float64),
                  grip.values, grip.shape, grip.strides, grip.origin, grip.resolution, grip.outside,
-                 float(g0[0]), float(g0[1]), float(g1[0]), float(g1[1]), int(substeps), float(c), float(mu))
+                 float(g0[0]), float(g0[1]), float(g1[0]), float(g1[1]), int(substeps), float(c), float(mu), bool(tip))
     return out
 
 
@@ -288,4 +318,4 @@ def warm_up() -> None:
     for cylinder in (False, True):
         sweep_kernel(cylinder, 0.05, 0.05, 0.0, 0.0, 0.0, np.zeros((1, 3)), one, one, np.zeros(4),
                      np.array([2, 2], dtype=np.int64), np.array([2, 1], dtype=np.int64), np.zeros(2), 0.01, 1.0,
-                     0.0, 0.0, 0.01, 0.0, 2, 0.05, 0.5)
+                     0.0, 0.0, 0.01, 0.0, 2, 0.05, 0.5, True)

@@ -39,7 +39,7 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
                       pushtrack: Sequence[tuple[str, Sequence[float]]] = (
                           ("n_particles", (128, 256, 512, 1024)), ("n_refine", (0, 32, 128)),
                           ("substeps", (1, 4, 8)), ("starts", (1, 6)), ("islands", (1, 4)),
-                          ("motion", ("push", "sweep")), ("select", ("held_mean", "grasp")))) -> list[Setting]:
+                          ("motion", ("tip", "push", "sweep")), ("select", ("held_mean", "grasp")))) -> list[Setting]:
     """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
     I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's),
     the pushtrack estimator's knobs ``pushtrack`` ((parameter, values) pairs of
