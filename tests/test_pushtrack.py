@@ -18,16 +18,21 @@ from pipeline.retrieve.model import pose_error
 from pipeline.retrieve.pushmodel import (Actions, FilterResult, PushTrackParams, contact_loglik, free_loglik,
                                          initial_particles, push, run_filter)
 from pipeline.retrieve.quasistatic import limit_surface_length, push_step
+from pipeline.retrieve.sweep import gripper_slice, sweep_push, target_outline
 from pipeline.retrieve.evidence import cached_gripper_lattice, target_reach
 from pipeline.retrieve.pushtrack import filter_from_best_start, final_pose, free_space_of, held_mean, observed_actions
 from pipeline.retrieve.runs import load_run, retrieval_rng
-from pipeline.robot import load_robot
+from pipeline.robot import disc_sdf, load_robot
 from pipeline.scenes import load_scene
 
 BOX = Primitive("box", (0.03, 0.08), np.array([0.0, 0.0]), 0.0, "box")
 C = limit_surface_length(BOX)
-#: The filter's mechanics with the point pusher (the synthetic actions have no gripper slice for "tip").
+#: The filter's mechanics with the point pusher; the hard cases also with the default "tip", the gripper a disc of
+#: 5 cm (``_pushes`` stands it 5 cm outside each contact).
 P = PushTrackParams(motion="push")
+TIP = PushTrackParams()
+DISC5 = gripper_slice(disc_sdf(0.05))
+BOTH = pytest.mark.parametrize("params", [P, TIP], ids=["push", "tip"])
 NO_FREE = lambda rows, centre: np.zeros((0, 2))  # noqa: E731
 #: A box task whose grasp plan ``select="mode"`` and ``"grasp"`` aim with (FB's, pipeline.grasp.PLANS).
 SCENE = load_scene("FB")
@@ -74,13 +79,14 @@ def test_initial_particles_lie_on_the_contact():
     assert np.allclose(sd, 0.0, atol=1e-12)
 
 
-def _pushes(truth: np.ndarray, local: np.ndarray, push: np.ndarray) -> Actions:
+def _pushes(truth: np.ndarray, local: np.ndarray, push: np.ndarray, beyond: bool = False) -> Actions:
     """Actions whose contacts are the body-frame points ``local`` (K, 2) on the target at poses ``truth``
-    (K, 3), each pushed by ``push`` (K, 2); the gripper stands 5 cm outside the contact."""
+    (K, 3), each pushed by ``push`` (K, 2); the gripper (``DISC5``) stands 5 cm outside the contact, or with
+    ``beyond`` ``push`` further on (its slice then pushes a target that had stayed where it was touched)."""
     contact = apply_pose(truth, local[:, None, :])[:, 0, :]
-    ee = contact - 0.05 * push / np.maximum(np.hypot(*push.T), 1e-12)[:, None]
+    ee = contact - 0.05 * push / np.maximum(np.hypot(*push.T), 1e-12)[:, None] + (push if beyond else 0.0)
     return Actions(ee_start=ee - push, ee_end=ee, touch=np.ones(len(local), dtype=bool), contact=contact,
-                   push=push)
+                   push=push, gripper=DISC5)
 
 
 def test_mode_returns_the_pose_whose_grasp_holds_the_most_of_the_set():
@@ -158,10 +164,11 @@ def test_never_touched_gives_no_filter():
     assert run_filter(BOX, a, NO_FREE, P, np.random.default_rng(0)) is None
 
 
-def test_touched_once_is_finite_and_on_the_contact():
+@BOTH
+def test_touched_once_is_finite_and_on_the_contact(params):
     truth = np.array([[0.4, 0.0, 0.2]])
     a = _pushes(truth, np.array([[-0.03, 0.01]]), np.array([[0.0, 0.0]]))
-    r = run_filter(BOX, a, NO_FREE, P, np.random.default_rng(0))
+    r = run_filter(BOX, a, NO_FREE, params, np.random.default_rng(0))
     assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
     grasp = final_pose(BOX, r, np.zeros((0, 2)), np.zeros((0, 2)), PushTrackParams(select="grasp"), SCENE)[0]
     assert abs(BOX.signed_distance(a.contact, grasp)[0]) < 0.002  # one of the particles: on the contact
@@ -186,7 +193,8 @@ def _world(v: np.ndarray, yaw: float) -> np.ndarray:
                             math.sin(yaw) * v[:, 0] + math.cos(yaw) * v[:, 1]])
 
 
-def test_pushed_against_a_wall_the_contacts_win():
+@BOTH
+def test_pushed_against_a_wall_the_contacts_win(params):
     # every third action pushes the -x face 1 cm, 5 cm off-centre: the model predicts the box moves and turns; a
     # wall held it still. The others touch all four faces at eight places, so that the contacts fix the pose (with
     # three places repeated, near two corners and one face, a pose 0.45 rad off fits all twelve within 3 mm: no
@@ -198,19 +206,26 @@ def test_pushed_against_a_wall_the_contacts_win():
     local = np.array([[-0.03, 0.05], [0.0, 0.08], [0.03, -0.04], [-0.03, 0.05], [0.03, 0.05], [0.0, -0.08],
                       [-0.03, 0.05], [-0.03, -0.05], [0.02, 0.08], [-0.03, 0.05], [0.03, 0.0], [-0.01, -0.08]])
     pushing = np.arange(k) % 3 == 0
-    a = _pushes(truth, local, np.where(pushing[:, None], 0.01 * _world(np.array([[1.0, 0.0]] * k), 0.3), 0.0))
+    a = _pushes(truth, local, np.where(pushing[:, None], 0.01 * _world(np.array([[1.0, 0.0]] * k), 0.3), 0.0),
+                beyond=params.motion == "tip")
     model = truth[:1].copy()
     for t in range(k):
-        model = push(BOX, model, a.contact[t] - a.push[t], a.push[t], C, P)
-    est = _best(run_filter(BOX, a, NO_FREE, P, np.random.default_rng(1)))
+        if params.motion == "tip":
+            model = sweep_push(BOX, model, DISC5, target_outline(BOX), a.ee_end[t] - a.push[t], a.ee_end[t],
+                               params.sweep_substeps, C * params.sweep_limit_scale, params.friction, tip=True)
+        else:
+            model = push(BOX, model, a.contact[t] - a.push[t], a.push[t], C, params)
+    est = _best(run_filter(BOX, a, NO_FREE, params, np.random.default_rng(1)))
     pos_model, yaw_model = pose_error(BOX, model[0], truth[-1])
     pos, yaw = pose_error(BOX, est, truth[-1])
-    assert pos_model > 0.015 and yaw_model > 0.3
+    # (the tipped box turns about its far corner: 6 mm and 0.07 rad from the truth; the point pusher 2 cm, 0.4 rad)
+    assert pos_model > 0.005 and yaw_model > 0.05
     assert pos < pos_model / 3 and yaw < yaw_model / 2
     assert np.median(np.abs(BOX.signed_distance(a.contact[-4:], est))) < 0.005
 
 
-def test_a_target_that_only_slides_keeps_its_yaw():
+@BOTH
+def test_a_target_that_only_slides_keeps_its_yaw(params):
     # every third action pushes the centre of the -x face 1 cm along +x (body frame): the box slides, never
     # turns; the others touch the -x face off-centre and the +y face near its ends without pushing
     k = 12
@@ -220,7 +235,7 @@ def test_a_target_that_only_slides_keeps_its_yaw():
     truth = np.column_stack([0.4 + 0.01 * math.cos(-0.4) * np.cumsum(pushing),
                              0.01 * math.sin(-0.4) * np.cumsum(pushing), np.full(k, -0.4)])
     push = np.where(pushing[:, None], 0.01 * _world(np.array([[1.0, 0.0]] * k), -0.4), 0.0)
-    r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, P, np.random.default_rng(2))
+    r = run_filter(BOX, _pushes(truth, local, push), NO_FREE, params, np.random.default_rng(2))
     pos, yaw = pose_error(BOX, _best(r), truth[-1])
     assert pos < 0.01 and yaw < 0.05
 
@@ -327,17 +342,18 @@ def test_one_start_is_the_filter_itself(begins_on_the_can):
     assert filter_from_best_start(BOX, none, NO_FREE, P, np.random.default_rng(0)) == (None, none)
 
 
-def test_every_particle_inconsistent_stays_finite():
+@BOTH
+def test_every_particle_inconsistent_stays_finite(params):
     truth = np.array([[0.4, 0.0, 0.0]] * 3)
     a = _pushes(truth, np.array([[-0.03, 0.0]] * 3), np.zeros((3, 2)))
     # free space covering the whole neighbourhood: no pose is outside it
     grid = np.stack(np.meshgrid(np.linspace(0.2, 0.6, 41), np.linspace(-0.2, 0.2, 41)), -1).reshape(-1, 2)
-    r = run_filter(BOX, a, lambda rows, centre: grid, P, np.random.default_rng(3))
+    r = run_filter(BOX, a, lambda rows, centre: grid, params, np.random.default_rng(3))
     assert np.all(np.isfinite(r.poses)) and np.all(np.isfinite(r.log_w))
     assert math.isclose(float(np.sum(np.exp(r.log_w))), 1.0, rel_tol=1e-9)
     assert np.all(free_loglik(BOX, r.poses, grid, P) < -100.0)
     assert np.isfinite(r.log_evidence) and r.log_evidence < -100.0
-    best, _ = filter_from_best_start(BOX, a, lambda rows, centre: grid, P, np.random.default_rng(3))
+    best, _ = filter_from_best_start(BOX, a, lambda rows, centre: grid, params, np.random.default_rng(3))
     assert np.all(np.isfinite(best.poses)) and np.isfinite(best.log_evidence)
 
 
