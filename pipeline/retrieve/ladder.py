@@ -12,9 +12,10 @@ unchanged) is tried at poses that lose one piece of knowledge per rung:
 4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
 5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it;
 6. for an estimator with a ``motion`` parameter (pushtrack, docs/retrieval.md): ``ideal_true_segment_static``,
-   ``..._translate``, ``tracker_our_choice_static``, ``..._translate``: rungs 3 and 5 again with the target held
-   still between contacts (only the filter's noise) or moved by the pusher without turning (the tracker's
-   assumption), instead of the pushing model.
+   ``..._translate``, ``..._push``, ``tracker_our_choice_static``, ``..._translate``, ``..._push``: rungs 3 and 5
+   again with the target held still between contacts (only the filter's noise), moved by the pusher without
+   turning (the tracker's assumption), or pushed by the point pusher (the previous pushing model) instead of the
+   estimator's own pushing model.
 
 The ideal segments also carry each contact where it was observed, at its own step (``Segment.observed``): the
 estimators that read contacts at their own steps (pushtrack) get those, the others the contacts where they lie now.
@@ -66,9 +67,9 @@ PERTURBATIONS = tuple((f"yaw{d:+.2f}", d, 0.0, 0.0) for a in (0.05, 0.10, 0.15) 
     for cm in (1, 2) for axis in ("along", "across") for sign, s in (("+", 1.0), ("-", -1.0)))
 ESTIMATOR_RUNGS = ("ideal_true_segment", "ideal_our_choice", "tracker_our_choice")
 #: (rung, the estimator rung it repeats, motion model) of an estimator with a ``motion`` parameter (pushtrack):
-#: the same contacts without the pushing model, so the ladder shows what the model adds.
+#: the same contacts without the pushing model or with the point pusher, so the ladder shows what the model adds.
 MOTION_RUNGS = tuple((f"{base}_{m}", base, m) for base in ("ideal_true_segment", "tracker_our_choice")
-                     for m in ("static", "translate"))
+                     for m in ("static", "translate", "push"))
 RUNGS = ("true_pose",) + tuple(p[0] for p in PERTURBATIONS) + ESTIMATOR_RUNGS + tuple(r[0] for r in MOTION_RUNGS)
 #: A pose farther than this from the truth is another object's (m).
 WRONG_SEGMENT_TOL = 0.10

@@ -45,8 +45,10 @@ _COLUMNS = (("true pose", ("true_pose",)), ("yaw ±0.05", ("yaw+0.05", "yaw-0.05
             ("tracker, our choice", ("tracker_our_choice",)),
             ("ideal, true segment, held still", ("ideal_true_segment_static",)),
             ("ideal, true segment, translated", ("ideal_true_segment_translate",)),
+            ("ideal, true segment, point pusher", ("ideal_true_segment_push",)),
             ("tracker, held still", ("tracker_our_choice_static",)),
-            ("tracker, translated", ("tracker_our_choice_translate",)))
+            ("tracker, translated", ("tracker_our_choice_translate",)),
+            ("tracker, point pusher", ("tracker_our_choice_push",)))
 
 
 def summary_markdown(summary: Sequence[dict]) -> str:
