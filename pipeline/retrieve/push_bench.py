@@ -24,9 +24,8 @@ import pyarrow.parquet as pq
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
 from pipeline.retrieve.pushtrack_params import MOTIONS, SLICE_MOTIONS, PushTrackParams
-from pipeline.retrieve.quasistatic import limit_surface_length
 from pipeline.retrieve.runs import load_run
-from pipeline.retrieve.sweep import cached_gripper_slice, sweep_push, target_outline
+from pipeline.retrieve.sweep import cached_gripper_slice, target_outline
 
 __all__ = ["MIN_PUSH", "REPLAYS", "PushCase", "push_cases", "model_pose", "replay_pose", "push_rows", "summarise",
            "summary_markdown", "write_outputs"]
@@ -91,15 +90,12 @@ def model_pose(motion: str, prim, case: PushCase, target_id: int, sdf, params: P
                ) -> np.ndarray:
     """The target's COM pose (3,) after the push by the pushing model ``motion`` (``PushTrackParams.motion``) from
     its recorded pose before, as the pushtrack filter moves a particle (without its noise)."""
-    from pipeline.retrieve.pushmodel import push
+    from pipeline.retrieve.pushmodel import model_length, model_push
 
-    pose = case.before[target_id][None, :]
-    if motion in SLICE_MOTIONS:
-        c = limit_surface_length(prim) * params.sweep_limit_scale
-        return sweep_push(prim, pose, cached_gripper_slice(sdf), target_outline(prim), case.ee_end - case.push,
-                          case.ee_end, params.sweep_substeps, c, params.friction, motion == "tip")[0]
-    c = limit_surface_length(prim) * params.limit_scale
-    return push(prim, pose, case.contact - case.push, case.push, c, dataclasses.replace(params, motion=motion))[0]
+    params = dataclasses.replace(params, motion=motion)
+    sweep = (cached_gripper_slice(sdf), target_outline(prim), case.ee_end) if motion in SLICE_MOTIONS else None
+    return model_push(prim, case.before[target_id][None, :], params, case.contact, case.push,
+                      model_length(prim, params), sweep)[0]
 
 
 def _rest_heights(scene) -> list[float]:

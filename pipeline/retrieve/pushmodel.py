@@ -34,7 +34,8 @@ from pipeline.track.resampling import systematic
 
 # (the parameters live in pipeline.retrieve.pushtrack_params; re-exported here, where the filter's callers look)
 __all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "Actions", "FilterResult", "push",
-           "contact_loglik", "free_loglik", "initial_particles", "run_filter", "MAX_PARTICLES"]
+           "model_length", "model_push", "contact_loglik", "free_loglik", "initial_particles", "run_filter",
+           "MAX_PARTICLES"]
 
 
 @dataclass(frozen=True)
@@ -175,22 +176,36 @@ def _normalised(log_w: np.ndarray) -> tuple[np.ndarray, float]:
     return log_w - total, float(total)
 
 
+def model_length(prim: Primitive, params: PushTrackParams) -> float:
+    """The limit surface's characteristic length (m) of the pushing model ``params.motion``."""
+    scale = params.sweep_limit_scale if params.motion in SLICE_MOTIONS else params.limit_scale
+    return limit_surface_length(prim) * scale
+
+
+def model_push(prim: Primitive, pose: np.ndarray, params: PushTrackParams, contact: np.ndarray, d: np.ndarray,
+               c: float, sweep: tuple | None = None) -> np.ndarray:
+    """COM poses (N, 3) after one push by the pushing model ``params.motion``, without its noise: with ``sweep``
+    (the gripper's slice, the target's outline, the gripper's end position (2,)) the slice swept over the
+    in-contact displacement d (2,) m to that end position ("sweep", "tip"; before it the gripper did not touch the
+    target), else the point pusher moved by d to the contact (2,) ("push", "translate", "static"); c the limit
+    surface's length (:func:`model_length`)."""
+    if sweep is not None:
+        return sweep_push(prim, pose, sweep[0], sweep[1], sweep[2] - d, sweep[2], params.sweep_substeps, c,
+                          params.friction, params.motion == "tip")
+    return push(prim, pose, contact - d, d, c, params)
+
+
 def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarray, d: np.ndarray, c: float,
           params: PushTrackParams, rng: np.random.Generator, seen: np.ndarray, j: int, noisy: np.ndarray,
           share: np.ndarray | None = None, sweep: tuple | None = None) -> np.ndarray:
     """Poses (N, 3) after the pusher at ``contact`` (2,) (its end point) moved by d (2,) m against the particles
-    ``sel`` (N,) bool: the pushing model plus the push noise (:class:`PushTrackParams`); with ``sweep`` (the
-    gripper's slice, the target's outline, the slice's start and end positions) the slice's sweep instead. The
+    ``sel`` (N,) bool: the pushing model plus the push noise (:func:`model_push`, :class:`PushTrackParams`). The
     particles' earlier contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not
     with the noise floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part
     of the model's displacement each particle gets (default all)."""
     out = pose.copy()
     a = pose[sel]
-    if sweep is not None:
-        b = sweep_push(prim, a, sweep[0], sweep[1], sweep[2], sweep[3], params.sweep_substeps, c, params.friction,
-                       params.motion == "tip")
-    else:
-        b = push(prim, a, contact - d, d, c, params)
+    b = model_push(prim, a, params, contact, d, c, sweep)
     length = math.hypot(d[0], d[1])
     if share is not None:
         b = a + (b - a) * share[sel, None]
@@ -215,8 +230,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     touched = np.flatnonzero(actions.touch)
     if len(touched) == 0:
         return None
-    c = limit_surface_length(prim) * (params.sweep_limit_scale if params.motion in SLICE_MOTIONS
-                                      else params.limit_scale)
+    c = model_length(prim, params)
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
@@ -233,13 +247,12 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     pushed = np.zeros(len(touched))
     outline = target_outline(prim) if params.motion in SLICE_MOTIONS else None
     if outline is not None and actions.gripper is None:
-        raise ValueError("PushTrackParams.motion 'sweep' needs the gripper's slice (Actions.gripper)")
+        raise ValueError(f"PushTrackParams.motion {params.motion!r} needs the gripper's slice (Actions.gripper)")
     j = 0
     for t in range(first, len(actions.touch)):
         centre = np.mean(pose[:, :2], axis=0)
         d = actions.push[t]
-        # the slice sweeps the in-contact part of the action only: before it the gripper did not touch the target
-        sweep = None if outline is None else (actions.gripper, outline, actions.ee_end[t] - d, actions.ee_end[t])
+        sweep = None if outline is None else (actions.gripper, outline, actions.ee_end[t])
         if actions.touch[t]:
             if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
