@@ -192,6 +192,25 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     click.echo(f"-> {out_dir / 'accuracy.csv'}, {out_dir / 'summary.csv'}, {png}", err=True)
 
 
+def _evaluation_dir(runs_from: Path) -> None:
+    """Usage error (``--runs-from``) unless ``runs_from`` is an evaluation directory (``stucco evaluate``'s)."""
+    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
+        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
+                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
+
+
+def _collected_pairs(runs_from: Path, scene_list, seed_list) -> list[tuple[str, int]]:
+    """Every (scene, seed) of the grid; a usage error (``--runs-from``) naming the first without a run file."""
+    from pipeline.evaluate import partition
+
+    pairs = [(sc, s) for sc in scene_list for s in seed_list]
+    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
+    if missing:
+        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
+                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    return pairs
+
+
 @bench.command("retrieval")
 @click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
               help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
@@ -211,23 +230,17 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes, partition
+    from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.estimators import parse_estimators
     from pipeline.retrieve.ladder import ladder_rows
     from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
 
-    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
-        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
-                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
+    _evaluation_dir(runs_from)
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
     est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     _methods(method, "--method")
-    pairs = [(sc, s) for sc in scene_list for s in seed_list]
-    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
-    if missing:
-        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
-                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    pairs = _collected_pairs(runs_from, scene_list, seed_list)
     with user_errors("bench retrieval"):
         rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs,
                            progress=run_bar(settings, "ladder"))
@@ -254,17 +267,11 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
     pushing model from its recorded pose before (and replayed in pybullet), against its recorded pose after."""
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes, partition
+    from pipeline.evaluate import parse_scenes
     from pipeline.retrieve.push_bench import push_rows, summarise, summary_markdown, write_outputs
 
-    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
-        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
-                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
-    pairs = [(sc, s) for sc in parsed("--scenes", parse_scenes, scenes) for s in parsed("--seeds", parse_seeds, seeds)]
-    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
-    if missing:
-        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
-                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    _evaluation_dir(runs_from)
+    pairs = _collected_pairs(runs_from, parsed("--scenes", parse_scenes, scenes), parsed("--seeds", parse_seeds, seeds))
     with user_errors("bench pushes"):
         rows = push_rows(runs_from, pairs, replay=replay, jobs=settings.jobs, progress=run_bar(settings, "pushes"))
         paths = write_outputs(rows, out_dir)
