@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
 from pipeline.retrieve.pushtrack_params import MOTIONS, SLICE_MOTIONS, PushTrackParams
@@ -133,7 +134,7 @@ def replay_pose(scene, case: PushCase, target_id: int, heights: Sequence[float],
 
 
 def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    return float(wrap_angle(a))
 
 
 def _run_pushes(path: Path, replay: bool) -> list[dict]:
