@@ -212,7 +212,8 @@ def test_pushed_against_a_wall_the_contacts_win(params):
     for t in range(k):
         if params.motion == "tip":
             model = sweep_push(BOX, model, DISC5, target_outline(BOX), a.ee_end[t] - a.push[t], a.ee_end[t],
-                               params.sweep_substeps, C * params.sweep_limit_scale, params.friction, tip=True)
+                               params.sweep_substeps, C * params.sweep_limit_scale, params.friction,
+                               tip=(params.tip_spread, params.tip_reach))
         else:
             model = push(BOX, model, a.contact[t] - a.push[t], a.push[t], C, params)
     est = _best(run_filter(BOX, a, NO_FREE, params, np.random.default_rng(1)))

@@ -13,6 +13,7 @@ from pipeline.robot import disc_sdf, panda_sdf
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0, name="box")
 CAN = Primitive(kind="cylinder", half=(0.04,), centre=np.zeros(2), yaw=0.0, name="can")
 DISC_R = 0.02
+TIP = (PushTrackParams.tip_spread, PushTrackParams.tip_reach)
 
 
 @pytest.fixture(scope="module")
@@ -130,29 +131,36 @@ def _corner_world(pose, corner):
     return np.array([pose[0] + c * corner[0] - s * corner[1], pose[1] + s * corner[0] + c * corner[1]])
 
 
-def test_tip_turns_a_box_pushed_on_its_long_face_about_the_far_leading_corner(disc):
-    # The -x long face pushed in +x at y = +4 cm: the leading edge is x = +hx, and with the offset 4 cm the centre
-    # of rotation is max(hy, hy^2 / (3 * 0.04)) = hy along it on the far side: the corner (hx, -hy) stays put.
+@pytest.mark.parametrize("offset, spread, reach, far", [
+    (0.04, 0.08, 1.27, 0.08 * (1 + 0.08 * 0.08 / 0.04)),  # near an end: just beyond the far corner
+    (0.012, 0.08, 1.27, 0.08 * 1.27),  # nearer the middle: at reach * hy
+    (0.04, 0.0, 1.0, 0.08),  # the far corner itself
+])
+def test_tip_turns_a_box_pushed_on_its_long_face_about_a_point_of_the_leading_edge(disc, offset, spread, reach, far):
+    # The -x long face pushed in +x at y = +offset: the leading edge is x = +hx, and the centre of rotation is
+    # hy * min(1 + spread * hy / offset, reach) along it on the far side (-y). The slice's contact moves a little
+    # along the face as the box turns, so the point is checked where the turn starts: the first of 15 steps.
     hx, hy = BOX.half
-    g0 = np.array([-hx - DISC_R - 0.001, 0.04])
+    g0 = np.array([-hx - DISC_R - 0.0001, offset])
+    step = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.002, 0.0], 1, 0.05, 0.5,
+                      tip=(spread, reach))[0]
+    assert step[2] < 0.0  # pushed above the centre in +x: it turns clockwise
+    assert np.hypot(*(_corner_world(step, (hx, -far)) - [hx, -far])) < 1e-6
+    # a whole 2 cm push turns it by about 2 cm over the contact's distance from that point
     out = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5,
-                     tip=True)[0]
-    assert out[2] < -0.1  # pushed above the centre in +x: it turns clockwise
-    assert np.hypot(*(_corner_world(out, (hx, -hy)) - [hx, -hy])) < 1e-6
-    # the same push without tipping (the limit surface) turns it less and moves that corner
-    flat = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5)[0]
-    assert abs(flat[2]) < abs(out[2]) and np.hypot(*(_corner_world(flat, (hx, -hy)) - [hx, -hy])) > 1e-3
+                     tip=(spread, reach))[0]
+    assert -out[2] == pytest.approx(0.02 / (offset + far), rel=0.2)
 
 
 def test_tip_leaves_end_faces_and_cans_to_the_limit_surface(disc):
     hx, hy = BOX.half
     g0 = np.array([0.01, -hy - DISC_R - 0.001])  # the -y end face, pushed in +y
     args = (target_outline(BOX), g0, g0 + [0.0, 0.02], 15, 0.05, 0.5)
-    assert np.array_equal(sweep_push(BOX, np.zeros((1, 3)), disc, *args, tip=True),
+    assert np.array_equal(sweep_push(BOX, np.zeros((1, 3)), disc, *args, tip=TIP),
                           sweep_push(BOX, np.zeros((1, 3)), disc, *args))
     g0 = np.array([-CAN.half[0] - DISC_R - 0.001, 0.01])
     args = (target_outline(CAN), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5)
-    assert np.array_equal(sweep_push(CAN, np.zeros((1, 3)), disc, *args, tip=True),
+    assert np.array_equal(sweep_push(CAN, np.zeros((1, 3)), disc, *args, tip=TIP),
                           sweep_push(CAN, np.zeros((1, 3)), disc, *args))
 
 
@@ -160,5 +168,5 @@ def test_tip_pushes_a_centred_long_face_straight(disc):
     hx, _ = BOX.half
     g0 = np.array([-hx - DISC_R - 0.001, 0.0])
     out = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 + [0.02, 0.0], 15, 0.05, 0.5,
-                     tip=True)[0]
+                     tip=TIP)[0]
     assert np.all(np.isfinite(out)) and abs(out[2]) < 1e-3 and out[0] == pytest.approx(0.019, abs=0.002)

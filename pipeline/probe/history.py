@@ -26,7 +26,11 @@ from pipeline.retrieve.pushmodel import PushTrackParams
 from pipeline.retrieve.pushtrack import pushtrack_set
 from pipeline.retrieve.runs import info_from_table, retrieval_rng
 
-__all__ = ["HistoryPrior", "history_prior"]
+__all__ = ["HistoryPrior", "history_prior", "PRIOR_PUSHTRACK"]
+
+#: The filter behind the prior: the point pusher and its push noise, with which the prior was chosen and checked
+#: (docs/retrieval.md, "What the pushes said"); pushtrack's own defaults moved on since.
+PRIOR_PUSHTRACK = PushTrackParams(motion="push", trans_noise=0.3, yaw_noise=3.0)
 
 
 @dataclass(frozen=True)
@@ -79,9 +83,8 @@ def history_prior(table: pa.Table, segments: Sequence[Segment], scene, run: str,
     if table.num_rows == 0 or not segments:
         return None
     info = info_from_table(table, scene)  # the final poses NaN: no ground truth is read
-    # the point pusher: the prior was chosen and checked with it (docs/retrieval.md, "What the pushes said")
-    found = pushtrack_set(segments, info, sdf, retrieval_rng(root_seed, run), RetrievalParams(),
-                          PushTrackParams(motion="push"), table)
+    found = pushtrack_set(segments, info, sdf, retrieval_rng(root_seed, run), RetrievalParams(), PRIOR_PUSHTRACK,
+                          table)
     if found is None:
         return None
     poses, weights = np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64)

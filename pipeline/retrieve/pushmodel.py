@@ -191,7 +191,7 @@ def model_push(prim: Primitive, pose: np.ndarray, params: PushTrackParams, conta
     surface's length (:func:`model_length`)."""
     if sweep is not None:
         return sweep_push(prim, pose, sweep[0], sweep[1], sweep[2] - d, sweep[2], params.sweep_substeps, c,
-                          params.friction, params.motion == "tip")
+                          params.friction, (params.tip_spread, params.tip_reach) if params.motion == "tip" else None)
     return push(prim, pose, contact - d, d, c, params)
 
 

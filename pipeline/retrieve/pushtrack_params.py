@@ -34,6 +34,11 @@ class PushTrackParams:
     sweep_limit_scale : float
         ``limit_scale`` of ``motion`` "sweep" and "tip" (1.5: the scale that fits the simulated pushes best, a box
         resting on its corners; docs/retrieval.md, "The gripper's slice pushes").
+    tip_spread, tip_reach : float
+        Where a box pushed on a long face turns (``motion`` "tip"): about a point of its leading long edge's line,
+        hy * min(1 + tip_spread * hy / |e|, tip_reach) from the edge's middle on the far side from the contact's
+        offset e (0.08, 1.27: fitted to the simulated pushes of seeds 100-109; docs/retrieval.md, "The tipped box's
+        centre of rotation").
     motion : {"push", "sweep", "tip", "translate", "static"}
         "push": the quasi-static pushing model from a point pusher at the contact minus the in-contact displacement;
         "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to
@@ -50,9 +55,11 @@ class PushTrackParams:
         footprint; larger: the support pressure nearer the footprint's edge, as a rigid box resting on its
         corners).
     trans_noise : float
-        Standard deviation of the position noise per metre pushed (0.3), plus ``noise_floor``.
+        Standard deviation of the position noise per metre pushed (0.15), plus ``noise_floor``.
     yaw_noise : float, rad per metre pushed
-        Standard deviation of the yaw noise per metre pushed (3.0), plus ``yaw_floor``.
+        Standard deviation of the yaw noise per metre pushed (1.5), plus ``yaw_floor``. Half of what the point
+        pusher needs (0.3 and 3.0), since the tipped box is closer per push (docs/retrieval.md, "The tipped box's
+        centre of rotation").
     noise_floor : float, metres
         Position noise of every push (0.001).
     yaw_floor : float, radians
@@ -139,11 +146,13 @@ class PushTrackParams:
     substeps: int = 4
     sweep_substeps: int = 15
     sweep_limit_scale: float = 1.5
+    tip_spread: float = 0.08
+    tip_reach: float = 1.27
     motion: str = "tip"
     friction: float = 0.5
     limit_scale: float = 1.0
-    trans_noise: float = 0.3
-    yaw_noise: float = 3.0
+    trans_noise: float = 0.15
+    yaw_noise: float = 1.5
     noise_floor: float = 0.001
     yaw_floor: float = 0.01
     contact_sigma: float = 0.004
@@ -177,8 +186,9 @@ class PushTrackParams:
                                                       "free_resolution", "sweep_spacing", "limit_scale",
                                                       "sweep_limit_scale")},
         "other_push": number(0, 1), "other_reach": number(0), "refine_spread": number(0), "start_margin": number(0),
-        **{name: number(0) for name in ("friction", "trans_noise", "yaw_noise", "noise_floor", "yaw_floor",
-                                        "free_tolerance", "mean_yaw")},
+        "tip_reach": number(1),
+        **{name: number(0) for name in ("friction", "tip_spread", "trans_noise", "yaw_noise", "noise_floor",
+                                        "yaw_floor", "free_tolerance", "mean_yaw")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
         "n_refine": integer(0, 256), "refine_growth": number(1)}
 

@@ -137,7 +137,7 @@ def _grid_value(values, shape, strides, origin, resolution, outside, qx, qy):
 
 @njit(cache=True)
 def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values, shape, strides, origin,
-                 resolution, outside, g0x, g0y, g1x, g1y, substeps, c, mu, tip):
+                 resolution, outside, g0x, g0y, g1x, g1y, substeps, c, mu, tip, tip_spread, tip_reach):
     """Move every COM pose of ``poses`` (N, 3), in place, as the gripper's slice sweeps from (g0x, g0y) to
     (g1x, g1y) in ``substeps`` steps (the module docstring).
 
@@ -159,6 +159,9 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
         A box pushed on a long face (its primitive's x axis) turns about a point of its leading long edge's line,
         as a box tipped onto that edge (``PushTrackParams.motion`` "tip"); else the limit surface, as for its end
         faces.
+    tip_spread, tip_reach : float
+        That point lies hy * min(1 + tip_spread * hy / |e|, tip_reach) from the edge's middle, on the far side
+        from the contact's offset e along the edge (``PushTrackParams.tip_spread``, ``tip_reach``).
     """
     N = poses.shape[0]
     G = gpts.shape[0]
@@ -242,14 +245,15 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
                 qy = -sin_p * (px - cx) + cos_p * (py - cy)
                 nx_ = cos_p * mx + sin_p * my
                 ny_ = -sin_p * mx + cos_p * my
-                if abs(nx_) > abs(ny_):
-                    # A long face pushed: the box rests on its leading long edge and turns about a point of that
-                    # edge's line at max(hy, hy^2 / (3 |offset|)) on the far side (a uniform line support's
-                    # centre of rotation, never within the edge; docs/retrieval.md, "The gripper's slice pushes").
+                if abs(nx_) > abs(ny_) and abs(qy) > 1e-9:
+                    # A long face pushed off its middle: the box rests on its leading long edge and turns about a
+                    # point of that edge's line on the far side: at its far corner when pushed near an end, further
+                    # out (but not beyond tip_reach * hy) when pushed near the middle (docs/retrieval.md, "The tipped
+                    # box's centre of rotation"). Pushed exactly at the middle, no side is the far one: the limit
+                    # surface below pushes it straight.
                     lead = hx if nx_ > 0.0 else -hx
-                    e = qy if abs(qy) > 1e-9 else 1e-9
-                    dist = max(hy, hy * hy / (3.0 * abs(e)))
-                    oy = -dist if e > 0.0 else dist
+                    dist = hy * min(1.0 + tip_spread * hy / abs(qy), tip_reach)
+                    oy = -dist if qy > 0.0 else dist
                     corx = cx + cos_p * lead - sin_p * oy
                     cory = cy + sin_p * lead + cos_p * oy
                     den = mx * -(py - cory) + my * (px - corx)  # m . perp(p - cor)
@@ -296,9 +300,12 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
 
 
 def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: np.ndarray, g0: np.ndarray,
-               g1: np.ndarray, substeps: int, c: float, mu: float, tip: bool = False) -> np.ndarray:
+               g1: np.ndarray, substeps: int, c: float, mu: float,
+               tip: tuple[float, float] | None = None) -> np.ndarray:
     """COM poses (N, 3) after the gripper's slice swept straight from ``g0`` to ``g1`` (2,), metres, against the
-    target at ``poses`` (N, 3) (the module docstring); a pose the slice never reaches is returned as it was."""
+    target at ``poses`` (N, 3) (the module docstring); a pose the slice never reaches is returned as it was.
+    ``tip``: (spread, reach) of the tipped box's centre of rotation (:func:`sweep_kernel`); None: the limit surface
+    on every face."""
     out = np.array(poses, dtype=np.float64, copy=True, order="C")
     d = np.asarray(g1, dtype=np.float64) - np.asarray(g0, dtype=np.float64)
     # only the slice's side that faces the motion can enter the target (a side point may, as the target turns,
@@ -308,7 +315,8 @@ def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: 
     sweep_kernel(prim.kind == "cylinder", float(prim.half[0]), hy, float(prim.yaw), float(prim.centre[0]),
                  float(prim.centre[1]), out, front, np.ascontiguousarray(outline, dtype=np.float64),
                  grip.values, grip.shape, grip.strides, grip.origin, grip.resolution, grip.outside,
-                 float(g0[0]), float(g0[1]), float(g1[0]), float(g1[1]), int(substeps), float(c), float(mu), bool(tip))
+                 float(g0[0]), float(g0[1]), float(g1[0]), float(g1[1]), int(substeps), float(c), float(mu),
+                 tip is not None, *(float(v) for v in (tip or (0.0, 1.0))))
     return out
 
 
@@ -318,4 +326,4 @@ def warm_up() -> None:
     for cylinder in (False, True):
         sweep_kernel(cylinder, 0.05, 0.05, 0.0, 0.0, 0.0, np.zeros((1, 3)), one, one, np.zeros(4),
                      np.array([2, 2], dtype=np.int64), np.array([2, 1], dtype=np.int64), np.zeros(2), 0.01, 1.0,
-                     0.0, 0.0, 0.01, 0.0, 2, 0.05, 0.5, True)
+                     0.0, 0.0, 0.01, 0.0, 2, 0.05, 0.5, True, 0.1, 1.0)
