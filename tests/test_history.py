@@ -3,6 +3,7 @@ prior from pushtrack"): its cost's shape, the prior of a stored run, its effect 
 side files written before it."""
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from functools import partial
@@ -122,6 +123,16 @@ def test_the_prior_of_a_stored_run_is_pushtracks_set_and_reads_no_ground_truth(s
     _, prim = target_primitive(info.scene)
     truth = info.true_pose
     assert found.cost(prim, truth[None, :])[0] < 0.5
+
+
+def test_the_prior_keeps_its_filter_when_pushtracks_defaults_move(scripted_run):
+    # The prior was chosen and checked with the point pusher and its noise (docs/retrieval.md, "What the pushes
+    # said"); these are the bits it gave before pushtrack's default pushing model and noise changed.
+    table, info, sensing = scripted_run
+    found = history_prior(table, sensing.segments(), info.scene, info.run, 0, sensing.sdf)
+    digest = hashlib.sha256(np.ascontiguousarray(found.poses).tobytes()
+                            + np.ascontiguousarray(found.weights).tobytes()).hexdigest()
+    assert digest == "a0321e4f347090ec2c897b512cbdcdc232550fa63bfbf4faed9a42a65efe9886"
 
 
 def test_no_segment_gives_no_prior(scripted_run):

@@ -400,6 +400,10 @@ def test_bad_parameters_are_refused():
     with pytest.raises(ValueError):
         PushTrackParams(motion="teleport")
     with pytest.raises(ValueError):
+        PushTrackParams(tip_reach=0.9)  # the centre of rotation within the edge
+    with pytest.raises(ValueError):
+        PushTrackParams(tip_spread=-0.1)
+    with pytest.raises(ValueError):
         PushTrackParams(n_particles=0)
     with pytest.raises(ValueError):
         PushTrackParams(starts=0)

@@ -152,6 +152,23 @@ def test_tip_turns_a_box_pushed_on_its_long_face_about_a_point_of_the_leading_ed
     assert -out[2] == pytest.approx(0.02 / (offset + far), rel=0.2)
 
 
+def test_tip_mirrored_turns_the_other_way_about_the_other_corner(disc):
+    # The +x long face pushed in -x at y = -4 cm: the leading edge is x = -hx, the far side +y; still clockwise
+    hx, hy = BOX.half
+    far = hy * min(1 + TIP[0] * hy / 0.04, TIP[1])
+    g0 = np.array([hx + DISC_R + 0.0001, -0.04])
+    step = sweep_push(BOX, np.zeros((1, 3)), disc, target_outline(BOX), g0, g0 - [0.002, 0.0], 1, 0.05, 0.5,
+                      tip=TIP)[0]
+    assert step[2] < 0.0
+    assert np.hypot(*(_corner_world(step, (-hx, far)) - [-hx, far])) < 1e-6
+
+
+def test_tip_is_a_pair_or_none_not_a_flag(disc):
+    args = (target_outline(BOX), np.zeros(2), np.array([0.01, 0.0]), 15, 0.05, 0.5)
+    with pytest.raises(TypeError, match="tip"):
+        sweep_push(BOX, np.zeros((1, 3)), disc, *args, tip=True)
+
+
 def test_tip_leaves_end_faces_and_cans_to_the_limit_surface(disc):
     hx, hy = BOX.half
     g0 = np.array([0.01, -hy - DISC_R - 0.001])  # the -y end face, pushed in +y

@@ -14,7 +14,8 @@ unchanged) is tried at poses that lose one piece of knowledge per rung:
 6. for an estimator with a ``motion`` parameter (pushtrack, docs/retrieval.md): ``ideal_true_segment_static``,
    ``..._translate``, ``..._push``, ``tracker_our_choice_static``, ``..._translate``, ``..._push``: rungs 3 and 5
    again with the target held still between contacts (only the filter's noise), moved by the pusher without
-   turning (the tracker's assumption), or pushed by the point pusher (the previous pushing model) instead of the
+   turning (the tracker's assumption), or pushed by the point pusher (the pushing model before the tipped box,
+   here with the filter's default noise, not the 0.3 / 3.0 it had then) instead of the
    estimator's own pushing model.
 
 The ideal segments also carry each contact where it was observed, at its own step (``Segment.observed``): the

@@ -247,10 +247,11 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
                 ny_ = -sin_p * mx + cos_p * my
                 if abs(nx_) > abs(ny_) and abs(qy) > 1e-9:
                     # A long face pushed off its middle: the box rests on its leading long edge and turns about a
-                    # point of that edge's line on the far side: at its far corner when pushed near an end, further
-                    # out (but not beyond tip_reach * hy) when pushed near the middle (docs/retrieval.md, "The tipped
-                    # box's centre of rotation"). Pushed exactly at the middle, no side is the far one: the limit
-                    # surface below pushes it straight.
+                    # point of that edge's line on the far side: just beyond its far corner when pushed near an end,
+                    # further out (but not beyond tip_reach * hy) when pushed near the middle (docs/retrieval.md,
+                    # "The tipped box's centre of rotation"). The side flips with the offset's sign, as a tipped box
+                    # falls to one side or the other; pushed exactly at the middle, no side is the far one: the
+                    # limit surface below pushes it straight.
                     lead = hx if nx_ > 0.0 else -hx
                     dist = hy * min(1.0 + tip_spread * hy / abs(qy), tip_reach)
                     oy = -dist if qy > 0.0 else dist
@@ -306,6 +307,8 @@ def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: 
     target at ``poses`` (N, 3) (the module docstring); a pose the slice never reaches is returned as it was.
     ``tip``: (spread, reach) of the tipped box's centre of rotation (:func:`sweep_kernel`); None: the limit surface
     on every face."""
+    if isinstance(tip, bool):
+        raise TypeError("sweep_push: tip is (spread, reach) or None, not a bool")
     out = np.array(poses, dtype=np.float64, copy=True, order="C")
     d = np.asarray(g1, dtype=np.float64) - np.asarray(g0, dtype=np.float64)
     # only the slice's side that faces the motion can enter the target (a side point may, as the target turns,
