@@ -24,6 +24,7 @@ import pyarrow.parquet as pq
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
+from pipeline.retrieve.pushmodel import model_length, model_push
 from pipeline.retrieve.pushtrack_params import MOTIONS, SLICE_MOTIONS, PushTrackParams
 from pipeline.retrieve.runs import load_run
 from pipeline.retrieve.sweep import cached_gripper_slice, target_outline
@@ -91,8 +92,6 @@ def model_pose(motion: str, prim, case: PushCase, target_id: int, sdf, params: P
                ) -> np.ndarray:
     """The target's COM pose (3,) after the push by the pushing model ``motion`` (``PushTrackParams.motion``) from
     its recorded pose before, as the pushtrack filter moves a particle (without its noise)."""
-    from pipeline.retrieve.pushmodel import model_length, model_push
-
     params = dataclasses.replace(params, motion=motion)
     sweep = (cached_gripper_slice(sdf), target_outline(prim), case.ee_end) if motion in SLICE_MOTIONS else None
     return model_push(prim, case.before[target_id][None, :], params, case.contact, case.push,

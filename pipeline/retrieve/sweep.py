@@ -315,11 +315,12 @@ def sweep_push(prim: Primitive, poses: np.ndarray, grip: GripperSlice, outline: 
     # but the front's points reach deeper)
     front = np.ascontiguousarray(grip.points[grip.normals[:, 0] * d[0] + grip.normals[:, 1] * d[1] > 0.0])
     hy = float(prim.half[1]) if len(prim.half) > 1 else 0.0
+    spread, reach = (0.0, 1.0) if tip is None else (float(tip[0]), float(tip[1]))
     sweep_kernel(prim.kind == "cylinder", float(prim.half[0]), hy, float(prim.yaw), float(prim.centre[0]),
                  float(prim.centre[1]), out, front, np.ascontiguousarray(outline, dtype=np.float64),
                  grip.values, grip.shape, grip.strides, grip.origin, grip.resolution, grip.outside,
                  float(g0[0]), float(g0[1]), float(g1[0]), float(g1[1]), int(substeps), float(c), float(mu),
-                 tip is not None, *(float(v) for v in (tip or (0.0, 1.0))))
+                 tip is not None, spread, reach)
     return out
 
 
