@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 KSTAMP := $(VENV)/.kernels
-KERNELS := $(wildcard pipeline/track/*.py pipeline/retrieve/*_kernel.py pipeline/retrieve/sweep.py pipeline/pairwise_sum.py)
+KERNELS := $(wildcard pipeline/track/*.py pipeline/estimators/*/kernel.py pipeline/estimators/paper/icp_kernel.py pipeline/estimators/pushtrack/slice_pusher.py pipeline/pairwise_sum.py)
 ANCHORS ?= data/anchors
 
 .PHONY: setup syslibs lock quick reproduce reproduce-active test bench clean
@@ -51,10 +51,10 @@ $(KSTAMP): $(STAMP) $(KERNELS)
 	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels; warm_up_kernels(); \
 	    from pipeline.bytecode import compile_imports; compile_imports()" & first=$$!; \
 	  $(BIN)/python -c "from pipeline.track.stage import warm_up_kernels_but_contact; warm_up_kernels_but_contact(); \
-	    from pipeline.retrieve.plausible_kernel import warm_up; warm_up(); \
-	    from pipeline.retrieve.icp_kernel import warm_up as icp; icp(); \
-	    from pipeline.retrieve.pushtrack_kernel import warm_up as pt; pt(); \
-	    from pipeline.retrieve.sweep import warm_up as sw; sw()"; second=$$?; \
+	    from pipeline.estimators.plausible.kernel import warm_up; warm_up(); \
+	    from pipeline.estimators.paper.icp_kernel import warm_up as icp; icp(); \
+	    from pipeline.estimators.pushtrack.kernel import warm_up as pt; pt(); \
+	    from pipeline.estimators.pushtrack.slice_pusher import warm_up as sw; sw()"; second=$$?; \
 	  wait $$first && test $$second = 0
 	@touch $(KSTAMP)
 

@@ -362,7 +362,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         "initial": initial, "goal_xy_m": None if mover.goal is None else mover.goal.tolist(),
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
-        # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.retrieve.runs)
+        # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.estimators.run_info)
         "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),
     }
     if extra is not None:

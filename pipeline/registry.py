@@ -74,10 +74,10 @@ class EstimatorSpec:
     ----------
     name, title : str
     factory : callable or import path
-        ``factory(segments, info, sdf, rngs, params, own) -> Estimate`` (:mod:`pipeline.retrieve.estimators`):
-        the run's segments, its :class:`~pipeline.retrieve.runs.RunInfo`, the gripper grid, the run's three
+        ``factory(segments, info, sdf, rngs, params, own) -> Estimate`` (:mod:`pipeline.estimators.estimate`):
+        the run's segments, its :class:`~pipeline.estimators.run_info.RunInfo`, the gripper grid, the run's three
         Generators (model points, ICP restarts, hypotheses), the shared
-        :class:`~pipeline.retrieve.params.RetrievalParams` and the estimator's own parameters (None without).
+        :class:`~pipeline.estimators.params.RetrievalParams` and the estimator's own parameters (None without).
     params : type, import path or None
         The estimator's own parameter dataclass, recorded in the metadata under :attr:`meta_key`.
     meta_key : str or None
@@ -295,15 +295,15 @@ register(TrackerSpec("gmphd", "GM-PHD", "pipeline.track.gmphd:GMPHDParams", "pip
 
 register(EstimatorSpec("plausible", "the paper's segment choice, then the best pose of a plausible set fitted to "
                                     "the target's shape, the contacts and the gripper's free space",
-                       "pipeline.retrieve.estimators:plausible_estimator",
-                       params="pipeline.retrieve.plausible:PlausibleParams"))
+                       "pipeline.estimators.estimate:plausible_estimator",
+                       params="pipeline.estimators.plausible.fit:PlausibleParams"))
 register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
                                 "warm-started, the grasp at the last in-contact step's estimate",
-                       "pipeline.retrieve.estimators:paper_estimator", needs=("every_step",)))
+                       "pipeline.estimators.estimate:paper_estimator", needs=("every_step",)))
 register(EstimatorSpec("pushtrack", "the paper's segment choice, then the target's pose tracked through its pushes by "
                                     "a particle filter (contacts at their own steps, free space, quasi-static pushing)",
-                       "pipeline.retrieve.pushtrack:pushtrack_estimator",
-                       params="pipeline.retrieve.pushmodel:PushTrackParams"))
+                       "pipeline.estimators.pushtrack.estimator:pushtrack_estimator",
+                       params="pipeline.estimators.pushtrack.filter:PushTrackParams"))
 
 register(PolicySpec("scripted", "the scene's action sequence plus replay noise", "pipeline.policies:ScriptedPolicy",
                     needs=(("actions", "action sequence"),), default_for=("retrieval",)))

@@ -15,7 +15,7 @@ __all__ = ["run_key", "run_rng", "check_stream"]
 
 def check_stream(stream, name: str = "stream") -> int:
     """``stream`` as a plain int: a non-negative integer (numpy's included, ``bool`` not); ValueError naming
-    ``name`` otherwise. The pose estimators' random stream (:func:`pipeline.retrieve.runs.retrieval_rng`)."""
+    ``name`` otherwise. The pose estimators' random stream (:func:`pipeline.estimators.run_info.retrieval_rng`)."""
     try:
         value = operator.index(stream) if not isinstance(stream, (bool, np.bool_)) else -1
     except TypeError:

@@ -68,11 +68,11 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
     for name, values in (("--T", ts), ("--N", ns)):
         if not values:
             raise click.BadParameter("expected at least one value", param_hint=name)
-    from pipeline.anchors import ANCHOR_DIR, check_streams
+    from pipeline.studies.anchors import ANCHOR_DIR, check_streams
 
     check_paths({"--streams": streams or ANCHOR_DIR, "--reference-python": reference_python}, {"--json": json_path})
     from pipeline.atomic import write_text
-    from pipeline.bench import check_reference, track_bench
+    from pipeline.studies.trackers import check_reference, track_bench
 
     with user_errors("bench track"):
         check_streams(sorted({*ts, 50}), streams)  # T=50 also warms the kernels up
@@ -153,9 +153,11 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.retrieve.pushmodel import MOTIONS, SELECT_RULES
-    from pipeline.study import (accuracy_bench, accuracy_settings, pareto_figure, summarise_settings,
-                                summary_markdown, write_csv)
+    from pipeline.estimators.pushtrack.filter import MOTIONS, SELECT_RULES
+    from pipeline.studies.accuracy import accuracy_bench
+    from pipeline.studies.accuracy_settings import accuracy_settings
+    from pipeline.studies.pareto import pareto_figure, summarise_settings, summary_markdown
+    from pipeline.studies.tables import write_csv
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
@@ -231,9 +233,9 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.retrieve.estimators import parse_estimators
-    from pipeline.retrieve.ladder import ladder_rows
-    from pipeline.retrieve.ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
+    from pipeline.estimators.estimate import parse_estimators
+    from pipeline.studies.retrieval_ladder import ladder_rows
+    from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
 
     _evaluation_dir(runs_from)
     scene_list = parsed("--scenes", parse_scenes, scenes)
@@ -268,7 +270,7 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.retrieve.push_bench import push_rows, summarise, summary_markdown, write_outputs
+    from pipeline.studies.pushes import push_rows, summarise, summary_markdown, write_outputs
 
     _evaluation_dir(runs_from)
     pairs = _collected_pairs(runs_from, parsed("--scenes", parse_scenes, scenes), parsed("--seeds", parse_seeds, seeds))
@@ -298,7 +300,7 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes
-    from pipeline.probe.bench import budget_rows, summarise, write_outputs
+    from pipeline.studies.probe_budget import budget_rows, summarise, write_outputs
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
@@ -354,8 +356,8 @@ def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, b
     if contact_counts is not None:
         _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed)
         return
-    from pipeline.retrieve.estimators import parse_estimators
-    from pipeline.study.scale import scale_rows, write_outputs
+    from pipeline.estimators.estimate import parse_estimators
+    from pipeline.studies.scale import scale_rows, write_outputs
 
     scene_list, counts = _one_task_and_sizes(scene, "--runs", run_counts, "grid size")
     method_list = _methods(methods)
@@ -401,8 +403,8 @@ def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_di
             opt = next(p.opts[0] for p in ctx.command.params if p.name == name)
             raise click.BadParameter(f"{opt} does not apply to the contacts axis (one axis per call)",
                                      param_hint="--contacts")
-    from pipeline.retrieve.estimators import parse_estimators
-    from pipeline.study.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs
+    from pipeline.estimators.estimate import parse_estimators
+    from pipeline.studies.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs
 
     scene_list, counts = _one_task_and_sizes(scene, "--contacts", contact_counts, "contact count")
     method_list = _methods(methods)

@@ -90,7 +90,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--seeds") from None
     method_list = parsed("--methods", parse_methods, methods)
-    from pipeline.retrieve.estimators import parse_estimators
+    from pipeline.estimators.estimate import parse_estimators
 
     estimator_list = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
     if from_runs is not None and scenes is not None and scene_files(scenes):

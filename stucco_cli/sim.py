@@ -121,7 +121,7 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def sim_bench(scene: str, n_actions: int | None, repeat: int, as_json: bool) -> None:
     """Time one scripted run of a scene with every effect on, then with each effect switched off."""
-    from pipeline.sim.bench import effect_costs
+    from pipeline.studies.sim_effects import effect_costs
 
     sc = _load(scene)
     with user_errors():

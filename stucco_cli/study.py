@@ -55,7 +55,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     20th-80th percentile bars, for all runs and runs with ambiguity >= 0.3."""
     writable_dir("--out", out_dir)
     from pipeline.evaluate import parse_methods
-    from pipeline.study import training_study
+    from pipeline.studies.training_figure import training_study
 
     names, seed_list = _grid(scenes, seeds)
     method_list = parsed("--methods", parse_methods, methods)
@@ -85,7 +85,7 @@ def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     writable_dir("--out", out_dir)
     from pipeline.evaluate import parse_methods
     from pipeline.registry import tune_grid
-    from pipeline.study import tune
+    from pipeline.studies.tuning import tune
 
     names, seed_list = _grid(scenes, seeds)
     method_list = parsed("--methods", parse_methods, methods)

@@ -112,7 +112,7 @@ def test_no_new_oversized_module():
 
 #: Stage tables written outside their stage's ``<stage>_file`` function: the training study's cache of the
 #: training set's contacts (its own metadata: the run files it holds, docs/studies.md).
-KNOWN_OTHER_WRITERS = {("contacts", "pipeline.study.training._isolate_training")}
+KNOWN_OTHER_WRITERS = {("contacts", "pipeline.studies.training._isolate_training")}
 
 
 def stage_table_writers() -> dict[str, set[str]]:
@@ -150,29 +150,19 @@ def test_each_stage_table_is_written_by_its_stage_file_function_only():
 #: ``pipeline.retrieve`` re-exports its stage, so it sits with the stages; its algorithm modules sit below.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("cli", ("stucco_cli",)),
-    ("studies", ("pipeline.study", "pipeline.bench", "pipeline.anchors", "pipeline.sim.bench")),
+    ("studies", ("pipeline.studies",)),
     # The active protocol's probing policy runs the stages (isolate, track, segment, the estimators) between probes;
     # collect and retrieve reach it through the registry by import path, never by an import.
     ("evaluate", ("pipeline.evaluate", "pipeline.report", "pipeline.figures", "pipeline.probe")),
-    # The retrieval ladder (`stucco bench retrieval`) lives in the retrieve package, so it keeps to the stages'
-    # layer: it reads an evaluation's files through pipeline.layout, not through the evaluate driver.
     ("stages", ("pipeline.collect", "pipeline.isolate", "pipeline.track.stage", "pipeline.segment",
-                "pipeline.retrieve", "pipeline.retrieve.stage", "pipeline.retrieve.ladder",
-                "pipeline.retrieve.ladder_report", "pipeline.score")),
-    ("algorithms", ("pipeline.track", "pipeline.retrieve.params", "pipeline.retrieve.model", "pipeline.retrieve.icp",
-                    "pipeline.retrieve.icp_kernel",
-                    "pipeline.retrieve.paper", "pipeline.retrieve.online", "pipeline.retrieve.plausible",
-                    "pipeline.retrieve.evidence",
-                    "pipeline.retrieve.estimators", "pipeline.retrieve.runs", "pipeline.retrieve.tables",
-                    "pipeline.grasp", "pipeline.grasp_rule", "pipeline.sim", "pipeline.robot", "pipeline.policies",
-                    "pipeline.components",
-                    "pipeline.metrics", "pipeline.labels",
-                    "pipeline.retrieve.plausible_kernel", "pipeline.retrieve.resistance", "pipeline.detection")),
+                "pipeline.retrieve", "pipeline.score")),
+    ("algorithms", ("pipeline.track", "pipeline.estimators", "pipeline.grasp", "pipeline.grasp_rule", "pipeline.sim",
+                    "pipeline.robot", "pipeline.policies", "pipeline.components", "pipeline.metrics",
+                    "pipeline.labels", "pipeline.detection", "pipeline.contact_isolation")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
                             "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum",
-                            "pipeline.spd",
-                            "pipeline.environment")),
+                            "pipeline.spd", "pipeline.environment", "pipeline.bytecode")),
 )
 
 
@@ -189,7 +179,8 @@ def layer_of(module: str) -> int:
 
 def test_layer_of_takes_the_longest_prefix():
     assert LAYERS[layer_of("pipeline.retrieve.stage")][0] == "stages"
-    assert LAYERS[layer_of("pipeline.retrieve.icp")][0] == "algorithms"
+    assert LAYERS[layer_of("pipeline.estimators.paper.icp")][0] == "algorithms"
+    assert LAYERS[layer_of("pipeline.studies.retrieval_ladder")][0] == "studies"
     assert LAYERS[layer_of("pipeline.track.stage")][0] == "stages"
     assert LAYERS[layer_of("pipeline.track.kernels")][0] == "algorithms"
     assert LAYERS[layer_of("stucco_cli.main")][0] == "cli"
@@ -202,13 +193,13 @@ def upward_imports(graph: dict[str, set[str]]) -> list[str]:
 
 
 def test_the_layer_check_finds_the_leaks_it_was_written_for():
-    leaks = {"pipeline.layout": {"pipeline.retrieve.estimators"},  # paths imported an estimator module
-             "pipeline.retrieve.ladder": {"pipeline.evaluate"},  # the ladder imported the evaluate driver
+    leaks = {"pipeline.layout": {"pipeline.estimators.estimate"},  # paths imported an estimator module
+             "pipeline.retrieve.stage": {"pipeline.evaluate"},  # the stage imported the evaluate driver
              "pipeline.track.soft": {"pipeline.segment"},  # the tracker imported the segment stage
              "pipeline.segment": {"pipeline.components"}}  # (down: allowed)
     assert upward_imports(leaks) == [
-        "pipeline.layout (schema/geometry/io) -> pipeline.retrieve.estimators (algorithms)",
-        "pipeline.retrieve.ladder (stages) -> pipeline.evaluate (evaluate)",
+        "pipeline.layout (schema/geometry/io) -> pipeline.estimators.estimate (algorithms)",
+        "pipeline.retrieve.stage (stages) -> pipeline.evaluate (evaluate)",
         "pipeline.track.soft (algorithms) -> pipeline.segment (stages)"]
 
 

@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from pipeline.anchors import ANCHOR_DIR, load_contacts_stream
-from pipeline.bench import REFERENCE_BUDGET_S, WorkerError, run_reference_worker
+from pipeline.studies.anchors import ANCHOR_DIR, load_contacts_stream
+from pipeline.studies.trackers import REFERENCE_BUDGET_S, WorkerError, run_reference_worker
 
 STAND_IN = '''
 import argparse, json, os

@@ -11,7 +11,7 @@ import pytest
 
 from pipeline import registry
 from pipeline.constraints import Constraint, check, from_dict, integer, number, one_of, rule
-from pipeline.retrieve.params import RetrievalParams
+from pipeline.estimators.params import RetrievalParams
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from pipeline.geometry import Primitive
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
 from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
-from pipeline.retrieve.model import target_primitive
+from pipeline.estimators.target_model import target_primitive
 from pipeline.scenes import load_scene
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
@@ -126,7 +126,7 @@ def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, 
 
 
 def test_a_smaller_budget_stops_where_the_policy_would_have_stopped():
-    from pipeline.probe.bench import stop_decision
+    from pipeline.studies.probe_budget import stop_decision
 
     # Decision 1 agrees on 3 target contacts, but they are bunched: the policy went on (stop false) until 3.
     history = [{"share": 0.2, "target_steps": [], "stop": False},
@@ -140,7 +140,7 @@ def test_a_smaller_budget_stops_where_the_policy_would_have_stopped():
 
 
 def test_the_largest_budget_is_the_run_itself_but_only_the_budget_it_was_collected_with():
-    from pipeline.probe.bench import decision_at
+    from pipeline.studies.probe_budget import decision_at
 
     # Collected with budget 8; the segment gave way at 8 and made 3 probes of its own (decisions 9-11).
     history = [{"share": 0.2, "target_steps": [], "stop": False} for _ in range(12)]
@@ -169,7 +169,7 @@ def test_an_agreeing_set_on_bunched_contacts_at_the_budgets_end_is_flagged_not_s
 def test_a_budget_larger_than_a_spent_collected_one_is_refused(tmp_path, monkeypatch):
     # a run whose policy spent its budget of 2 says nothing of what a budget of 4 would have done
     from pipeline.collect import output_path
-    from pipeline.probe import bench as bench_mod
+    from pipeline.studies import probe_budget as bench_mod
 
     path = output_path(tmp_path, "TC", 0)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.grasp import grasp_yaw, plan_for, pregrasp
 from pipeline.grasp_rule import own_grasp_shares
-from pipeline.retrieve.model import target_primitive
+from pipeline.estimators.target_model import target_primitive
 from pipeline.scenes import load_scene
 
 

@@ -10,11 +10,11 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.geometry import primitive_of
-from pipeline.retrieve.ladder import (MOTION_RUNGS, PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason,
+from pipeline.studies.retrieval_ladder import (MOTION_RUNGS, PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason,
                                       perturbed)
-from pipeline.retrieve.ladder_report import ladder_tables, summarise
-from pipeline.retrieve.model import pose_error
-from pipeline.retrieve.runs import load_run
+from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise
+from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.run_info import load_run
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from pipeline.retrieve import RetrievalParams
-from pipeline.retrieve.estimators import plausible_notes
+from pipeline.estimators.estimate import plausible_notes
 from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf
-from pipeline.retrieve.model import pose_error
-from pipeline.retrieve.evidence import free_space_points, gripper_lattice, recency_sigma
-from pipeline.retrieve.plausible import PlausibleParams, consensus, evaluate_terms, fit_segment
+from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.plausible.evidence import free_space_points, gripper_lattice, recency_sigma
+from pipeline.estimators.plausible.fit import PlausibleParams, consensus, evaluate_terms, fit_segment
 from pipeline.robot import disc_sdf
 
 BOX = Primitive("box", (0.03, 0.079), np.array([0.002, -0.001]), 0.1, "box")

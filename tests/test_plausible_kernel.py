@@ -1,6 +1,6 @@
-"""The plausible estimator's compiled cost terms (pipeline/retrieve/plausible_kernel.py) give the numpy form's bits.
+"""The plausible estimator's compiled cost terms (pipeline/estimators/plausible/kernel.py) give the numpy form's bits.
 
-``refine`` runs on :func:`~pipeline.retrieve.plausible.compiled_terms`; :func:`~pipeline.retrieve.plausible.
+``refine`` runs on :func:`~pipeline.estimators.plausible.fit.compiled_terms`; :func:`~pipeline.estimators.plausible.fit.
 evaluate_terms` is the numpy reference. Equality is exact (``assert_array_equal``), not approximate: a last-bit
 difference in a cost could flip which hypothesis wins a near-tie and so change a reported pose.
 """
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import Primitive
-from pipeline.retrieve import plausible, plausible_kernel
-from pipeline.retrieve.plausible import PlausibleParams, compiled_terms, evaluate_terms
+from pipeline.estimators.plausible import fit as plausible, kernel as plausible_kernel
+from pipeline.estimators.plausible.fit import PlausibleParams, compiled_terms, evaluate_terms
 
 BOX = Primitive(kind="box", half=(0.08, 0.11), centre=np.array([0.004, -0.002]), yaw=0.0, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")
@@ -84,7 +84,7 @@ def test_plain_python_kernel_gives_the_compiled_bits(monkeypatch):
 def test_free_space_cells_keep_the_first_point_of_each_cell_as_the_row_unique_did():
     """free_space_points deduplicates on one int64 key per cell: the same points, in the same order, as
     np.unique over the rows of cell indices (negative cells and a sweep crossing itself included)."""
-    from pipeline.retrieve.evidence import free_space_points, gripper_lattice
+    from pipeline.estimators.plausible.evidence import free_space_points, gripper_lattice
     from pipeline.robot import disc_sdf
 
     params = PlausibleParams()

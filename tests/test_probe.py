@@ -19,7 +19,7 @@ from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstac
 from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
 from pipeline.grasp_rule import box_success, can_success
 from pipeline.probe.set_grasp import choose_grasp
-from pipeline.retrieve.model import target_primitive
+from pipeline.estimators.target_model import target_primitive
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 from pipeline import schema
@@ -398,7 +398,7 @@ def test_a_wide_set_that_one_grasp_holds_stops_the_probing(stored_run, monkeypat
 def test_bench_probes_default_budgets_are_the_curves_budgets_and_end_at_the_policys():
     # The CLI keeps numpy out of its import, so it repeats the list: the two must stay one fact, and the curve
     # ends at the budget the policy runs with (the run files of `make reproduce-active` replay every budget).
-    from pipeline.probe.bench import BUDGETS
+    from pipeline.studies.probe_budget import BUDGETS
     from stucco_cli.bench import bench_probe
 
     option = next(p for p in bench_probe.params if p.name == "budgets")

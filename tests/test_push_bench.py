@@ -1,5 +1,5 @@
 """`stucco bench pushes`: the pushing models and pybullet replays against the recorded pushes
-(pipeline/retrieve/push_bench.py)."""
+(pipeline/studies/pushes.py)."""
 import csv
 import math
 
@@ -9,9 +9,9 @@ from click.testing import CliRunner
 
 from pipeline.collect import collect_file
 from pipeline.layout import partition
-from pipeline.retrieve.push_bench import MIN_PUSH, push_cases, push_rows, summarise, summary_markdown
-from pipeline.retrieve.pushtrack_params import MOTIONS
-from pipeline.retrieve.runs import load_run
+from pipeline.studies.pushes import MIN_PUSH, push_cases, push_rows, summarise, summary_markdown
+from pipeline.estimators.pushtrack.params import MOTIONS
+from pipeline.estimators.run_info import load_run
 from pipeline.scenes import load_scene
 from stucco_cli.main import cli
 

@@ -13,15 +13,15 @@ import pytest
 from pipeline.geometry import Primitive, apply_pose
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.retrieve import RetrievalParams
-from pipeline.retrieve.estimators import Segment, estimate
-from pipeline.retrieve.model import pose_error
-from pipeline.retrieve.pushmodel import (Actions, FilterResult, PushTrackParams, contact_loglik, free_loglik,
+from pipeline.estimators.estimate import Segment, estimate
+from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.pushtrack.filter import (Actions, FilterResult, PushTrackParams, contact_loglik, free_loglik,
                                          initial_particles, push, run_filter)
-from pipeline.retrieve.quasistatic import limit_surface_length, push_step
-from pipeline.retrieve.sweep import gripper_slice, sweep_push, target_outline
-from pipeline.retrieve.evidence import cached_gripper_lattice, target_reach
-from pipeline.retrieve.pushtrack import filter_from_best_start, final_pose, free_space_of, held_mean, observed_actions
-from pipeline.retrieve.runs import load_run, retrieval_rng
+from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
+from pipeline.estimators.pushtrack.slice_pusher import gripper_slice, sweep_push, target_outline
+from pipeline.estimators.plausible.evidence import cached_gripper_lattice, target_reach
+from pipeline.estimators.pushtrack.estimator import filter_from_best_start, final_pose, free_space_of, held_mean, observed_actions
+from pipeline.estimators.run_info import load_run, retrieval_rng
 from pipeline.robot import disc_sdf, load_robot
 from pipeline.scenes import load_scene
 

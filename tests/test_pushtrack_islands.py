@@ -1,5 +1,5 @@
 """pushtrack's islands: independent filters over the same actions, pooled by their evidence
-(pipeline.retrieve.pushtrack.filter_islands / pool_islands; docs/retrieval.md, "Islands")."""
+(pipeline.estimators.pushtrack.estimator.filter_islands / pool_islands; docs/retrieval.md, "Islands")."""
 from __future__ import annotations
 
 import math
@@ -8,8 +8,8 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.geometry import Primitive
-from pipeline.retrieve.pushmodel import Actions, FilterResult, PushTrackParams, run_filter
-from pipeline.retrieve.pushtrack import filter_islands, final_pose, pool_islands
+from pipeline.estimators.pushtrack.filter import Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.estimators.pushtrack.estimator import filter_islands, final_pose, pool_islands
 from pipeline.scenes import load_scene
 
 BOX = Primitive("box", (0.03, 0.08), np.array([0.0, 0.0]), 0.0, "box")

@@ -14,8 +14,8 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import registry
-from pipeline.retrieve.paper import Estimate
-from pipeline.retrieve.tables import CANDIDATE_FIELDS, run_candidates
+from pipeline.estimators.paper.choice import Estimate
+from pipeline.schema.retrieval import CANDIDATE_FIELDS, run_candidates
 from pipeline.track.base import StepResult
 
 ROOT = Path(__file__).resolve().parents[1]

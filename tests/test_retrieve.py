@@ -561,7 +561,7 @@ def _emitted_notes() -> set[str]:
     import ast
 
     found: set[str] = set()
-    for mod in ("retrieve/paper", "retrieve/estimators", "probe/belief", "probe/retrieval"):
+    for mod in ("estimators/paper/choice", "estimators/estimate", "probe/belief", "probe/retrieval"):
         tree = ast.parse((Path(__file__).resolve().parents[1] / "pipeline" / f"{mod}.py").read_text())
         for node in ast.walk(tree):
             if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "append" and \
@@ -589,8 +589,8 @@ def test_the_notes_column_lists_every_note_the_estimators_emit():
 def test_the_paper_choice_is_computed_once_for_the_estimators_that_start_from_it(fb_run, panda, monkeypatch):
     """The plausible and pushtrack estimators start from the paper's choice on the final points of the same run:
     computed once per job, the same estimate (a copy) and the same results as with the choice computed afresh."""
-    from pipeline.retrieve import estimators
-    from pipeline.retrieve.estimators import Segment, estimate
+    from pipeline.estimators import estimate as estimators
+    from pipeline.estimators.estimate import Segment, estimate
 
     pts = _true_contacts_in_final_pose(fb_run)
     segs = [Segment(0, pts, np.arange(len(pts))), Segment(1, pts[:5] + 0.2, np.zeros(5, dtype=int))]
@@ -616,7 +616,7 @@ def test_the_paper_choice_is_computed_once_for_the_estimators_that_start_from_it
 
 
 def test_retrieval_streams_are_independent_and_stream_0_is_the_default():
-    from pipeline.retrieve.runs import _STREAM, run_key
+    from pipeline.estimators.run_info import _STREAM, run_key
 
     old = [np.random.default_rng(c) for c in np.random.SeedSequence([3, run_key("FB-001"), _STREAM]).spawn(3)]
     assert [g.integers(2 ** 62) for g in retrieval_rng(3, "FB-001")] == [g.integers(2 ** 62) for g in old]

@@ -1,4 +1,4 @@
-"""pipeline/study/ and its commands: Pareto front, knee, ambiguity, the tuning rule, tiny end-to-end grids."""
+"""pipeline/studies/ and its commands: Pareto front, knee, ambiguity, the tuning rule, tiny end-to-end grids."""
 from __future__ import annotations
 
 import csv
@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.study import accuracy_settings, choose_setting, knee, pareto_front, run_ambiguity
+from pipeline.studies.accuracy_settings import accuracy_settings
+from pipeline.studies.pareto import knee, pareto_front
+from pipeline.studies.training import run_ambiguity
+from pipeline.studies.tuning import choose_setting
 from stucco_cli.main import cli
 
 
@@ -246,7 +249,7 @@ def test_evaluate_suite_training_tiny(tmp_path):
 
 def test_toppled_cylinder_contact_error_uses_mean_half_extent_circle():
     from pipeline.scenes import load_scene
-    from pipeline.study.training import _training_primitive
+    from pipeline.studies.training import _training_primitive
 
     scene = load_scene("SELECT2")
     spec = next(o for o in scene.objects if o.name == "topple_cylinder")

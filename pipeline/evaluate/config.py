@@ -13,7 +13,7 @@ from typing import Any
 from pipeline.atomic import write_text
 from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline import registry
-from pipeline.retrieve.params import MAX_COUNT
+from pipeline.estimators.params import MAX_COUNT
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 from pipeline.seeds import check_stream
 

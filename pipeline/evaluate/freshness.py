@@ -15,7 +15,7 @@ from pipeline import schema
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGES, job_paths, partition
 from pipeline.registry import DEFAULT_ESTIMATOR
-from pipeline.retrieve.estimators import needs_every_step
+from pipeline.estimators.estimate import needs_every_step
 
 __all__ = ["Digests", "up_to_date", "stale_stages", "run_stale", "figure_stale"]
 

@@ -1,7 +1,7 @@
 """Where jobs run: local processes (joblib/loky) or a Dask cluster across jobs, one thread per library inside one.
 
 Parallelism is over jobs (docs/evaluation.md, "Parallelism"; docs/studies.md, "Beyond one machine"); the studies
-(:mod:`pipeline.study`) use the same :func:`pipeline.parallel.map_jobs` and
+(:mod:`pipeline.studies`) use the same :func:`pipeline.parallel.map_jobs` and
 :func:`pipeline.parallel.single_threaded` (re-exported here).
 """
 from __future__ import annotations

@@ -26,7 +26,7 @@ from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
-from pipeline.retrieve.estimators import needs_every_step
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 

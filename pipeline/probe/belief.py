@@ -27,12 +27,12 @@ from pipeline.portable import exp
 from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
-from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
-from pipeline.retrieve.paper import estimate_run
-from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.plausible import PlausibleParams, fit_segment
-from pipeline.retrieve.resistance import resisting_choice, segment_fits
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.plausible.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
+from pipeline.estimators.paper.choice import estimate_run
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.plausible.fit import PlausibleParams, fit_segment
+from pipeline.estimators.segment_choice import resisting_choice, segment_fits
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
@@ -164,7 +164,7 @@ class PoseSet:
     notes : list of str
         Why the set is not a fit to the target's own segment (``no_segment``).
     cost : float, squared sigmas
-        The fit's lowest cost (:func:`pipeline.retrieve.plausible.fit_segment`; 0 for :func:`prior_set`).
+        The fit's lowest cost (:func:`pipeline.estimators.plausible.fit.fit_segment`; 0 for :func:`prior_set`).
     """
 
     poses: np.ndarray
@@ -191,7 +191,7 @@ class TargetChoice:
         The paper's valid ICP poses on the segment (COM), extra starts of the fit.
     resisted : bool
         The segment was chosen because its contacts resisted the pushes most, the target being heavy
-        (:mod:`pipeline.retrieve.resistance`).
+        (:mod:`pipeline.estimators.segment_choice`).
     """
 
     segment: int
@@ -208,7 +208,7 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
                   ) -> list[TargetChoice]:
     """The scripted part's segments ranked as the target's: the estimators' choice first (the paper's, §V-C, or
     for a heavy target the segment that resisted the pushes most: ``steps``, ``force`` (N) per action and the
-    target's ``mass`` (kg), :func:`~pipeline.retrieve.resistance.resisting_choice`), then the paper's if it
+    target's ``mass`` (kg), :func:`~pipeline.estimators.segment_choice.resisting_choice`), then the paper's if it
     differs, then the other segments whose best ICP error passes the fit gate by position variance, then the
     rest by the same. Empty without segments."""
     paper = estimate_run([(s.id, s.points) for s in segments], target, np.asarray(ee).reshape(-1, 2), sdf, params,
@@ -255,7 +255,7 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
              max_seeds: int = 8, prior: Callable[[np.ndarray], np.ndarray] | None = None) -> PoseSet:
     """The plausible set from the scripted part's target segment plus the probes' contacts on the target.
 
-    The plausible estimator's fit (:func:`pipeline.retrieve.plausible.fit_segment`): the segment's tracked points
+    The plausible estimator's fit (:func:`pipeline.estimators.plausible.fit.fit_segment`): the segment's tracked points
     with their recency sigma (every probe contact is a later contact, so they fade), the probes' contacts with
     ``contact_sigma`` x ``probe_growth`` per later probe contact (a probe pushes by millimetres, not centimetres),
     the gripper's free space from the segment's last scripted contact on (every probe's sweep included), and the
@@ -271,7 +271,7 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
         Probe contacts attributed to other objects.
     prior : callable, optional
         COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost before the set is drawn
-        (:func:`pipeline.retrieve.plausible.fit_segment`; the pushes' prior, :mod:`pipeline.probe.history`).
+        (:func:`pipeline.estimators.plausible.fit.fit_segment`; the pushes' prior, :mod:`pipeline.probe.history`).
     """
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)

@@ -1,7 +1,7 @@
 """What the pushes said: a prior over the target's pose after the scripted part, for the probing policy's sets.
 
 The policy's plausible set fits one pose to the points and probe contacts sensed so far (:mod:`.belief`); it has
-no memory of how the target was pushed. The ``pushtrack`` estimator (:mod:`pipeline.retrieve.pushtrack`) tracks
+no memory of how the target was pushed. The ``pushtrack`` estimator (:mod:`pipeline.estimators.pushtrack.estimator`) tracks
 the pose through the scripted part's pushes and rarely mistakes a box for one turned a quarter turn, the pose
 the policy's set most often settles on wrongly (docs/retrieval.md, "What the pushes said: a prior from
 pushtrack"). Run once on the scripted part's rows, its refined set becomes a prior cost on every hypothesis of the
@@ -20,11 +20,11 @@ import pyarrow as pa
 from pipeline.geometry import Primitive, primitive_pose, wrap_symmetric
 from pipeline.portable import exp, log
 from pipeline.probe.params import ProbeParams
-from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.pushmodel import PushTrackParams
-from pipeline.retrieve.pushtrack import pushtrack_set
-from pipeline.retrieve.runs import info_from_table, retrieval_rng
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.pushtrack.filter import PushTrackParams
+from pipeline.estimators.pushtrack.estimator import pushtrack_set
+from pipeline.estimators.run_info import info_from_table, retrieval_rng
 
 __all__ = ["HistoryPrior", "history_prior", "PRIOR_PUSHTRACK"]
 
@@ -78,7 +78,7 @@ def history_prior(table: pa.Table, segments: Sequence[Segment], scene, run: str,
                   params: ProbeParams = ProbeParams()) -> HistoryPrior | None:
     """The prior of the scripted part's rows ``table`` and the tracker's ``segments`` of them: the pushtrack
     estimator's refined set with its default parameters and the retrieve stage's random stream for ``run``
-    (:func:`pipeline.retrieve.runs.retrieval_rng`), so it is the set ``stucco retrieve --estimator pushtrack``
+    (:func:`pipeline.estimators.run_info.retrieval_rng`), so it is the set ``stucco retrieve --estimator pushtrack``
     would refine on those rows. None when pushtrack does not filter (no segment, or no isolated contact on it)."""
     if table.num_rows == 0 or not segments:
         return None

@@ -20,7 +20,7 @@ import numpy as np
 
 from pipeline.portable import log
 from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate, wrap_symmetric
-from pipeline.retrieve.evidence import gripper_lattice
+from pipeline.estimators.plausible.evidence import gripper_lattice
 from pipeline.probe.transit import Keepout, path_to, transit_graph
 
 __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "outcome_entropy",

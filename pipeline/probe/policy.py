@@ -30,8 +30,8 @@ from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, ProbePlan, agreement, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
-from pipeline.retrieve.resistance import target_mass
-from pipeline.retrieve.runs import retrieval_rng
+from pipeline.estimators.segment_choice import target_mass
+from pipeline.estimators.run_info import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "required_contacts",
            "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]

@@ -22,10 +22,10 @@ from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.planning import PlanParams
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
-from pipeline.retrieve.estimators import Segment
-from pipeline.retrieve.model import pose_error
-from pipeline.retrieve.resistance import target_mass
-from pipeline.retrieve.runs import RunInfo, retrieval_rng
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.segment_choice import target_mass
+from pipeline.estimators.run_info import RunInfo, retrieval_rng
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 

@@ -13,12 +13,12 @@ from pipeline import registry, schema
 from pipeline.atomic import all_or_none
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
-from pipeline.retrieve.estimators import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
+from pipeline.estimators.estimate import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
                                           retrieval_metadata)
-from pipeline.retrieve.model import pose_error
-from pipeline.retrieve.params import RetrievalParams
-from pipeline.retrieve.runs import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
-from pipeline.retrieve.tables import candidates_table, retrieval_table
+from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.run_info import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
+from pipeline.schema.retrieval import candidates_table, retrieval_table
 from pipeline.robot import load_robot
 from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
@@ -40,13 +40,13 @@ class RetrieveConfig:
     params : RetrievalParams
         The paper's estimation parameters, shared by every estimator.
     estimator_params : dataclass instance, dict or None
-        The estimator's own parameters (e.g. :class:`~pipeline.retrieve.plausible.PlausibleParams`), a dict of
+        The estimator's own parameters (e.g. :class:`~pipeline.estimators.plausible.fit.PlausibleParams`), a dict of
         overrides, or None for its defaults; held as the built instance (None for an estimator without any).
     grasp : bool
         Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
     grasp_params : GraspParams
     stream : int
-        The estimator's random stream (:func:`pipeline.retrieve.runs.retrieval_rng`): 0, the default; k >= 1 an
+        The estimator's random stream (:func:`pipeline.estimators.run_info.retrieval_rng`): 0, the default; k >= 1 an
         independent rerun of a stochastic estimator. Recorded in the metadata when not 0.
     """
 
@@ -208,7 +208,7 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
                   progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
     """The `retrieve` stage on files: read and validate a segments table, :func:`retrieve` its runs (files in
     ``run_dir``), and write the candidates and retrieval tables (with provenance metadata:
-    :func:`~pipeline.retrieve.estimators.retrieval_metadata`, the segments file as input), both or neither
+    :func:`~pipeline.estimators.estimate.retrieval_metadata`, the segments file as input), both or neither
     (:func:`pipeline.atomic.all_or_none`; the retrieval is renamed last). Returns (retrieval, candidates).
 
     ``config.grasp_params`` is used and recorded when ``config.grasp``; ``config.method`` None takes the tracking

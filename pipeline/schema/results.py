@@ -16,8 +16,8 @@ __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS",
            "SCORES"]
 
 #: Low-confidence reasons of a pose estimate: the paper's estimator (``no_points`` ... ``no_valid_icp``,
-#: :func:`pipeline.retrieve.paper.confidence_notes`) and the plausible-set estimator's own (``no_free_space``,
-#: ``ambiguous_yaw``, ``wide_set``, :func:`pipeline.retrieve.estimators.plausible_notes`), and the active
+#: :func:`pipeline.estimators.paper.choice.confidence_notes`) and the plausible-set estimator's own (``no_free_space``,
+#: ``ambiguous_yaw``, ``wide_set``, :func:`pipeline.estimators.estimate.plausible_notes`), and the active
 #: protocol's (``no_segment``, ``wide_set``, :mod:`pipeline.probe.retrieval`, which also writes ``probes=N``).
 NOTES: tuple[str, ...] = ("no_points", "few_points", "collinear", "poor_fit", "penetrating", "no_valid_icp",
                           "no_free_space", "ambiguous_yaw", "wide_set", "no_segment")

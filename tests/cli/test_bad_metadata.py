@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import schema
-from pipeline.anchors import load_stream, stream_path, stream_to_contacts
+from pipeline.studies.anchors import load_stream, stream_path, stream_to_contacts
 from stucco_cli.main import cli
 from tests.cli.test_bad_runs import RUN, _stucco_segments
 

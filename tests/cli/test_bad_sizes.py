@@ -9,7 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.anchors import load_stream, stream_path, stream_to_contacts
+from pipeline.studies.anchors import load_stream, stream_path, stream_to_contacts
 from pipeline.collect import MAX_SEEDS, parse_seeds
 from pipeline.retrieve import PlausibleParams, RetrievalParams
 from pipeline.track.soft import MAX_PARTICLES, SoftTrackingParams

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import schema
-from pipeline.anchors import load_stream, stream_path, stream_to_contacts
+from pipeline.studies.anchors import load_stream, stream_path, stream_to_contacts
 from stucco_cli.main import cli
 
 FAST = ["--robot", "disc:0.05", "--particles", "20"]

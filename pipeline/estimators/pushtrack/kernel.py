@@ -1,0 +1,76 @@
+"""Compiled loops of the pushtrack estimator: the free-space likelihood of every particle and the contact term of
+the final refinement, each computing the **same bits** as the numpy form it replaces (tests/test_pushtrack_kernel.py).
+
+* :func:`free_depth_sums`: :func:`pipeline.estimators.pushtrack.filter.free_loglik`'s sums of squared depths, which in
+  numpy build (particles, free points) temporaries for every action of the filter;
+* the contact term with each pose's own contact points, for the refinement of
+  :func:`pipeline.estimators.pushtrack.estimator.refine_final`, is :func:`pipeline.estimators.plausible.kernel.piece_terms_each`.
+
+As :mod:`pipeline.estimators.plausible.kernel` does, they repeat numpy's arithmetic operation by operation (the same
+element-wise expressions, no fused multiply-add, the cosines and sines taken from numpy by the caller, numpy's
+pairwise summation over a contiguous axis: :func:`pipeline.pairwise_sum.pairwise_sum`). ``NUMBA_DISABLE_JIT=1``
+runs them as plain Python with the same results. Measured in docs/retrieval.md, "The pushtrack estimator".
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from pipeline.pairwise_sum import pairwise_sum
+from pipeline.estimators.plausible.kernel import local_sdf
+
+__all__ = ["free_depth_sums", "warm_up"]
+
+
+@njit(cache=True)
+def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, reach, out, scratch):
+    """Sum over the points of (min(sd + tol, 0) / sigma)^2, for every pose, into ``out`` (N,).
+
+    Parameters
+    ----------
+    cylinder : bool
+        The primitive is a cylinder of radius ``hx``; else a box of half sides (hx, hy), metres.
+    centre : ndarray, shape (N, 2), metres
+        World position of the primitive's centre at each pose; ``cos_t``, ``sin_t`` (N,) the cosines and sines
+        of its axes' yaw (numpy's, as the caller's numpy form takes them).
+    pts : ndarray, shape (F, 2), metres
+        World points.
+    tol, sigma : float, metres
+        Depth that costs nothing and the depth's scale.
+    reach : float, metres
+        A point farther than this from the centre lies outside the primitive, sd + tol > 0, and its term is
+        exactly 0.0: the caller gives the primitive's circumradius plus a margin, so the sdf is skipped there
+        without changing a bit.
+    scratch : ndarray, shape (F,)
+        Work space for the per-point terms (summed in numpy's pairwise order).
+    """
+    N = centre.shape[0]
+    F = pts.shape[0]
+    r2 = reach * reach
+    for n in range(N):
+        c = cos_t[n]
+        s = sin_t[n]
+        px = centre[n, 0]
+        py = centre[n, 1]
+        for p in range(F):
+            dx = pts[p, 0] - px
+            dy = pts[p, 1] - py
+            d2 = dx * dx + dy * dy
+            if r2 < d2 < math.inf:  # (an infinite offset takes numpy's path: its NaNs)
+                scratch[p] = 0.0
+                continue
+            sd, _, _ = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
+            r = min(sd + tol, 0.0) / sigma
+            scratch[p] = r * r
+        out[n] = pairwise_sum(scratch, 0, F)
+
+
+def warm_up() -> None:
+    """Compile the kernels (once per machine: numba caches them on disk), as ``make setup`` does, so that no
+    evaluation job pays for it."""
+    one = np.ones(1)
+    for cylinder in (False, True):
+        free_depth_sums(cylinder, 0.1, 0.1, np.zeros((1, 2)), one, np.zeros(1), np.zeros((1, 2)), 0.004, 0.003,
+                        0.2, np.empty(1), np.empty(1))
