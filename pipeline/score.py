@@ -151,7 +151,8 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
         ts = track_s.get(name)
         parts = [v for v in (ts, r["icp_s"], r["grasp_s"]) if v is not None]
         rows.append(dict(scene=r["scene"], seed=r["seed"], method=r["method"], estimator=r["estimator"], run=name,
-                         grasp_success=r["grasp_success"], fmi=f, contact_error_cm=ce,
+                         grasp_success=r["grasp_success"], grasp_attempts=r["grasp_attempts"],
+                         grasp_success_any=r["grasp_success_any"], fmi=f, contact_error_cm=ce,
                          position_error_m=r["position_error_m"], yaw_error_rad=r["yaw_error_rad"],
                          low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
                          track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts))))

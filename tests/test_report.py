@@ -14,7 +14,8 @@ from pipeline.score import SCORES_COLUMNS
 
 def _scores(rows: list[dict]) -> pa.Table:
     defaults = dict(run="", estimator="plausible", position_error_m=0.01, yaw_error_rad=0.0, low_confidence=False,
-                    n_points=10, n_segments=2, track_s=0.5, retrieve_s=0.1, grasp_s=0.4, wall_s=3.0)
+                    n_points=10, n_segments=2, track_s=0.5, retrieve_s=0.1, grasp_s=0.4, wall_s=3.0,
+                    grasp_attempts=None, grasp_success_any=None)
     full = [dict(defaults, **r) for r in rows]
     for r in full:
         r["run"] = r["run"] or f"{r['scene']}/{r['seed']}"

@@ -107,7 +107,8 @@ def _retrieval(run="FB/4", seed=4, **over):
     row = dict(run=run, scene="FB", seed=seed, method="stucco", estimator="plausible", target="cracker_box", x_m=0.3,
                y_m=0.004, yaw_rad=0.05, segment=0, n_points=3, n_segments=2, position_var_m2=1e-4, icp_rmse_m=0.002,
                penetration_m=0.0, low_confidence=False, notes="", true_x_m=0.3, true_y_m=0.0, true_yaw_rad=0.0,
-               position_error_m=0.004, yaw_error_rad=0.05, grasp_success=True, grasp_outcome="ok", icp_s=0.1,
+               position_error_m=0.004, yaw_error_rad=0.05, grasp_success=True, grasp_outcome="ok", grasp_attempts=None,
+               grasp_success_any=None, icp_s=0.1,
                grasp_s=0.5)
     row.update(over)
     return retrieval_table([row])

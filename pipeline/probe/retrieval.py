@@ -16,12 +16,13 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.grasp import GraspParams, GraspResult
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
+from pipeline.grasp import GraspParams
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
+from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
-from pipeline.probe.planning import PlanParams
+from pipeline.probe.planning import PlanParams, gripper_outline
 from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
-from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
+from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.estimators.estimate import Segment
 from pipeline.estimators.target_model import pose_error
 from pipeline.estimators.segment_choice import target_mass
@@ -39,20 +40,21 @@ class ActiveResult:
     pose : ndarray, shape (3,)
         The set's estimate (COM pose, canonical under the target's symmetry).
     belief : PoseSet
-    grasp : SetGrasp
-    result : GraspResult or None
-        The simulated grasp (None when not simulated).
+    grasp : PlannedGrasp
+        The first attempt's grasp (the plan when not simulated).
+    result : Attempts or None
+        The simulated attempts (None when not simulated).
     probes : int
         Probes the policy made (0 for a run without probes).
     notes : list of str
         ``wide_set`` when the set does not agree and no grasp holds ``agree_share`` of it (the grasp went ahead
-        anyway), ``no_segment``.
+        anyway), ``no_segment``, ``no_reachable_grasp`` when no planned grasp could be reached.
     """
 
     pose: np.ndarray
     belief: PoseSet
-    grasp: SetGrasp
-    result: GraspResult | None
+    grasp: PlannedGrasp
+    result: Attempts | None
     probes: int
     notes: list
 
@@ -63,6 +65,13 @@ def _probe_meta(info: RunInfo) -> dict:
 
 def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
                budget_end: ProbeParams | None = None) -> tuple[PoseSet, dict]:
+    """The policy's last plausible set and the run's ``probe`` metadata (:func:`active_state`)."""
+    belief, meta, _ = active_state(info, root_seed, method, decision, budget_end)
+    return belief, meta
+
+
+def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
+                 budget_end: ProbeParams | None = None) -> tuple[PoseSet, dict, Surroundings]:
     """The policy's last plausible set for a run file, or the one of its ``decision``-th decision (0: after the
     scripted part, before any probe), and the run's ``probe`` metadata ({} if it has none).
 
@@ -70,7 +79,9 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
     budget stops: the segment gives way there as the policy's would (:func:`give_way_at_budget`).
 
     With a tracking method other than the policy's, the segments are that method's and the probes' contacts
-    are attributed as the policy attributed them, to the best-ranked segment."""
+    are attributed as the policy attributed them, to the best-ranked segment.
+
+    Also returns what the robot sensed around the target then (:func:`surroundings_of`), for the planned grasp."""
     table = schema.read_run(info.path)
     meta = _probe_meta(info)
     n_scripted = table.num_rows
@@ -96,8 +107,21 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
         given = give_way_at_budget(choices, choice, belief, info.target, sensing, root_seed, info.run,
                                    state["target_steps"], budget_end)
         if given is not None:
-            return given[3], meta
-    return belief, meta
+            return given[3], meta, surroundings_of(sensing, given[0], given[1], info.scene)
+    return belief, meta, surroundings_of(sensing, choice, state["target_steps"], info.scene)
+
+
+def surroundings_of(sensing: Sensing, choice: TargetChoice, target_steps, scene) -> Surroundings:
+    """What the robot sensed around the target (:class:`pipeline.probe.grasp_plan.Surroundings`): its trail, the
+    other segments' points and the probes' contacts not attributed to the target as obstacles, the scene's static
+    walls; the gripper's outline for transit."""
+    probes = [pt for pt, st in zip(sensing.probe_points, sensing.probe_steps) if st not in set(target_steps)]
+    obstacles = np.vstack([np.asarray(choice.others, dtype=np.float64).reshape(-1, 2),
+                           np.asarray(probes, dtype=np.float64).reshape(-1, 2)])
+    walls = [(np.asarray(w.position, dtype=np.float64), np.asarray(w.size[:2], dtype=np.float64) / 2, float(w.yaw))
+             for w in scene.walls]
+    visited = sensing.visited
+    return Surroundings(visited[-1].copy(), visited, obstacles, walls, gripper_outline(sensing.sdf))
 
 
 #: (key, prior) of the last :func:`recorded_prior` in this process (``stucco bench probe`` asks again per decision).
@@ -124,16 +148,23 @@ def recorded_prior(info: RunInfo, scripted: pa.Table, segments: Sequence[Segment
 
 
 def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: GraspParams = GraspParams(),
-                 method: str = "stucco", plan: PlanParams = PlanParams()) -> ActiveResult:
-    """The set of :func:`active_set`, the grasp chosen for it (:func:`choose_grasp`) and, with ``grasp``, its
-    simulation in the run's final state."""
-    belief, meta = active_set(info, root_seed, method)
-    g, res = grasp_for_set(info.scene, info.target, belief.poses, belief.weights, belief.best, info.final_poses,
-                           info.final_ee, plan, params, grasp)
+                 method: str = "stucco", plan: PlanParams = PlanParams(),
+                 planning: PlanningParams = PlanningParams()) -> ActiveResult:
+    """The set of :func:`active_set`, the grasp planned for it as sensed (:func:`plan_grasp`) and, with
+    ``grasp``, its attempts in the run's final state, re-planned after each felt miss (:func:`attempt_grasps`)."""
+    belief, meta, around = active_state(info, root_seed, method)
+    if grasp:
+        attempts = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, belief.poses,
+                                  belief.weights, belief.best, around, planning, params)
+        g = attempts.attempts[0].grasp
+    else:
+        attempts = None
+        g = plan_grasp(info.target, info.scene.action_scale, belief.poses, belief.weights, belief.best, around,
+                       planning, params)
     wide = set_share(info.target, belief, plan) < plan.agree_share and g.share < plan.agree_share
-    notes = list(belief.notes) + (["wide_set"] if wide else [])
-    return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g, result=res,
-                        probes=int(meta.get("probes", 0)), notes=notes)
+    notes = list(belief.notes) + (["wide_set"] if wide else []) + ([] if g.reachable else [NO_REACHABLE_GRASP])
+    return ActiveResult(pose=info.target.canonical(belief.poses[belief.best]), belief=belief, grasp=g,
+                        result=attempts, probes=int(meta.get("probes", 0)), notes=notes)
 
 
 #: (key, row) of the last :func:`active_row` in this process.
@@ -165,5 +196,7 @@ def _active_row(info: RunInfo, method: str, root_seed: int, grasp: bool, params:
     row = dict(x_m=float(r.pose[0]), y_m=float(r.pose[1]), yaw_rad=float(r.pose[2]), position_error_m=pos_err,
                yaw_error_rad=yaw_err, notes=",".join([f"probes={r.probes}", *r.notes]), low_confidence=bool(r.notes))
     if r.result is not None:
-        row.update(grasp_success=r.result.success, grasp_outcome=r.result.outcome, grasp_s=r.result.wall_s)
+        # Table II's column is the first attempt; the attempts and their final outcome beside it.
+        row.update(grasp_success=r.result.first_success, grasp_outcome=r.result.outcome, grasp_s=r.result.wall_s,
+                   grasp_attempts=len(r.result.attempts), grasp_success_any=r.result.success)
     return row

@@ -139,7 +139,7 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, ro
                low_confidence=est.low_confidence, notes=",".join(est.notes),
                true_x_m=float(truth[0]), true_y_m=float(truth[1]), true_yaw_rad=float(truth[2]),
                position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
-               icp_s=est.icp_s, grasp_s=None)
+               grasp_attempts=None, grasp_success_any=None, icp_s=est.icp_s, grasp_s=None)
     own = registry.policy(info.policy).retrieval if info.policy in registry.policy_names() else None
     if own is not None:
         # A run of the active protocol ends with its own pose and its grasp for the whole plausible set, whatever

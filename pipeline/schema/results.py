@@ -20,7 +20,7 @@ __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS",
 #: ``ambiguous_yaw``, ``wide_set``, :func:`pipeline.estimators.estimate.plausible_notes`), and the active
 #: protocol's (``no_segment``, ``wide_set``, :mod:`pipeline.probe.retrieval`, which also writes ``probes=N``).
 NOTES: tuple[str, ...] = ("no_points", "few_points", "collinear", "poor_fit", "penetrating", "no_valid_icp",
-                          "no_free_space", "ambiguous_yaw", "wide_set", "no_segment")
+                          "no_free_space", "ambiguous_yaw", "wide_set", "no_segment", "no_reachable_grasp")
 
 _C = Column
 _RUN = _C("run", pa.string(), "", False, "Run id '<scene>/<seed>' (as in the contacts, tracks, segments tables).")
@@ -59,7 +59,12 @@ RETRIEVAL_COLUMNS: tuple[Column, ...] = (
     _C("yaw_error_rad", pa.float64(), "rad", False, "Yaw error modulo the target's symmetry (pi box, any can).",
        finite=True, minimum=0.0),
     _C("grasp_success", pa.bool_(), "", True, "Simulated grasp at the estimate succeeded (null: not simulated)."),
-    _C("grasp_outcome", pa.string(), "", False, "Why the grasp succeeded or failed ('' if not simulated)."),
+    _C("grasp_outcome", pa.string(), "", False, "Why the grasp succeeded or failed ('' if not simulated); the "
+       "active protocol's attempts numbered '1: ...; 2: ...'."),
+    _C("grasp_attempts", pa.int64(), "", True, "Attempts of the active protocol's planned grasp, each re-planned "
+       "after a felt miss (null: the one scripted grasp, or not simulated).", minimum=0),
+    _C("grasp_success_any", pa.bool_(), "", True, "The planned grasp held the target within its attempts "
+       "(null: the one scripted grasp, or not simulated); grasp_success is the first attempt."),
     _C("icp_s", pa.float64(), "s", False, "Wall time of model sampling, ICP, scoring and choice.", finite=True,
        minimum=0.0, maximum=MAX_SECONDS),
     _C("grasp_s", pa.float64(), "s", True, "Wall time of the grasp simulation (null: not simulated).",
@@ -115,7 +120,12 @@ SCORES_COLUMNS: tuple[Column, ...] = (
     _C("method", pa.string(), "", False, "Tracking method."),
     _C("estimator", pa.string(), "", False, "Pose estimator of the retrieval (a name of pipeline/registry.py)."),
     _C("run", pa.string(), "", False, "Run id '<scene>/<seed>'."),
-    _C("grasp_success", pa.bool_(), "", True, "Simulated grasp succeeded (null: grasp not simulated)."),
+    _C("grasp_success", pa.bool_(), "", True, "Simulated grasp succeeded (null: grasp not simulated); the first "
+       "attempt for the active protocol."),
+    _C("grasp_attempts", pa.int64(), "", True, "Attempts of the active protocol's planned grasp (null: the one "
+       "scripted grasp, or not simulated).", minimum=0),
+    _C("grasp_success_any", pa.bool_(), "", True, "The planned grasp held the target within its attempts (null: "
+       "the one scripted grasp, or not simulated)."),
     _C("fmi", pa.float64(), "", True, "Fowlkes-Mallows index of segments vs ground-truth objects over points with "
                                       "a known object; null if none.", minimum=0.0, maximum=1.0),
     _C("contact_error_cm", pa.float64(), "cm", True, "Mean |distance| of final tracked points to the nearest true "

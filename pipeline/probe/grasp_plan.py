@@ -1,0 +1,396 @@
+"""A grasp planned for the scene as sensed: every approach the target's shape allows, scored by the share of the
+plausible set it holds and by whether the gripper can get there (docs/retrieval.md, "The planned grasp").
+
+No per-task script: the candidates are the approaches the target's symmetry allows (a box's two ends, since the
+open hand spans only its short side; a can from any side), centred on the set's hypotheses. Each is scored by
+the geometric success rule (:mod:`pipeline.grasp_rule`) over the set, and kept only if the gripper can reach its
+pre-grasp point and advance along its lane: a path on a grid in the plane from where the gripper is, through
+space it has visited or that no sensed object occupies, with a clearance. What counts as occupied comes only from
+what the robot sensed (:class:`Surroundings`): the target's hypotheses, the contacts attributed to other objects
+(an object of unknown extent lies beyond each), and the scene's static walls (the fixed workspace); never the
+objects' true poses.
+
+Everything is arrays: cells (C,), candidate grasps (G,), hypotheses (H,); the path search is one Dijkstra from
+the gripper over the grid (scipy.sparse.csgraph).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
+from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan
+from pipeline.grasp_rule import box_success, can_success
+
+__all__ = ["Surroundings", "PlanningParams", "PlannedGrasp", "plan_grasp", "approach_offset", "held_by"]
+
+
+@dataclass(frozen=True)
+class PlanningParams:
+    """Knobs of the planned grasp.
+
+    Attributes
+    ----------
+    cell : float, metres
+        Grid resolution of the path search.
+    object_radius : float, metres
+        An object met at a contact point is taken as a disc of this radius just beyond the point (the distractors
+        of the shipped scenes are 3-5 cm across).
+    clearance : float, metres
+        Clearance kept from every sensed obstacle, on the way and along the lane.
+    target_clearance : float, metres
+        Clearance kept from the target's likely hypotheses on the way to the pre-grasp point (a touch turns it
+        before the fingers close).
+    likely_share : float
+        The hypotheses kept clear of are the most likely ones that make up this share of the set's weight.
+    max_likely : int
+        At most this many of them.
+    unknown_cost : float
+        Path cost per metre through space never visited, relative to visited space (prefer the known way).
+    object_cost : float
+        Path cost per metre where the gripper would meet a sensed object never visited (it may push it aside, as
+        the paper's script does, but a free way is preferred).
+    lane_cost : float
+        Cost (metres of free path) of a lane that passes a sensed object.
+    can_directions : int
+        Approach directions tried around a can.
+    advances : tuple of int
+        Approach actions tried.
+    attempts : int
+        Grasp attempts allowed (each after re-planning with what the last one sensed).
+    """
+
+    cell: float = 0.01
+    object_radius: float = 0.035
+    clearance: float = 0.005
+    target_clearance: float = 0.01
+    likely_share: float = 0.9
+    max_likely: int = 12
+    unknown_cost: float = 1.5
+    object_cost: float = 5.0
+    lane_cost: float = 1.0
+    can_directions: int = 16
+    advances: tuple[int, ...] = (3, 4, 5)
+    attempts: int = 3
+
+
+@dataclass
+class Surroundings:
+    """What the robot sensed around the target, in the plane (metres); nothing here is ground truth.
+
+    Attributes
+    ----------
+    here : ndarray, shape (2,)
+        The gripper's position now.
+    visited : ndarray, shape (V, 2)
+        Positions the gripper occupied (free space when it was there).
+    obstacles : ndarray, shape (O, 2)
+        Contact points attributed to objects other than the target.
+    walls : list of (centre (2,), half extents (2,), yaw)
+        The scene's static walls (the workspace's fixed geometry).
+    outline : ndarray, shape (K, 2)
+        The gripper's outline (robot frame) during transit.
+    tried : ndarray, shape (T, 3)
+        Grasps already attempted and felt to miss: (yaw, centre x, centre y); the planner does not repeat them.
+    """
+
+    here: np.ndarray
+    visited: np.ndarray
+    obstacles: np.ndarray
+    walls: list
+    outline: np.ndarray
+    tried: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def moved(self, here: np.ndarray, trail: list | None = None) -> "Surroundings":
+        """A copy with the gripper at ``here`` (2,), having passed the positions ``trail`` (each (2,))."""
+        visited = np.vstack([self.visited, *(trail or []), np.reshape(here, (1, 2))])
+        return dataclasses.replace(self, here=np.asarray(here, dtype=np.float64).copy(), visited=visited)
+
+    def with_obstacle(self, point: np.ndarray) -> "Surroundings":
+        """A copy with one more sensed obstacle contact (2,)."""
+        return dataclasses.replace(self, obstacles=np.vstack([self.obstacles, np.reshape(point, (1, 2))]))
+
+    def with_miss(self, yaw: float, centre: np.ndarray) -> "Surroundings":
+        """A copy that remembers a grasp (yaw, centre (2,)) felt to miss."""
+        return dataclasses.replace(self, tried=np.vstack([self.tried, np.r_[yaw, centre][None, :]]))
+
+
+@dataclass
+class PlannedGrasp:
+    """The grasp chosen, with its way in.
+
+    Attributes
+    ----------
+    yaw : float, radians
+        Grasp yaw: the hand approaches along ``(-sin yaw, cos yaw)`` and closes along ``(cos yaw, sin yaw)``.
+    centre : ndarray, shape (2,)
+        Point the grasp is centred on.
+    advance : int
+        Approach actions.
+    offset : float, metres
+        Pre-grasp distance before ``centre`` along the approach.
+    share : float
+        Weighted share of the set the geometric rule says it holds.
+    pregrasp, approach : ndarray, shape (2,)
+    via : ndarray, shape (W, 2)
+        Waypoints to the pre-grasp point (the last is the pre-grasp point itself).
+    reachable : bool
+        A way in was found (False: ``no_reachable_grasp``; the fields are those of the best share, for reporting).
+    cost : float, metres
+        Length of the way in (weighted: unknown space costs ``unknown_cost`` per metre).
+    """
+
+    yaw: float
+    centre: np.ndarray
+    advance: int
+    offset: float
+    share: float
+    pregrasp: np.ndarray
+    approach: np.ndarray
+    via: np.ndarray
+    reachable: bool
+    cost: float
+
+
+def approach_offset(prim: Primitive) -> float:
+    """Pre-grasp distance (m) from the target's centre: the open fingers' tips (``PAD_FROM_BASE[1]`` ahead of the
+    hand's base) stay 5 cm short of the target's far extent along the approach (0.25 m for the cracker box, as
+    the paper's script; 0.2 m for a can)."""
+    reach = prim.half[1] if prim.kind == "box" else prim.half[0]
+    return max(0.2, round(reach + PAD_FROM_BASE[1] + 0.05, 2))
+
+
+def held_by(prim: Primitive, scale: float, yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray,
+            offset: float, poses: np.ndarray, params: GraspParams = GraspParams()) -> np.ndarray:
+    """Whether each grasp (yaw (G,), centre (G, 2), advance (G,)) holds each COM pose (H, 3), by the geometric
+    rule of :mod:`pipeline.grasp_rule` with the pre-grasp ``offset`` (m). Returns bool (G, H)."""
+    plan = GraspPlan(offset=offset, yaw_range=None)
+    if prim.kind == "cylinder":
+        return can_success(prim, poses, yaw, centre, advance, plan, scale)
+    return box_success(prim, poses, yaw, centre, advance, plan, scale, params)
+
+
+def _candidates(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: int, params: PlanningParams
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate (yaw (G,), centre (G, 2)): every approach the shape allows at each hypothesis's centre and at the
+    weighted mean centre of the hypotheses agreeing with its yaw; the estimate's first."""
+    centres = prim.centre_world(poses)
+    axes = primitive_pose(prim, poses)[:, 2]
+    order = np.r_[best, np.delete(np.arange(len(poses)), best)]
+    if prim.kind == "cylinder":
+        dirs = 2 * np.pi * np.arange(params.can_directions) / params.can_directions
+        c = np.vstack([centres[best], np.sum(weights[:, None] * centres, axis=0)])
+        return np.repeat(dirs[None, :], len(c), axis=0).ravel(), np.repeat(c, len(dirs), axis=0)
+    # A box is held across its short side: approach along its long axis (primitive y), from either end.
+    dy = (axes[:, None] - axes[None, :] + np.pi / 2) % np.pi - np.pi / 2
+    near = (np.abs(dy) < 0.05) * weights[None, :]
+    # sums, not a matrix product: no BLAS call decides a candidate (the same bits on every CPU)
+    pooled = np.sum(near[:, :, None] * centres[None, :, :], axis=1) / np.maximum(near.sum(axis=1), 1e-12)[:, None]
+    yaw = np.r_[axes[order], axes[order]]
+    centre = np.vstack([centres[order], pooled[order]])
+    return np.r_[yaw, yaw + np.pi], np.vstack([centre, centre])
+
+
+def _likely(poses: np.ndarray, weights: np.ndarray, params: PlanningParams) -> np.ndarray:
+    """Indices of the most likely hypotheses that make up ``likely_share`` of the weight (at most ``max_likely``)."""
+    order = np.argsort(-weights, kind="stable")
+    k = int(np.searchsorted(np.cumsum(weights[order]), params.likely_share * np.sum(weights))) + 1
+    return order[:min(k, params.max_likely, len(order))]
+
+
+def _target_points(prim: Primitive, poses: np.ndarray, spacing: float) -> np.ndarray:
+    """Outline points (P, 2) of the target at each pose (H, 3)."""
+    pp = primitive_pose(prim, poses)
+    if prim.kind == "cylinder":
+        n = max(8, int(2 * np.pi * prim.half[0] / spacing))
+        a = 2 * np.pi * np.arange(n) / n
+        local = prim.half[0] * np.column_stack([np.cos(a), np.sin(a)])
+    else:
+        hx, hy = prim.half[:2]
+        n = max(8, int(4 * (hx + hy) / spacing))
+        local = outline_point((np.arange(n) + 0.5) * 4 * (hx + hy) / n, hx, hy)
+    return (pp[:, None, :2] + rotate(local[None, :, :], pp[:, 2, None])).reshape(-1, 2)
+
+
+def _obstacle_discs(s: Surroundings, prim: Primitive, estimate: np.ndarray, params: PlanningParams) -> np.ndarray:
+    """Centres (O', 2) of the discs taken for the other objects: each just beyond its contact point, seen from the
+    nearest visited position; contacts within 1 cm of the target at the estimate are the target's own."""
+    if len(s.obstacles) == 0:
+        return np.zeros((0, 2))
+    pts = np.asarray(s.obstacles, dtype=np.float64).reshape(-1, 2)
+    pts = pts[prim.signed_distance(pts, estimate) > 0.01]
+    if len(pts) == 0:
+        return np.zeros((0, 2))
+    nearest = s.visited[cKDTree(s.visited).query(pts)[1]]
+    away = pts - nearest
+    away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-9)
+    return pts + params.object_radius * away
+
+
+def _wall_points(walls: list, spacing: float) -> np.ndarray:
+    """Points (P, 2) along each wall's outline at ``spacing`` (the gripper starts outside every wall, so it can
+    only enter one across its outline)."""
+    out = [np.zeros((0, 2))]
+    for centre, half, yaw in walls:
+        hx, hy = float(half[0]), float(half[1])
+        n = max(8, int(4 * (hx + hy) / spacing))
+        local = outline_point((np.arange(n) + 0.5) * 4 * (hx + hy) / n, hx, hy)
+        out.append(np.asarray(centre, dtype=np.float64) + rotate(local, yaw))
+    return np.vstack(out)
+
+
+class _Grid:
+    """The plane around the gripper and the set as cells of side ``cell``; which the gripper may occupy."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, cell: float) -> None:
+        self.cell = cell
+        self.lo = np.floor(lo / cell) * cell
+        self.shape = tuple(int(v) for v in np.ceil((hi - self.lo) / cell).astype(int) + 1)
+        ix, iy = np.meshgrid(np.arange(self.shape[0]), np.arange(self.shape[1]), indexing="ij")
+        self.centres = self.lo + cell * np.column_stack([ix.ravel(), iy.ravel()])
+
+    def index(self, points: np.ndarray) -> np.ndarray:
+        """Cell (N,) of each point (N, 2), clipped to the grid."""
+        ij = np.rint((np.asarray(points).reshape(-1, 2) - self.lo) / self.cell).astype(int)
+        ij = np.clip(ij, 0, np.array(self.shape) - 1)
+        return ij[:, 0] * self.shape[1] + ij[:, 1]
+
+    def graph(self, free: np.ndarray, weight: np.ndarray, source: int):
+        """Dijkstra from ``source`` over 8-connected free cells (the source itself always usable); edge cost =
+        length x the mean ``weight`` of its two cells. Returns (cost (C,), predecessor (C,))."""
+        nx, ny = self.shape
+        usable = free.copy()
+        usable[source] = True
+        ids = np.arange(nx * ny).reshape(nx, ny)
+        rows, cols, costs = [], [], []
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+            a = ids[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)].ravel()
+            b = ids[max(0, dx):nx - max(0, -dx) or None, max(0, dy):ny - max(0, -dy) or None].ravel()
+            ok = usable[a] & usable[b]
+            length = self.cell * math.hypot(dx, dy)
+            rows.append(a[ok])
+            cols.append(b[ok])
+            costs.append(length * 0.5 * (weight[a[ok]] + weight[b[ok]]))
+        r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(costs)
+        g = coo_matrix((np.r_[w, w], (np.r_[r, c], np.r_[c, r])), shape=(nx * ny, nx * ny)).tocsr()
+        return dijkstra(g, indices=source, return_predecessors=True)
+
+
+def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: float, blockers: np.ndarray,
+                margin: float) -> np.ndarray:
+    """Whether the open hand's swept footprint along each lane (pre-grasp (G, 2) to ``advance`` actions on) keeps
+    ``margin`` from every blocker point (B, 2). Returns bool (G,)."""
+    if len(blockers) == 0:
+        return np.ones(len(yaw), dtype=bool)
+    approach = np.column_stack([-np.sin(yaw), np.cos(yaw)])
+    closing = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    rel = blockers[None, :, :] - pre[:, None, :]
+    along = np.sum(rel * approach[:, None, :], axis=-1)
+    across = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
+    half_width = OPEN + 0.012 + margin  # the open fingers and their thickness
+    inside = (along >= -0.03 - margin) & (along <= advance[:, None] * scale + PAD_FROM_BASE[1] + margin) & \
+        (across <= half_width)
+    return ~inside.any(axis=1)
+
+
+def _simplify(path: np.ndarray, free_at) -> np.ndarray:
+    """Waypoints (W, 2) of a grid path (P, 2): the farthest point in sight of each, greedily."""
+    out, i = [], 0
+    while i < len(path) - 1:
+        j = len(path) - 1
+        while j > i + 1:
+            n = max(2, int(np.ceil(math.hypot(*(path[j] - path[i])) / 0.005)))
+            line = path[i] + np.linspace(0.0, 1.0, n)[:, None] * (path[j] - path[i])
+            if np.all(free_at(line)):
+                break
+            j -= 1
+        out.append(path[j])
+        i = j
+    return np.array(out).reshape(-1, 2)
+
+
+def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.ndarray, best: int,
+               surroundings: Surroundings, params: PlanningParams = PlanningParams(),
+               grasp: GraspParams = GraspParams()) -> PlannedGrasp:
+    """The reachable grasp that holds the largest weighted share of the set (COM poses (H, 3), weights (H,) >= 0),
+    the estimate's own (``best``) first among equals, then the shortest way in.
+
+    Returns the best share's grasp with ``reachable`` False when no candidate can be reached."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(weights, dtype=np.float64)
+    w = w / np.sum(w)
+    offset = approach_offset(prim)
+    yaw0, centre0 = _candidates(prim, poses, w, best, params)
+    adv = np.asarray(params.advances, dtype=np.float64)
+    g_yaw = np.tile(yaw0, len(adv))
+    g_centre = np.tile(centre0, (len(adv), 1))
+    g_adv = np.repeat(adv, len(yaw0))
+    share = np.sum(held_by(prim, scale, g_yaw, g_centre, g_adv, offset, poses, grasp) * w[None, :], axis=1)
+    approach = np.column_stack([-np.sin(g_yaw), np.cos(g_yaw)])
+    pre = g_centre - offset * approach
+
+    s = surroundings
+    discs = _obstacle_discs(s, prim, poses[best], params)
+    walls = _wall_points(s.walls, params.cell)
+    likely = _target_points(prim, poses[_likely(poses, w, params)], params.cell)
+    lo = np.min(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) - 0.1
+    hi = np.max(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) + 0.1
+    grid = _Grid(lo, hi, params.cell)
+    outline = np.asarray(s.outline, dtype=np.float64).reshape(-1, 2)
+
+    def overlaps(points: np.ndarray, radius: float, cells: np.ndarray) -> np.ndarray:
+        if len(points) == 0:
+            return np.zeros(len(cells), dtype=bool)
+        tree = cKDTree((points[:, None, :] - outline[None, :, :]).reshape(-1, 2))
+        return np.isfinite(tree.query(cells, distance_upper_bound=radius)[0])
+
+    cells = grid.centres
+    by_target = overlaps(likely, params.target_clearance + 0.5 * params.cell, cells)
+    by_walls = overlaps(walls, params.clearance + 0.5 * params.cell, cells)
+    by_objects = overlaps(discs, params.object_radius + params.clearance, cells)
+    seen = np.zeros(len(cells), dtype=bool)
+    seen[grid.index(s.visited)] = True
+    # The target's hypotheses and the walls are modelled and block; an object of unknown extent only costs (where
+    # the gripper has been it cannot be, unless pushed there since: then the attempt feels it and re-plans).
+    free = ~by_target & ~by_walls
+    weight = np.where(seen, 1.0, np.where(by_objects, params.object_cost, params.unknown_cost))
+    cost, pred = grid.graph(free, weight, int(grid.index(s.here)[0]))
+
+    pre_cell = grid.index(pre)
+    # Nearest-cell rounding may land a pre-grasp point a few millimetres inside a blocked cell: require the cell.
+    reach_cost = np.where(free[pre_cell], cost[pre_cell], np.inf)
+    lane_margin = params.object_radius + params.clearance
+    lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin) & \
+        _lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
+    fresh = np.ones(len(g_yaw), dtype=bool)
+    for yaw_t, cx, cy in s.tried:
+        turn = np.abs((g_yaw - yaw_t + np.pi) % (2 * np.pi) - np.pi)
+        fresh &= (turn > 0.2) | (np.hypot(g_centre[:, 0] - cx, g_centre[:, 1] - cy) > 0.015)
+    feasible = np.isfinite(reach_cost) & (share > 0) & fresh
+    if feasible.any():
+        # The largest share first; among equal shares the cheapest way in, a lane past a sensed object costing
+        # extra (argmin keeps the estimate's own grasp first among equals).
+        top = np.max(share[feasible])
+        pick = np.flatnonzero(feasible & (share >= top - 1e-12))
+        total = reach_cost + params.lane_cost * ~lane_ok
+        j = int(pick[np.argmin(total[pick])])
+        node, path = int(pre_cell[j]), []
+        while node >= 0:
+            path.append(grid.centres[node])
+            node = int(pred[node])
+        path = np.array(path[::-1])
+        path[0], path[-1] = s.here, pre[j]
+        via = _simplify(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) < params.cell))
+        reachable, c = True, float(reach_cost[j])
+    else:
+        j = int(np.argmax(share))
+        via, reachable, c = pre[j][None, :], False, math.inf
+    return PlannedGrasp(yaw=float(g_yaw[j]), centre=g_centre[j].copy(), advance=int(g_adv[j]), offset=offset,
+                        share=float(share[j]), pregrasp=pre[j].copy(), approach=approach[j].copy(), via=via,
+                        reachable=reachable, cost=c)

@@ -1,0 +1,164 @@
+"""The planned grasp (pipeline/probe/grasp_plan.py) and its attempts (pipeline/probe/grasp_attempts.py): every
+approach the shape allows, a way in through sensed free space, re-planning after a felt miss; never ground truth
+(docs/retrieval.md, "The planned grasp")."""
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.estimators.run_info import load_run
+from pipeline.geometry import Primitive
+from pipeline.probe import grasp_plan
+from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, attempt_grasps, felt_width
+from pipeline.probe.grasp_plan import PlanningParams, Surroundings, approach_offset, plan_grasp
+
+BOX = Primitive(kind="box", half=(0.0308, 0.07875), centre=np.zeros(2), yaw=0.0)
+CAN = Primitive(kind="cylinder", half=(0.039,), centre=np.zeros(2), yaw=0.0)
+RING = np.array([[0.0, 0.0], [0.0, 0.0]])  # a gripper of two coincident outline points: plain distances
+REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
+
+
+def _around(here, visited=None, obstacles=(), walls=()):
+    here = np.asarray(here, dtype=np.float64)
+    visited = here[None, :] if visited is None else np.asarray(visited, dtype=np.float64)
+    return Surroundings(here, visited, np.asarray(obstacles, dtype=np.float64).reshape(-1, 2), list(walls), RING)
+
+
+def test_a_box_is_approached_along_its_long_axis_from_either_end():
+    # the gripper below the box (-y): the near end's approach (+y) is the short way in
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, -0.4]))
+    assert g.reachable and g.share == 1.0
+    assert g.approach == pytest.approx([0.0, 1.0], abs=1e-9)
+    # from above (+y) it comes in from the other end
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, 0.4]))
+    assert g.reachable and g.approach == pytest.approx([0.0, -1.0], abs=1e-9)
+    assert np.linalg.norm(g.pregrasp) == pytest.approx(approach_offset(BOX))
+
+
+def test_a_blocked_end_is_planned_around_to_the_other():
+    # objects sensed all along the near end's lane: the plan goes round to the far end, through unknown space
+    lane = np.column_stack([np.linspace(-0.05, 0.05, 11), np.full(11, -0.12)])
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0,
+                   _around([0.0, -0.4], visited=[[0.0, -0.4], [0.0, -0.2]], obstacles=lane))
+    assert g.reachable and g.approach[1] < 0  # from +y
+    assert len(g.via) >= 2  # a detour, not the straight move
+    assert g.via[-1] == pytest.approx(g.pregrasp)
+
+
+def _box_in(centre, inner):
+    """Four walls (centre (2,), half extents (2,), yaw) enclosing a square of half side ``inner`` around ``centre``."""
+    c = np.asarray(centre, dtype=np.float64)
+    t = 0.05
+    across, up = np.array([inner + 2 * t, t]), np.array([t, inner])
+    return [(c + [0.0, inner + t], across, 0.0), (c - [0.0, inner + t], across, 0.0),
+            (c + [inner + t, 0.0], up, 0.0), (c - [inner + t, 0.0], up, 0.0)]
+
+
+def test_no_way_in_is_reported_not_raised():
+    # the gripper walled in 6 cm around itself: no pre-grasp point lies in its box
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, -0.6], walls=_box_in([0.0, -0.6], 0.06)))
+    assert not g.reachable and math.isinf(g.cost)
+
+
+def test_sensed_objects_cost_but_do_not_forbid():
+    # objects sensed all around the target: the way in passes them (it may push them aside), at a cost
+    ring = 0.3 * np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 120)), np.sin(np.linspace(0, 2 * np.pi, 120))])
+    free = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, -0.6]))
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, -0.6], obstacles=ring))
+    assert g.reachable and g.cost > free.cost
+
+
+def test_a_can_is_approached_from_the_open_side():
+    # a wall of sensed objects on three sides of the can: the only open side is -x
+    side = np.linspace(-0.12, 0.12, 13)
+    walls = np.vstack([np.column_stack([side, np.full(13, 0.12)]), np.column_stack([side, np.full(13, -0.12)]),
+                       np.column_stack([np.full(13, 0.12), side])])
+    g = plan_grasp(CAN, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([-0.5, 0.0], obstacles=walls))
+    assert g.reachable and g.approach[0] > 0.9
+
+
+def test_the_set_share_decides_between_centres():
+    # two hypotheses 4 cm apart along the box's short axis: a grasp centred between them holds neither fully;
+    # with the weight on the second, the plan centres on it
+    poses = np.array([[0.0, 0.0, 0.0], [0.04, 0.0, 0.0]])
+    g = plan_grasp(BOX, 0.03, poses, np.array([0.1, 0.9]), 0, _around([0.0, -0.5]))
+    assert g.share == pytest.approx(0.9)
+    assert g.centre[0] == pytest.approx(0.04)
+
+
+def test_degenerate_sets_stay_finite():
+    one = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.0, 0.0]))  # starting on the target
+    assert np.all(np.isfinite(one.pregrasp))
+    same = plan_grasp(BOX, 0.03, np.zeros((5, 3)), np.full(5, 1e-300), 2, _around([0.0, -0.4]))
+    assert same.reachable and same.share == pytest.approx(1.0)
+
+
+def test_the_planner_takes_no_scene():
+    # what it may know is its arguments: the target's shape, the action scale, the set and what was sensed
+    params = set(inspect.signature(plan_grasp).parameters)
+    assert params == {"prim", "scale", "poses", "weights", "best", "surroundings", "params", "grasp"}
+    src = inspect.getsource(grasp_plan)
+    for truth in ("pipeline.scenes", "pipeline.sim", "run_info", "final_poses", "true_pose", "obj_pose", ".objects"):
+        assert truth not in src, truth
+
+
+def test_the_surroundings_do_not_depend_on_the_objects_true_poses():
+    from pipeline.probe.belief import NO_TARGET, Sensing
+    from pipeline.probe.retrieval import surroundings_of
+    from pipeline.schema import read_run
+
+    info = load_run(REGRESSION / "IB-001.parquet")
+    sensing = Sensing(info.run, 0, info.ee[0], read_run(info.path).num_rows)
+    moved = dataclasses.replace(info.scene, objects=tuple(dataclasses.replace(o, position=(o.position[0] + 0.3,
+                                                                                           o.position[1]))
+                                                          for o in info.scene.objects))
+    a = surroundings_of(sensing, NO_TARGET, [], info.scene)
+    b = surroundings_of(sensing, NO_TARGET, [], moved)
+    assert np.array_equal(a.obstacles, b.obstacles) and np.array_equal(a.visited, b.visited)
+
+
+@pytest.fixture(scope="module")
+def ib_run():
+    return load_run(REGRESSION / "IB-001.parquet")
+
+
+def _open_space(info) -> Surroundings:
+    """The gripper at the run's end, having visited its whole trail; no obstacle sensed."""
+    return Surroundings(info.final_ee.copy(), info.ee.copy(), np.zeros((0, 2)), [], RING)
+
+
+def test_a_grasp_at_the_true_pose_is_held_on_the_first_attempt(ib_run):
+    info = ib_run
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, info.true_pose[None, :],
+                       np.ones(1), 0, _open_space(info))
+    assert r.first_success and r.success and len(r.attempts) == 1
+    assert r.attempts[0].width == pytest.approx(felt_width(info.target), abs=0.002)
+
+
+def test_a_grasp_that_lands_on_a_corner_or_on_nothing_is_felt_and_retried(ib_run):
+    info = ib_run
+    true = np.asarray(info.true_pose, dtype=np.float64)
+    # a set whose most likely hypothesis lies 4.5 cm across the box from the truth (a finger then closes on its
+    # edge or beside it), and a less likely one at the truth
+    across = np.array([math.cos(true[2]), math.sin(true[2])])
+    wrong = np.r_[true[:2] + 0.045 * across, true[2]]
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, np.vstack([wrong, true]),
+                       np.array([0.8, 0.2]), 0, _open_space(info), PlanningParams(advances=(4,)))
+    first = r.attempts[0]
+    assert not first.success and not first.felt_ok  # the robot felt the miss without reading the judge
+    assert len(r.attempts) >= 2 and r.success
+
+
+def test_an_unreachable_target_ends_with_a_note(ib_run):
+    info = ib_run
+    # the gripper walled in 5 cm around itself (walls of the plan's world only): no pre-grasp point in its box
+    around = Surroundings(info.final_ee.copy(), info.final_ee[None, :].copy(), np.zeros((0, 2)),
+                          _box_in(info.final_ee, 0.05), RING)
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, info.true_pose[None, :],
+                       np.ones(1), 0, around)
+    assert not r.success and r.attempts[-1].outcome == NO_REACHABLE_GRASP
