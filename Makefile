@@ -23,13 +23,12 @@ syslibs:
 # Reinstall only when the package metadata or the lock changes. requirements.lock pins every distribution (the
 # full transitive set), so every machine runs the same numpy/scipy/Open3D/numba and computes the same numbers.
 # The venv's own pip (Python 3.11 ships 23.x) installs only uv, at the version pinned here; uv then installs the
-# lock's distributions exactly as pinned (--no-deps: the lock is the resolution) and the project, editable. pip
-# 23.x spent most of a fresh set-up matching every file of each package's index page against this interpreter's
-# tags (about 32 s of CPU for the 98 pins, for nothing: each pin names one release); uv fetches and unpacks the
-# same wheels (byte-identical files) in about 10 s of CPU. Like pip --no-compile, uv writes no .pyc files: the
-# kernels' step below writes those of the modules the project imports (docs/evaluation.md, "Where CI's time
-# goes"). uv pip check then proves the environment consistent (every requirement met, every wheel for this
-# platform), as pip check does, in 0.2 s instead of 3 s. `make lock` still resolves with pip.
+# lock's distributions exactly as pinned (--no-deps: the lock is the resolution) and the project, editable. uv
+# installs the same wheels (byte-identical files) as pip, without pip 23's slow matching of every file of each
+# package's index page against this interpreter's tags (docs/experiments/ci-time.md). Like pip --no-compile, uv
+# writes no .pyc files: the kernels' step below writes those of the modules the project imports. uv pip check
+# then proves the environment consistent (every requirement met, every wheel for this platform), as pip check
+# does. `make lock` still resolves with pip.
 UV := uv==0.13.8
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,12 +38,12 @@ $(STAMP): pyproject.toml requirements.lock
 	@touch $(STAMP)
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
-# compilation as its own time (never inside a timed update or estimate). Two processes side by side (a 2-core EPYC:
-# about 33 s, against 41 s for the tracker's alone before): the first replays a tracker log, compiling the contact
-# step's kernel (about 26 s, the longest), loading the tracker's other kernels, which the second has compiled by
-# then, and then writes the .pyc files of every module the project imports (pipeline/bytecode.py: pip installs with
-# --no-compile, which is also why both write bytecode even where the environment sets PYTHONDONTWRITEBYTECODE); the
-# second compiles the tracker's other kernels, then the estimators'.
+# compilation as its own time (never inside a timed update or estimate). Two processes side by side, so that the
+# longest compilation overlaps the others: the first replays a tracker log, compiling the contact step's kernel
+# (the longest), loading the tracker's other kernels, which the second has compiled by then, and then writes the
+# .pyc files of every module the project imports (pipeline/bytecode.py: the install writes none, which is also why
+# both write bytecode even where the environment sets PYTHONDONTWRITEBYTECODE); the second compiles the tracker's
+# other kernels, then the estimators'.
 $(KSTAMP): $(STAMP) $(KERNELS)
 	@echo "compiling the tracker's and estimators' numba kernels once (cached on disk)"
 	@export PYTHONDONTWRITEBYTECODE=; \
@@ -74,9 +73,9 @@ quick: setup
 reproduce: setup
 	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC --seeds 0-19 --methods all --jobs 2 --out out/reproduce
 
-# The active protocol (docs/retrieval.md, "Active retrieval"): STUCCO's Table II with probing and the set grasp, then
-# grasp success against the probe budget. One estimator: the policy's set grasp ends every run whatever the
-# estimator, so the others' columns would repeat it (docs/evaluation.md, "`make reproduce-active`: one estimator").
+# The active protocol (docs/active.md): STUCCO's Table II with probing and the set grasp, then grasp success against
+# the probe budget. One estimator: the policy's set grasp ends every run whatever the estimator, so the others'
+# columns would repeat it (docs/active.md, "Scoring").
 reproduce-active: setup
 	$(BIN)/stucco --seed 0 evaluate --policy scripted+probe --scenes FB,BC,IB,TC --seeds 0-19 --methods stucco \
 	  --estimators plausible --jobs 2 --out out/reproduce-active
@@ -87,13 +86,13 @@ reproduce-active: setup
 # fixtures are built once. PYTEST_WORKERS=0 runs everything in this process.
 # --basetemp: the tests' temporary files go to this checkout's .pytest-tmp (emptied when the next run starts)
 # instead of a numbered folder of the machine's /tmp/pytest-of-USER, where pytest, after the last test, deletes
-# the folders beyond the newest three: a whole run's (about 3,500 files) at the end of every run, 7 s of wall time
-# on this machine's disk with both cores idle, also on a fresh clone.
+# the folders beyond the newest three: often a whole earlier run's files, at the end of every run.
 PYTEST_WORKERS ?= 2
 test: setup
 	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --basetemp .pytest-tmp
 
-# REFERENCE_PYTHON=/path/to/venv/bin/python reruns the authors' tracker side by side (../shared/anchors/README.md).
+# REFERENCE_PYTHON=/path/to/venv/bin/python (a venv with the authors' stucco 1.2.1 and their benchmark harness)
+# reruns the authors' tracker side by side (docs/tracking.md).
 bench: setup
 	$(BIN)/stucco bench track --streams $(ANCHORS) --T 50,100,200,300,400 --methods stucco,birch,dbscan,kmeans,gmphd \
 	  $(if $(REFERENCE_PYTHON),--reference-python $(REFERENCE_PYTHON)) --json out/bench/track.json

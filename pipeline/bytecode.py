@@ -4,7 +4,7 @@
 on 2 cores, mostly for modules nothing here imports. Without ``.pyc`` files, though, every new process (each
 pytest-xdist, pool or Dask worker) compiles what it imports from source, and on a machine that sets
 ``PYTHONDONTWRITEBYTECODE`` it does so in every process, forever (what that cost the test suite:
-docs/evaluation.md, "Where CI's time goes"). :func:`compile_imports` imports what the pipeline, the CLI and the
+docs/experiments/ci-time.md). :func:`compile_imports` imports what the pipeline, the CLI and the
 tests import, with writing turned on for this process only, so exactly those modules get their ``.pyc``.
 
 The list is read from the sources (every ``import`` statement, at module level or inside a function), so a new

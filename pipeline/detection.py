@@ -190,7 +190,7 @@ def contact_forces(table, det: DetectionParams = DetectionParams(), iso: Isolati
                    ) -> np.ndarray:
     """The contact force each action of a collected run (``sim_run`` table) met, N, shape (K,): the largest
     in-plane magnitude of the sensed wrench over the sim steps isolation uses (:func:`contact_window`); NaN where
-    no contact was detected. How hard the touched object resisted (docs/retrieval.md, "Which segment resisted")."""
+    no contact was detected. How hard the touched object resisted (docs/estimators.md, "Which segment resisted")."""
     n = table.num_rows
     win = fixed_column(table, "win_wrench", (n, -1, 6))
     flags = step_in_contact(win, det)

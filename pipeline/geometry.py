@@ -6,7 +6,7 @@ Everything lives on the horizontal plane: points are world or body-frame ``(x, y
 :mod:`pipeline.sim` import them from here.
 
 Boxes and upright cylinders have one cross-section over their height, so a :class:`Primitive` (the slice at the
-gripper plane) is the whole shape for contact purposes (docs/retrieval.md). A primitive's pose is the body's
+gripper plane) is the whole shape for contact purposes (docs/estimators.md). A primitive's pose is the body's
 inertial (COM) frame ``(x, y, yaw)``, the frame of the recorded ``obj_pose`` (docs/simulation.md, "Scenes are
 data").
 
@@ -107,7 +107,7 @@ class Primitive:
     """A box or upright cylinder in its body's inertial (COM) frame: the horizontal slice at contact height.
 
     Boxes and upright cylinders have the same cross-section at every height they span, so the slice at the
-    gripper plane (z = 0.1 m) is the whole shape for contact purposes (docs/retrieval.md).
+    gripper plane (z = 0.1 m) is the whole shape for contact purposes (docs/estimators.md).
 
     Attributes
     ----------

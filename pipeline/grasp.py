@@ -245,7 +245,7 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
 
     A grasp is simulated once per process: the same run, pose and parameters again (two estimators that give
     the same pose, the active protocol's set grasp under each estimator) return a copy of the first result, whose
-    ``wall_s`` is then the time of the look-up (docs/evaluation.md, "Where the time goes")."""
+    ``wall_s`` is then the time of the look-up (docs/experiments/reproduce-time.md)."""
     t0 = time.perf_counter()
     steps = params.approach_steps if approach_steps is None else int(approach_steps)
     # All the outcome depends on, to the bit: scene (fields but the path, file text), restored state, grasp, params.

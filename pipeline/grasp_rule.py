@@ -1,5 +1,5 @@
 """The grasp's success rule in geometry: whether the paper's grasp script, aimed at one pose, holds the target at
-another (docs/retrieval.md, "A grasp for the set" and "Choosing the estimate the grasp needs").
+another (docs/active.md, "A grasp for the set" and "Choosing the estimate the grasp needs").
 
 The rule follows the script (:mod:`pipeline.grasp`): the hand advances along the approach until its palm (the
 finger bases, ``PAD_FROM_BASE[0]`` ahead of the base) would meet the object, the pads span ``PAD_FROM_BASE`` ahead

@@ -296,7 +296,7 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
 @pass_settings
 def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
     """Active retrieval: grasp success against the probe budget per task, with probes used, time per probe
-    decision and how far probing moved the target (docs/retrieval.md, "Active retrieval")."""
+    decision and how far probing moved the target (docs/active.md)."""
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
     from pipeline.evaluate import parse_scenes

@@ -1,5 +1,5 @@
 """Attributing a probe contact to the target or to another object (pipeline/probe/policy.current_set;
-docs/retrieval.md, "Attributing a contact some hypotheses explain"): none of the set's hypotheses explains it ->
+docs/active.md, "Whose contact (attribution)"): none of the set's hypotheses explains it ->
 another object's; all of them -> the target's; some -> the target's only if fitting it as the target's costs less
 than ``clutter_cost`` more than fitting it as another object's."""
 from __future__ import annotations

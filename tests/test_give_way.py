@@ -1,5 +1,5 @@
 """The probing policy's segment giving way at the end of the budget (pipeline/probe/policy.give_way_at_budget;
-docs/retrieval.md, "Active retrieval"): a set that never agreed on contacts bunched on a short stretch gives way
+docs/active.md): a set that never agreed on contacts bunched on a short stretch gives way
 to the next-ranked segment, whose set re-attributes every probe contact."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The pushes' prior of the active protocol (pipeline/probe/history.py; docs/retrieval.md, "What the pushes said: a
-prior from pushtrack"): its cost's shape, the prior of a stored run, its effect on a set, and the run files and
+"""The pushes' prior of the active protocol (pipeline/probe/history.py; docs/active.md, "What the pushes said: a prior
+from pushtrack"): its cost's shape, the prior of a stored run, its effect on a set, and the run files and
 side files written before it."""
 from __future__ import annotations
 
@@ -126,8 +126,8 @@ def test_the_prior_of_a_stored_run_is_pushtracks_set_and_reads_no_ground_truth(s
 
 
 def test_the_prior_keeps_its_filter_when_pushtracks_defaults_move(scripted_run):
-    # The prior was chosen and checked with the point pusher and its noise (docs/retrieval.md, "What the pushes
-    # said"); these are the bits it gave before pushtrack's default pushing model and noise changed.
+    # The prior was chosen and checked with the point pusher and its noise (docs/active.md, "What the pushes said: a
+    # prior from pushtrack"); these are the bits it gave before pushtrack's default pushing model and noise changed.
     table, info, sensing = scripted_run
     found = history_prior(table, sensing.segments(), info.scene, info.run, 0, sensing.sdf)
     digest = hashlib.sha256(np.ascontiguousarray(found.poses).tobytes()

@@ -1,5 +1,5 @@
 """Active retrieval (pipeline/probe): ray casts, outcome entropy, the stop rule, guarded moves, the set grasp's
-geometric rule, and the hard cases of issue 19 (docs/retrieval.md, "Active retrieval")."""
+geometric rule, and the hard cases of issue 19 (docs/active.md)."""
 from __future__ import annotations
 
 import dataclasses
@@ -166,7 +166,7 @@ def test_probe_line_blocked_by_another_object_predicts_the_block_and_the_contact
 
 def test_a_contact_whose_force_the_hypothesis_surface_does_not_face_is_not_explained_by_it():
     """A contact on the +x face pushes the gripper along +x: a force along y or -x there is not this surface's,
-    although the position fits (docs/retrieval.md, "Attributing a probe contact by its direction")."""
+    although the position fits (docs/active.md, "Whose contact (attribution)")."""
     upright = np.array([[0.0, 0.0, 0.0]])
     turned = np.array([[0.0, 0.2, np.pi / 2]])  # far from the contact
     on_face = np.array([0.031, 0.0])

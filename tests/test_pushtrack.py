@@ -198,7 +198,8 @@ def test_pushed_against_a_wall_the_contacts_win(params):
     # every third action pushes the -x face 1 cm, 5 cm off-centre: the model predicts the box moves and turns; a
     # wall held it still. The others touch all four faces at eight places, so that the contacts fix the pose (with
     # three places repeated, near two corners and one face, a pose 0.45 rad off fits all twelve within 3 mm: no
-    # estimate can tell it from the truth; docs/retrieval.md, "Choosing the estimate the grasp needs"). The
+    # estimate can tell it from the truth; docs/estimators.md, "The estimate: the posterior mean of what the grasp
+    # holds"). The
     # estimate follows the contacts, not the model: far closer to the truth than the model's own prediction from
     # the true start, and the last contacts lie on its surface.
     k = 12
@@ -268,7 +269,7 @@ def test_pushed_through_another_object_the_filter_follows():
     touch = np.ones(13, dtype=bool)
     touch[6] = False
     a = Actions(ee_start=contact - push, ee_end=contact, touch=touch, contact=contact, push=push)
-    on = PushTrackParams(other_push=0.5, motion="push")  # off by default (docs/retrieval.md)
+    on = PushTrackParams(other_push=0.5, motion="push")  # off by default (docs/experiments/pushtrack-carrying.md)
     est = final_pose(BOX, run_filter(BOX, a, NO_FREE, on, np.random.default_rng(4)), np.zeros((0, 2)),
                      np.zeros((0, 2)), on, SCENE)[0]
     pos, yaw = pose_error(BOX, est, after)

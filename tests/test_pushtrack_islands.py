@@ -1,5 +1,5 @@
 """pushtrack's islands: independent filters over the same actions, pooled by their evidence
-(pipeline.estimators.pushtrack.estimator.filter_islands / pool_islands; docs/retrieval.md, "Islands")."""
+(pipeline.estimators.pushtrack.estimator.filter_islands / pool_islands; docs/estimators.md, "Islands")."""
 from __future__ import annotations
 
 import math

@@ -1,6 +1,6 @@
 """pipeline.sim.world's spare clients: a world built in a client that an earlier world of another scene used (and
 ``resetSimulation`` emptied) simulates to the bit what a world in a fresh ``p.connect`` client simulates, for a
-grasp and for a collected run (docs/evaluation.md, "Where the time goes")."""
+grasp and for a collected run (docs/experiments/reproduce-time.md)."""
 from __future__ import annotations
 
 from pathlib import Path

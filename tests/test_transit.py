@@ -1,5 +1,5 @@
 """Transit of the probing policy (pipeline/probe/transit.py, pipeline/probe/moves.py): the graph of visited
-positions and the keep-out around the target's estimate (docs/retrieval.md, "Active retrieval")."""
+positions and the keep-out around the target's estimate (docs/active.md)."""
 from __future__ import annotations
 
 import numpy as np

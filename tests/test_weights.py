@@ -1,5 +1,6 @@
 """The compiled weight kernels (pipeline/track/weights.py) give numpy's results to the last bit: numpy's pairwise
-sum, logsumexp, normalisation, ESS, argmax and systematic resampling's searchsorted (docs/tracker_speed.md)."""
+sum, logsumexp, normalisation, ESS, argmax and systematic resampling's searchsorted
+(docs/experiments/tracker-speed.md)."""
 from __future__ import annotations
 
 import math

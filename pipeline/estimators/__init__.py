@@ -1,6 +1,6 @@
 """Pose estimators: segments of tracked contact points and the gripper's trail -> the target's planar pose.
 
-One subpackage per estimator behind ``stucco retrieve --estimator`` (docs/retrieval.md), and what they share:
+One subpackage per estimator behind ``stucco retrieve --estimator`` (docs/estimators.md), and what they share:
 
 * :mod:`~pipeline.estimators.paper`: the paper's ICP procedure (§V-C), at the end of a run or online at every
   in-contact step, as the authors ran it;

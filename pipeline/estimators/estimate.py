@@ -9,7 +9,7 @@ in-contact step, ICP from 30 restarts on every segment of the tracker's estimate
 best estimate so far), lowest position variance chooses the segment, least penetration then lowest ICP error chooses
 the pose; the grasp goes to the last in-contact step's estimate. ``plausible`` keeps the paper's segment choice, made
 once on the final tracked points (:func:`pipeline.estimators.paper.choice.estimate_run`; how often it picks the target's
-segment: docs/retrieval.md) and replaces the pose by the best of a plausible set
+segment: docs/experiments/plausible-defaults.md) and replaces the pose by the best of a plausible set
 fitted to the known shape, the contact points weighted by recency and the gripper's free space
 (:mod:`pipeline.estimators.plausible.fit`).
 """

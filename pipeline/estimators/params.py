@@ -1,6 +1,6 @@
 """Parameters of the paper's pose estimation (paper §V-C): ICP, model points, the choice and its tolerances.
 
-docs/retrieval.md gives the measurements behind the defaults.
+docs/estimators.md gives the measurements behind the defaults.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ MAX_COUNT = 1000
 
 @dataclass(frozen=True)
 class RetrievalParams:
-    """Parameters of pose estimation (paper §V-C, docs/retrieval.md); serialised into the metadata.
+    """Parameters of pose estimation (paper §V-C, docs/estimators.md); serialised into the metadata.
 
     Attributes
     ----------

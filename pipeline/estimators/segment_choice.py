@@ -3,7 +3,7 @@
 The paper's choice (§V-C: the segment whose ICP restarts agree best) cannot tell the target from an object of
 similar size beside it: on a box task a can's few drifted points fit a box corner as well as the box's own.
 What the gripper *felt* does tell them apart when the target is heavy, as in every task of the paper (the
-authors raised the target's mass; docs/retrieval.md, "Which segment resisted"): pushing an object takes a force
+authors raised the target's mass; docs/estimators.md, "Which segment resisted"): pushing an object takes a force
 that grows with its mass, up to what the gripper's controller can exert, so the target's contacts meet large
 forces while the household clutter moves away at a few newtons. The force of a contact is the sensed wrench's
 in-plane magnitude over the sim steps isolation uses (:func:`pipeline.detection.contact_forces`), a measurement the

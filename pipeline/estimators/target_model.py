@@ -1,7 +1,7 @@
 """The target's model: its primitive in a scene, model points and normals on the primitive's outline, pose error.
 
 Boxes and upright cylinders have one cross-section over their height, so the slice at the gripper plane is the
-whole shape for contact purposes (docs/retrieval.md). Poses are the body's inertial (COM) frame ``(x, y, yaw)``,
+whole shape for contact purposes (docs/estimators.md). Poses are the body's inertial (COM) frame ``(x, y, yaw)``,
 the frame of the recorded ``obj_pose``. The planar rotations and the :class:`~pipeline.geometry.Primitive` itself
 live in :mod:`pipeline.geometry`.
 """
@@ -26,7 +26,7 @@ def target_primitive(scene) -> tuple[int, Primitive]:
 
 
 def model_points(prim: Primitive, params: RetrievalParams, rng: np.random.Generator) -> np.ndarray:
-    """Model points on the target's surface at contact height, in its COM frame (docs/retrieval.md, step 1).
+    """Model points on the target's surface at contact height, in its COM frame (docs/estimators.md, step 1).
 
     Box: testers (x, y) ~ N(0, sigma^2) about the primitive centre, each projected onto the closest point of
     the outline and rejected if within ``min_separation`` of an accepted point, until ``n_box_points``.

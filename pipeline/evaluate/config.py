@@ -58,7 +58,7 @@ class EvalConfig:
     policy : str or None
         Collection policy of the retrieval scenes (:func:`pipeline.registry.policy_names`); None: the default for
         retrieval scenes (``scripted``, the paper's protocol). ``scripted+probe`` is the active protocol (probes,
-        then the grasp for the plausible set; docs/retrieval.md, "Active retrieval"). Left out of
+        then the grasp for the plausible set; docs/active.md). Left out of
         ``evaluation.json`` when None, so folders made before it still resume.
     estimator_stream : int
         The estimators' random stream (:class:`pipeline.retrieve.RetrieveConfig` ``stream``): 0, the default;

@@ -74,7 +74,7 @@ def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT
     tracks = partition(Path(out), "tracks", job.scene, job.seed, job.method)
     if needs_every_step(estimators) and tracks.is_file() and not _every_step(tracks):
         # Tracks of a folder made before an estimator read every in-contact step: track again (the final estimate is
-        # the same bits, docs/retrieval.md "Online, as the authors ran it"), and everything after.
+        # the same bits, docs/estimators.md "Online, as the authors ran it"), and everything after.
         first = STAGES.index("track")
     for est in estimators:
         p = job_paths(Path(out), job, est)

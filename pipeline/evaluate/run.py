@@ -126,7 +126,7 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
             results = done + map_jobs(run_job, todo, jobs, bar)
         results.sort(key=lambda r: r.job)
         scores = gather_scores(out, job_list, cfg.estimators)
-        # Runs of the active protocol add its probes to the report (docs/retrieval.md, "Active retrieval").
+        # Runs of the active protocol add its probes to the report (docs/active.md).
         from pipeline.probe.report import probe_lines  # imported here: it reads the run files only when writing
 
         write_report(out, scores, tuple(config_lines(cfg)) + tuple(probe_lines(out, job_list)),

@@ -6,10 +6,10 @@ the tracker (:func:`pipeline.track.stage.make_tracker`, stream :func:`pipeline.s
 action as ``stucco track`` replays the contacts table, and the segmentation of ``stucco segment`` (Alg. 3 for
 STUCCO, the tracker's own labels for the baselines); the probes' contacts are kept as isolated.
 :func:`choose_target` is the paper's segment choice on the scripted part and :func:`pose_set` the plausible
-estimator's fit (docs/retrieval.md, "The plausible estimator") on that segment plus the probes' contacts,
+estimator's fit (docs/estimators.md, "The plausible estimator") on that segment plus the probes' contacts,
 returning the whole set with each pose's likelihood. The belief depends only on the run's data and the probe
 contacts' attribution (recorded in the run's metadata), so the active protocol's grasp recomputes exactly the
-policy's last belief from the run file (docs/retrieval.md, "Active retrieval").
+policy's last belief from the run file (docs/active.md).
 
 Nothing here reads the simulation's ground truth: only the contact wrench (through isolation), the gripper's
 positions and the target's known shape.
@@ -308,7 +308,7 @@ def explaining(target: Primitive, poses: np.ndarray, point: np.ndarray, toleranc
     object's outward normal within the friction cone), the hypothesis must also turn its surface there to face
     it: its outward normal within ``max_angle_deg`` of the force, or, where the point lies within ``corner`` (m)
     of one of a box's corners, the corner's normal cone (the quarter turn between its two faces' normals) within
-    ``max_angle_deg`` of the force (docs/retrieval.md, "Attributing a probe contact by its direction", "A corner
+    ``max_angle_deg`` of the force (docs/active.md, "Whose contact (attribution)", "A corner
     faces a quarter turn, not every way")."""
     pp, local, sd, grad = _surface_at(target, poses, point)
     near = np.abs(sd[:, 0]) <= tolerance

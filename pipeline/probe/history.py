@@ -3,8 +3,8 @@
 The policy's plausible set fits one pose to the points and probe contacts sensed so far (:mod:`.belief`); it has
 no memory of how the target was pushed. The ``pushtrack`` estimator (:mod:`pipeline.estimators.pushtrack.estimator`) tracks
 the pose through the scripted part's pushes and rarely mistakes a box for one turned a quarter turn, the pose
-the policy's set most often settles on wrongly (docs/retrieval.md, "What the pushes said: a prior from
-pushtrack"). Run once on the scripted part's rows, its refined set becomes a prior cost on every hypothesis of the
+the policy's set most often settles on wrongly (docs/active.md, "What the pushes said: a prior from pushtrack"). Run
+once on the scripted part's rows, its refined set becomes a prior cost on every hypothesis of the
 sets the policy fits to the segment it tracked: flat within ``history_yaw_band`` of the prior's poses' yaws (so the
 probes alone decide between nearby yaws) and within ``history_reach`` of their centres, rising beyond, capped at
 -log ``history_floor`` (so contacts that contradict the prior still win; :class:`~pipeline.probe.params.ProbeParams`).
@@ -29,7 +29,7 @@ from pipeline.estimators.run_info import info_from_table, retrieval_rng
 __all__ = ["HistoryPrior", "history_prior", "PRIOR_PUSHTRACK"]
 
 #: The filter behind the prior: the point pusher and its push noise, with which the prior was chosen and checked
-#: (docs/retrieval.md, "What the pushes said"); pushtrack's own defaults moved on since.
+#: (docs/active.md, "What the pushes said: a prior from pushtrack"); pushtrack's own defaults moved on since.
 PRIOR_PUSHTRACK = PushTrackParams(motion="push", trans_noise=0.3, yaw_noise=3.0)
 
 

@@ -3,7 +3,7 @@
 :func:`pipeline.collect.collect_run` drives it like every policy of :mod:`pipeline.policies` (the scripted part is
 :class:`~pipeline.policies.ScriptedPolicy`'s), then calls :meth:`ScriptedProbePolicy.after`, which runs
 :func:`pipeline.probe.policy.run_policy` on what was sensed so far and appends its probe actions to the run
-(docs/retrieval.md, "Active retrieval"). Registered in :mod:`pipeline.registry`.
+(docs/active.md). Registered in :mod:`pipeline.registry`.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Guarded moves and transit of the probing policy (docs/retrieval.md, "Active retrieval"): retrace visited
+"""Guarded moves and transit of the probing policy (docs/active.md): retrace visited
 positions, advance along a line until the detector reports contact and back off, return to where the scripted
 part ended. Every action goes through the collect stage's ``act`` callback, which simulates and records it."""
 from __future__ import annotations
@@ -84,7 +84,7 @@ def transit_limits(sensing: Sensing, target: Primitive, belief: PoseSet, outline
 
     Transit to a probe's start only keeps the gripper's positions out of the target (a move that grazes it ends
     the probe as a contact, and starts close to the target are the informative ones: keeping the clearance there
-    as well cost grasps, docs/retrieval.md, "Active retrieval").
+    as well cost grasps, docs/active.md).
 
     The return before the grasp must not touch the target at all (a contact there turns it after the last
     decision, unseen): it keeps ``plan.transit_clearance`` from it, positions and moves alike, else two thirds

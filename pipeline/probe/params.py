@@ -1,4 +1,4 @@
-"""The probing policy's parameters and its record of one run (docs/retrieval.md, "Active retrieval"): what
+"""The probing policy's parameters and its record of one run (docs/active.md): what
 :mod:`pipeline.probe.policy` is asked to do and what it did, both serialised into the run file's metadata."""
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ class ProbeParams:
     ----------
     budget : int
         Most probes per run (12; 8 before: a set still wide after 8 probes is usually settled by the next few,
-        docs/retrieval.md, "A larger budget for the sets still wide").
+        docs/experiments/probe-budget.md).
     min_probes : int
         Probes made even if the set agrees from the start (0): a confident set can be confidently wrong.
     coarse_step, fine_step : float, metres
@@ -44,7 +44,7 @@ class ProbeParams:
         the segment is not the target's: the next-ranked one is taken (0.006).
     stall : int
         Probes after which a segment whose set still does not agree gives way to the next-ranked one (99: never;
-        4 switched right segments away on the training seeds, docs/retrieval.md).
+        4 switched right segments away on the training seeds, docs/experiments/active-segment-choice.md).
     min_span : float
         For a box, the set is trusted only once the target's probe contacts span this share of its long side
         (0.6); until then the next probe goes where the estimate predicts contact farthest from them.
@@ -57,18 +57,18 @@ class ProbeParams:
     clutter_cost : float, squared sigmas
         A probe contact that some hypotheses of the set explain and others do not is the target's only if the set
         fitted with it as the target's costs less than this more than with it as another object's (0.3;
-        docs/retrieval.md, "Attributing a contact some hypotheses explain").
+        docs/active.md, "Whose contact (attribution)").
     reattribute : str
         Whether a probe contact once attributed to another object is tried again at later decisions against the
         set then (``fit``: by the rule above, or by its cost alone where no hypothesis explains it; ``explained``:
-        only where some hypothesis does; ``off``: never). One fit more per decision at most; docs/retrieval.md,
-        "A contact once given to another object, tried again".
+        only where some hypothesis does; ``off``: never). One fit more per decision at most; docs/active.md,
+        "Whose contact (attribution)".
     method : str
         Tracking method of the policy's belief (``stucco``).
     history : str
         The prior the scripted part's pushes put on every set (:mod:`pipeline.probe.history`): ``pushtrack`` (the
-        pushtrack estimator's refined set after the scripted part) or ``off`` (docs/retrieval.md, "What the
-        pushes said: a prior from pushtrack").
+        pushtrack estimator's refined set after the scripted part) or ``off`` (docs/active.md, "What the pushes said: a
+        prior from pushtrack").
     history_yaw_band : float, radians
         The prior costs nothing within this yaw of one of its poses, modulo the shape's symmetry (0.8: a box
         turned a quarter turn, 1.57 rad, is what it rules out; nearby yaws are the probes' to decide).

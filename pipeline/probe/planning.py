@@ -1,5 +1,4 @@
-"""Probe planning: which guarded move separates the hypotheses of the plausible set best (docs/retrieval.md,
-"Active retrieval").
+"""Probe planning: which guarded move separates the hypotheses of the plausible set best (docs/active.md).
 
 A candidate probe is a straight line: it starts at a position the gripper has already occupied (known free space,
 reached by retracing visited positions) and heads in one direction. Every hypothesis predicts where the guarded

@@ -1,5 +1,5 @@
 """The probing policy of the active protocol: after the scripted rummage, probe with guarded moves until the
-plausible set agrees on the target's pose or the budget is spent (docs/retrieval.md, "Active retrieval").
+plausible set agrees on the target's pose or the budget is spent (docs/active.md).
 
 Between probes the policy runs the pipeline on everything sensed so far (:mod:`pipeline.probe.belief`: isolation,
 tracking, segmentation, the plausible estimator), plans the next guarded move (:mod:`pipeline.probe.planning`) and
@@ -179,10 +179,10 @@ def next_probe(target: Primitive, belief: PoseSet, sensing: Sensing, outline: np
     """The next guarded move (:func:`pipeline.probe.planning.choose_probe`; None: none can be reached), planned
     under the strictest transit limit that reaches some visited position (:func:`pipeline.probe.moves.reaching`)
     and, where that one leaves no probe, under each laxer one in turn: a gripper walled in by the keep-out
-    around a wrong estimate would otherwise stop probing with the set still wide (docs/retrieval.md, "When the
-    keep-out leaves no probe"). When none leaves a probe, once more with no keep-out and only the positions a
-    probe reached in contact left out, not those ``blocked`` near a transit's contact (docs/retrieval.md, "Walled
-    in by a transit's contact"). With ``short`` (the target's probe contacts are bunched) after a probe that was
+    around a wrong estimate would otherwise stop probing with the set still wide (docs/active.md, "The return and the
+    grasp's move"). When none leaves a probe, once more with no keep-out and only the positions a
+    probe reached in contact left out, not those ``blocked`` near a transit's contact (docs/active.md, "The return and
+    the grasp's move"). With ``short`` (the target's probe contacts are bunched) after a probe that was
     not a spread probe, the line is the one whose contact lies farthest from them."""
     lines = np.asarray([ln[:4] for ln in log.lines], dtype=np.float64).reshape(-1, 4)
     spread = mine_now(sensing, log) if short and log.lines and not log.lines[-1][-1] else None
@@ -246,13 +246,13 @@ def give_way_at_budget(choices: list[TargetChoice], choice: TargetChoice, belief
                        ) -> tuple[TargetChoice, list, list, PoseSet] | None:
     """At the end of the budget, the next-ranked segment when the set of ``choice`` never agreed and its probe
     contacts stayed bunched (:func:`bunched`) although the probes were spread across the target's length: then
-    they lie on another, smaller object (docs/retrieval.md, "Which segment: giving way at the end of the
-    budget", says how well that state tells a wrong segment). ``belief`` is the set of ``choice`` with the
+    they lie on another, smaller object (docs/active.md, "Which segment", says how well that state tells a wrong
+    segment). ``belief`` is the set of ``choice`` with the
     probe contacts of ``target_steps`` (:func:`set_from_steps`). Returns (choice, target steps, other steps, set)
     of that segment with every probe contact attributed afresh against its set (:func:`current_set`), or None to
     keep ``choice``. A segment that resisted the pushes as a heavy target does (``choice.resisted``) never gives
     way: its probe contacts are bunched because the set they were attributed with had drifted, not because they
-    lie on a smaller object (docs/retrieval.md, "Which segment: the one that resisted")."""
+    lie on a smaller object (docs/active.md, "Which segment")."""
     if choice.segment < 0 or choice.resisted:
         return None
     rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
@@ -279,8 +279,8 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
     ``attribute_tolerance`` with its surface facing the contact's sensed force (``attribute_angle_deg``,
     ``attribute_corner``; :func:`pipeline.probe.belief.explaining`), to the target if all of them do, and if only
     some do, to the target only when the set fitted with it as the target's costs less than ``clutter_cost``
-    more than the set fitted with it as another object's (docs/retrieval.md, "Attributing a contact some
-    hypotheses explain"). Every contact is the target's while no set exists or the set is the no-segment prior.
+    more than the set fitted with it as another object's (docs/active.md, "Whose contact (attribution)"). Every contact
+    is the target's while no set exists or the set is the no-segment prior.
     The target's contacts' steps go to ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
     fitted: dict[tuple, PoseSet] = {}  # the sets of this call by target steps (a fit is deterministic)

@@ -1,5 +1,5 @@
 """The active protocol's retrieval of one run file: the policy's last belief recomputed from the file, the grasp
-for the set, simulated (docs/retrieval.md, "Active retrieval").
+for the set, simulated (docs/active.md).
 
 The belief depends only on the run's recorded actions and on which probe contacts the policy attributed to the
 target (the run's metadata, ``probe.target_steps``), so this is the set the policy stopped on.

@@ -1,4 +1,4 @@
-"""A grasp for the whole plausible set (docs/retrieval.md, "Active retrieval"): the grasp yaw, centre and advance
+"""A grasp for the whole plausible set (docs/active.md): the grasp yaw, centre and advance
 that succeed for the largest likelihood-weighted share of the hypotheses, judged by a fast geometric form of the
 success rule of :mod:`pipeline.grasp` per hypothesis, then simulated with that rule unchanged.
 
@@ -23,7 +23,7 @@ __all__ = ["SetGrasp", "choose_grasp", "simulate_set_grasp", "grasp_keepout",
 #: Advances (actions of the action scale) tried besides the plan's own.
 ADVANCES = (3, 4, 5)
 #: Share of the set another grasp must hold beyond the estimate's own to replace it: 0 (0.25 was tried on the
-#: training seeds and grasped one run fewer; docs/retrieval.md).
+#: training seeds and grasped one run fewer; docs/experiments/active-set-grasp.md).
 MARGIN = 0.0
 
 

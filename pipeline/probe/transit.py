@@ -1,11 +1,11 @@
 """Transit of the probing policy: the graph of the gripper's visited positions it may retrace, and the keep-out
-around the target's estimate that transit respects (docs/retrieval.md, "Active retrieval").
+around the target's estimate that transit respects (docs/active.md).
 
 The gripper only moves through space it has occupied before, so transit retraces visited positions: consecutive
 ones, or any two closer than ``link_radius`` (the gripper occupied both). But the target has been pushed since
 the scripted part passed there, so a visited position, or the straight move between two, may now sweep the
-gripper through the target, and a return that touches it after the last decision turns it unseen (docs/retrieval.md,
-"The return keeps clear of the target"). A :class:`Keepout` drops those positions and links.
+gripper through the target, and a return that touches it after the last decision turns it unseen (docs/active.md,
+"The return and the grasp's move"). A :class:`Keepout` drops those positions and links.
 
 Everything is vectorised over (links, samples along a link, outline points); nothing here reads the simulation.
 """
@@ -156,7 +156,7 @@ def grasp_via(start: np.ndarray, pre: np.ndarray, keepout: Keepout, scale: float
               params: GraspParams = GraspParams()) -> np.ndarray:
     """A waypoint for the grasp's move to its pre-grasp point when the straight move from ``start`` (2,) would
     come closer to the target than ``keepout.margin`` (it would push or turn it before the fingers close;
-    docs/retrieval.md, "The grasp's move goes around the target"). Candidates lie around ``pre`` (2,) at each of
+    docs/active.md, "The return and the grasp's move"). Candidates lie around ``pre`` (2,) at each of
     ``radii`` (m) in ``directions`` directions; both moves (:func:`grasp_transit` to the waypoint, then to ``pre``)
     must keep the margin, and the shortest such route wins (ties to the first candidate). A gripper that starts
     closer than the margin (the policy's return can end against the target) only has to move no closer on its first

@@ -1,7 +1,7 @@
 """The ``retrieve`` stage: segments of tracked contact points and the collected runs in, the target's planar pose,
 the simulated grasp and the candidate poses out (:mod:`~pipeline.retrieve.stage`, :func:`retrieve_file`).
 
-The pose estimators it runs live in :mod:`pipeline.estimators` (docs/retrieval.md), the tables' specs in
+The pose estimators it runs live in :mod:`pipeline.estimators` (docs/estimators.md), the tables' specs in
 :mod:`pipeline.schema.results` and their building in :mod:`pipeline.schema.retrieval`. This package re-exports the
 names that the stages after it (score, evaluate, figures) use, so they need not know where each one lives.
 """

@@ -143,7 +143,7 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, ro
     own = registry.policy(info.policy).retrieval if info.policy in registry.policy_names() else None
     if own is not None:
         # A run of the active protocol ends with its own pose and its grasp for the whole plausible set, whatever
-        # the estimator (docs/retrieval.md, "Active retrieval"); the estimator's candidates are kept.
+        # the estimator (docs/active.md); the estimator's candidates are kept.
         row.update(registry.resolve(own)(info, method, root_seed, config.grasp, config.grasp_params))
     elif config.grasp:
         g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params)

@@ -43,7 +43,7 @@ PLANE_LATERAL_FRICTION = 1.0
 _PARKING = (10.0, 10.0)
 #: Physics clients of closed worlds, emptied with ``resetSimulation`` and kept for the next :class:`World` of this
 #: process: connecting and disconnecting a DIRECT client costs about 12-20 ms, a reset about 0.2 ms, a tenth of a
-#: grasp simulation (docs/evaluation.md, "Where the time goes"). A reset client builds and steps the same world to
+#: grasp simulation (docs/experiments/reproduce-time.md). A reset client builds and steps the same world to
 #: the bit as a fresh one (tests/test_sim_reuse.py).
 _SPARE: list[int] = []
 _MAX_SPARE = 2

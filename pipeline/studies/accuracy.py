@@ -43,7 +43,7 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int,
     # Imported here: the trackers load numba's kernels, which only the processes that track need.
     from pipeline.track.stage import TrackConfig, track_table
 
-    # The online paper estimator reads the estimate after every in-contact step (docs/retrieval.md).
+    # The online paper estimator reads the estimate after every in-contact step (docs/estimators.md).
     config = TrackConfig(method=s.method, robot=s.robot, params=dict(s.params),
                          every_step=needs_every_step([s.estimator]))
     t0 = time.perf_counter()

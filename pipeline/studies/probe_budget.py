@@ -1,5 +1,4 @@
-"""``stucco bench probe``: grasp success of the active protocol against the probe budget (docs/retrieval.md,
-"Active retrieval").
+"""``stucco bench probe``: grasp success of the active protocol against the probe budget (docs/active.md).
 
 Each (scene, seed) is collected once with the policy's largest budget (or read from ``--runs``). The policy's
 decisions do not depend on its budget until the budget stops it, so the run with budget b is the first b probes

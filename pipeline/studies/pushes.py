@@ -1,5 +1,5 @@
-"""The pushing models against the simulator, push by push: ``stucco bench pushes`` (docs/retrieval.md, "The
-gripper's slice pushes").
+"""The pushing models against the simulator, push by push: ``stucco bench pushes`` (docs/estimators.md, "Pushing
+models").
 
 Every action of a collected run that pushed the target (its isolation window's last true contact is on the target
 and the gripper's in-contact displacement is at least ``MIN_PUSH``) is one case: the target's recorded pose before

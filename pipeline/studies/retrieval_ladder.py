@@ -11,7 +11,7 @@ unchanged) is tried at poses that lose one piece of knowledge per rung:
 3. ``ideal_true_segment``: the estimator on ideal contact points of the target alone (the segment is known);
 4. ``ideal_our_choice``: the estimator on ideal contact points of every body, one segment per body (it chooses);
 5. ``tracker_our_choice``: the estimator on the tracker's final segments, as ``stucco evaluate`` runs it;
-6. for an estimator with a ``motion`` parameter (pushtrack, docs/retrieval.md): ``ideal_true_segment_static``,
+6. for an estimator with a ``motion`` parameter (pushtrack, docs/estimators.md): ``ideal_true_segment_static``,
    ``..._translate``, ``..._push``, ``tracker_our_choice_static``, ``..._translate``, ``..._push``: rungs 3 and 5
    again with the target held still between contacts (only the filter's noise), moved by the pusher without
    turning (the tracker's assumption), or pushed by the point pusher (the pushing model before the tipped box,
@@ -29,8 +29,8 @@ Ideal contact points are the run's recorded true contact of every action with a 
 body from its pose after the action to its final pose: exactly where each contact lies now. The point is the
 last one of the action's 8-step window that touches a body (``win_true_object``), and its body the one touched
 there: the contact the isolation reports is the window's, whatever body the action's label names (12 of the 105
-labelled actions of the four runs in ``data/regression`` end their window on another body than their label's;
-until 2026-11-27 these gave no point, so the ideal rungs missed, e.g., IB's push of the box at action 12). An
+labelled actions of the four runs in ``data/regression`` end their window on another body than their label's,
+among them IB's push of the box at action 12). An
 action whose window touches nothing falls back to its last true contact (``true_contact_x_m``) and its label.
 A lost grasp is
 put down to ``wrong_segment`` (the estimate is more than 10 cm off, or its segment holds mostly other bodies'

@@ -17,7 +17,7 @@ penetrate are skipped with a bounding-box test against the robot's interior (the
 window of each particle's points kept sorted by first coordinate, then a test of the second
 (:mod:`pipeline.track.ordering`). Copies that resampling and Alg. 2 make reuse the terms of their original. None of
 this changes a value or the order in which a point's terms are added: the results keep their bits
-(docs/tracker_speed.md).
+(docs/experiments/tracker-speed.md).
 
 The grid lookup is nearest-cell, ``idx = rint((q - origin) / resolution)`` (ties to even), outside the grid = free,
 exactly as :meth:`pipeline.robot.GridSDF.query` does.

@@ -1,6 +1,7 @@
 """The soft tracker's per-step weight arithmetic as compiled kernels: the same operations, in the same order, as
 :mod:`pipeline.track.resampling` and ``SoftTracker._reweight_and_resample`` did with numpy, so every weight, ESS
-and ancestor keeps its bits (docs/tracker_speed.md). What it saves is the Python and numpy call overhead of about
+and ancestor keeps its bits (docs/experiments/tracker-speed.md). What it saves is the Python and numpy call overhead of
+about
 twenty small array operations per step (tens of microseconds each), which was a sixth of a whole N=100 replay.
 
 Bit-identity rests on three facts, each checked by ``tests/test_weights.py`` against numpy:

@@ -1,6 +1,6 @@
 """Compiled ICP iterations in SE(2), one restart at a time: the arithmetic of the batched numpy form, bit for bit.
 
-The online estimator (docs/retrieval.md, "Online, as the authors ran it") runs ICP from 30 restarts on a handful
+The online estimator (docs/estimators.md, "Online, as the authors ran it") runs ICP from 30 restarts on a handful
 of points at every in-contact step; written with numpy over the restarts, nearly all of its time went into
 per-call overhead of small arrays. This kernel runs the same iterations per restart in compiled code and gives
 the same bits, because it repeats numpy's order of every operation:
@@ -269,7 +269,7 @@ def clearance_kernel(world, ee, near, values, shape, strides, origin, resolution
 
 def warm_up() -> None:
     """Compile (or load from numba's on-disk cache) every kernel here on a tiny input: ``make setup`` calls it
-    once per machine, so the first retrieval of a clean checkout does not compile (docs/retrieval.md)."""
+    once per machine, so the first retrieval of a clean checkout does not compile (docs/estimators.md)."""
     model = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])
     pts = model[:2] + 0.01
     inits = np.zeros((2, 3))

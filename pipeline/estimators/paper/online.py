@@ -1,6 +1,6 @@
 """The paper's pose estimation run the way the authors ran it: online, at every in-contact step (§V-C).
 
-The authors' retrieval loop (docs/retrieval.md, "Pose estimation") does not fit one pose to the final points. At
+The authors' retrieval loop (docs/estimators.md) does not fit one pose to the final points. At
 every step whose contact detector fired it takes the tracker's current points, segments them (Alg. 3), runs ICP
 from 30 restarts on every segment and redoes the choice (lowest position variance picks the segment, least
 penetration of the gripper positions visited *so far* then lowest ICP error picks the pose). Restart 0 of every

@@ -1,7 +1,7 @@
 """The evidence the plausible estimator weighs: each contact point's uncertainty and the gripper's free space.
 
 * :func:`recency_sigma`: a point's standard deviation grows with the number of later contacts of its segment,
-  since the tracker carried it through those pushes without turning it with the object (docs/retrieval.md,
+  since the tracker carried it through those pushes without turning it with the object (docs/estimators.md,
   "The plausible estimator").
 * :func:`gripper_lattice` and :func:`free_space_points`: points of the gripper's slice at the poses it occupied
   after the segment's object last moved; the target cannot be there.

@@ -6,7 +6,7 @@ the space the gripper occupied after the target last moved (the target cannot be
 from many starts in SE(2), and keep every pose that explains the data about as well as the best one (the
 plausible set) instead of a single answer. The grasp goes to the yaw that most of the set agrees on.
 
-Three terms, all in units of a contact point's squared standard deviation (docs/retrieval.md, "The plausible
+Three terms, all in units of a contact point's squared standard deviation (docs/estimators.md, "The plausible
 estimator"):
 
 * **contact**: Geman-McClure robust cost of each point's signed distance to the target surface over its own
@@ -90,7 +90,8 @@ class PlausibleParams:
         "best" (default): the set's lowest-cost pose. "uniform": the plausible pose whose cost with one sigma for
         every point (``uniform_sigma``) is lowest: recency decides what is plausible, every contact picks within
         it. "vote": the yaw most of the set agrees on (each pose voting with its likelihood relative to the
-        best), then that group's lowest-cost pose. Measured on the training seeds in docs/retrieval.md.
+        best), then that group's lowest-cost pose. Measured on the training seeds in
+        docs/experiments/plausible-defaults.md.
     uniform_sigma : float, metres
         The one sigma of the "uniform" rule (0.005).
     icp_seeds : bool

@@ -12,7 +12,7 @@ numpy form (tests/test_plausible_kernel.py), because it repeats numpy's arithmet
   per entry, point after point.
 
 It runs as plain Python with ``NUMBA_DISABLE_JIT=1`` with the same results (only slower). Measured in
-docs/evaluation.md, "Where the time goes".
+docs/experiments/reproduce-time.md.
 """
 from __future__ import annotations
 
@@ -164,7 +164,7 @@ def piece_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2, 
 
 
 def warm_up() -> None:
-    """Compile the kernels (about 1.5 s, once per machine: numba caches them on disk), as ``make setup`` does, so
+    """Compile the kernels (once per machine: numba caches them on disk), as ``make setup`` does, so
     that no evaluation job pays for it."""
     pose = np.zeros((1, 3))
     pts = np.zeros((1, 2))

@@ -6,7 +6,7 @@ where the tracker carried them (it moves old points by translation only, §VI-A)
 isolated contact point (the same detection and isolation as ``stucco isolate``, with its defaults) and the
 gripper's in-contact displacement; :func:`pipeline.estimators.pushtrack.filter.run_filter` tracks the pose over the actions,
 :func:`final_pose` refines the best particles at the end, and the final particles are the plausible set
-(docs/retrieval.md, "The pushtrack estimator").
+(docs/estimators.md, "The pushtrack estimator").
 """
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def filter_from_best_start(prim: Primitive, actions: Actions, free_points, param
 
     Returns the filter of the highest evidence, each skipped contact charged ``outlier_sigmas``² / 2 nats (what the
     contact term costs a contact far off the surface) and any later start ``start_margin`` nats, the earliest start
-    on a tie, and the actions it ran on (docs/retrieval.md, "Where the filter starts"); (None, ``actions``) when no
+    on a tie, and the actions it ran on (docs/estimators.md, "Where the filter starts"); (None, ``actions``) when no
     action touched the target.
 
     Every start draws from a copy of ``rng`` (common random numbers: the starts differ by their evidence, not by
@@ -207,7 +207,7 @@ def final_pose(prim: Primitive, result: FilterResult, free: np.ndarray, others: 
         if scene is None:
             raise ValueError(f"select={params.select!r} needs the scene (its grasp plan)")
         # The Bayes decision for the grasp script: the posterior over yaw is often flat on the boxes, and its
-        # lowest cost is then an arbitrary member of the set (docs/retrieval.md). The grasp aimed at `mode` holds
+        # lowest cost is then an arbitrary member of the set (docs/estimators.md). The grasp aimed at `mode` holds
         # the largest share; "mode" reports that particle, "grasp" the most probable particle that grasp holds
         # (whose own grasp may hold less of the set).
         share, held = own_grasp_shares(scene, prim, refined, exp(-(post - np.min(post))))
@@ -227,7 +227,7 @@ def held_mean(prim: Primitive, poses: np.ndarray, post: np.ndarray, held: np.nda
     symmetry; any yaw for a can) of particle k's, weighted by exp(-``post``) (H,): centre and yaw averaged in the
     primitive's frame, yaw as k's plus the mean wrapped difference. Where the refined particles split into groups
     of equal cost a grasp-width apart, the mean sits between them and the grasp aimed at it holds both
-    (docs/retrieval.md, "The posterior mean of what the grasp holds")."""
+    (docs/estimators.md, "The estimate: the posterior mean of what the grasp holds")."""
     pp = primitive_pose(prim, np.asarray(poses, dtype=np.float64).reshape(-1, 3))
     dy = wrap_symmetric(pp[:, 2] - pp[k, 2], prim.symmetry)
     near = np.asarray(held, dtype=bool) & (np.abs(dy) <= yaw_window)
@@ -317,7 +317,7 @@ def pushtrack_set(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequenc
     """The filter's refined set at the end of the rows (:func:`refine_final`): COM poses (H, 3), their posterior
     weights (H,) (exp(-posterior cost), summing to 1) and the segment tracked, or None when the filter does not run
     (no segment chosen, or none of its contacts isolated). The active protocol's prior over the target's pose after
-    the scripted part (docs/retrieval.md, "What the pushes said: a prior from pushtrack")."""
+    the scripted part (docs/active.md, "What the pushes said: a prior from pushtrack")."""
     own = replace(own, n_refine=max(own.n_refine, 1))
     _, tracked = track_segment(segments, info, sdf, rngs, params, own, table)
     if tracked is None:

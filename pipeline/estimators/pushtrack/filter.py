@@ -1,4 +1,4 @@
-"""Tracking the target's planar pose through the gripper's pushes: a particle filter over SE(2) (docs/retrieval.md,
+"""Tracking the target's planar pose through the gripper's pushes: a particle filter over SE(2) (docs/estimators.md,
 "The pushtrack estimator").
 
 The target's COM pose x_t = (x, y, yaw) changes only during the actions in which the gripper touches the target's

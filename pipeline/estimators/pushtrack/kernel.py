@@ -9,7 +9,7 @@ the final refinement, each computing the **same bits** as the numpy form it repl
 As :mod:`pipeline.estimators.plausible.kernel` does, they repeat numpy's arithmetic operation by operation (the same
 element-wise expressions, no fused multiply-add, the cosines and sines taken from numpy by the caller, numpy's
 pairwise summation over a contiguous axis: :func:`pipeline.pairwise_sum.pairwise_sum`). ``NUMBA_DISABLE_JIT=1``
-runs them as plain Python with the same results. Measured in docs/retrieval.md, "The pushtrack estimator".
+runs them as plain Python with the same results. Measured in docs/estimators.md, "The pushtrack estimator".
 """
 from __future__ import annotations
 

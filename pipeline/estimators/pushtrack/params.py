@@ -1,5 +1,5 @@
-"""The parameters of the pushtrack estimator (:mod:`pipeline.estimators.pushtrack.filter` is its filter; docs/retrieval.md,
-"The pushtrack estimator")."""
+"""The parameters of the pushtrack estimator (:mod:`pipeline.estimators.pushtrack.filter` is its filter;
+docs/estimators.md, "The pushtrack estimator")."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -33,19 +33,18 @@ class PushTrackParams:
         Steps of the gripper's sweep over one action's in-contact displacement (``motion`` "sweep" or "tip"; 15).
     sweep_limit_scale : float
         ``limit_scale`` of ``motion`` "sweep" and "tip" (1.5: the scale that fits the simulated pushes best, a box
-        resting on its corners; docs/retrieval.md, "The gripper's slice pushes").
+        resting on its corners; docs/estimators.md, "Pushing models").
     tip_spread, tip_reach : float
         Where a box pushed on a long face turns (``motion`` "tip"): about a point of its leading long edge's line,
         hy * min(1 + tip_spread * hy / |e|, tip_reach) from the edge's middle on the far side from the contact's
-        offset e (0.08, 1.27: fitted to the simulated pushes of seeds 100-109; docs/retrieval.md, "The tipped box's
-        centre of rotation").
+        offset e (0.08, 1.27: chosen push by push on training seeds; docs/experiments/tipped-box-centre.md).
     motion : {"push", "sweep", "tip", "translate", "static"}
         "push": the quasi-static pushing model from a point pusher at the contact minus the in-contact displacement;
         "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to
         its end position), the contact found where the slice meets each particle (:mod:`pipeline.estimators.pushtrack.slice_pusher`;
         needs ``Actions.gripper``); "tip" (default): the slice, and a box pushed on a long face turns about a point
-        of its leading long edge, as a box tipped onto that edge does (docs/retrieval.md, "The gripper's slice
-        pushes"); "translate": the target moves by the pusher's displacement projected on the contact normal, never
+        of its leading long edge, as a box tipped onto that edge does (docs/estimators.md, "Pushing models");
+        "translate": the target moves by the pusher's displacement projected on the contact normal, never
         turns (the tracker's assumption, §VI-A); "static": never moves
         (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
     friction : float
@@ -58,8 +57,7 @@ class PushTrackParams:
         Standard deviation of the position noise per metre pushed (0.15), plus ``noise_floor``.
     yaw_noise : float, rad per metre pushed
         Standard deviation of the yaw noise per metre pushed (1.5), plus ``yaw_floor``. Half of what the point
-        pusher needs (0.3 and 3.0), since the tipped box is closer per push (docs/retrieval.md, "The tipped box's
-        centre of rotation").
+        pusher needs (0.3 and 3.0), since the tipped box is closer per push (docs/estimators.md, "Pushing models").
     noise_floor : float, metres
         Position noise of every push (0.001).
     yaw_floor : float, radians
@@ -90,7 +88,7 @@ class PushTrackParams:
     other_push : float
         Share of the particles (0: off; 0.5 tried) pushed by an action whose contact is not the target's but lies within
         ``other_reach`` of their surface: the pushing model from that contact (another object pushed into the target,
-        or a contact of the target given to another segment); the others stay (docs/retrieval.md).
+        or a contact of the target given to another segment); the others stay (docs/experiments/pushtrack-carrying.md).
     other_reach : float, metres
         Distance of another segment's contact from a particle's surface within which it may push it (0.03).
     inject_growth : float
@@ -117,8 +115,8 @@ class PushTrackParams:
         segment's contacts before that start taken as another object's, and the run whose evidence
         (``FilterResult.log_evidence``) is highest is kept, each skipped contact charged the contact term's outlier
         level (``outlier_sigmas``² / 2 nats) and any later start ``start_margin``: a segment often begins with
-        another object's contacts, and a filter started there loses the target (docs/retrieval.md, "Where the
-        filter starts").
+        another object's contacts, and a filter started there loses the target (docs/estimators.md, "Where the filter
+        starts").
     start_margin : float, nats
         What a start after the segment's first contact must win by, beyond the skipped contacts' charge (10): more
         than the filter's own evidence varies between random seeds, so that a later start wins on the contacts,
@@ -127,17 +125,18 @@ class PushTrackParams:
         Independent filters run over the same actions from the kept start (4; 1: one filter), pooled before the
         refinement, each island's particles weighted by its share of the islands' summed evidence
         (:func:`pipeline.estimators.pushtrack.estimator.pool_islands`): one filter's resampling often keeps only one of the
-        modes the contacts allow, and which one is a coin toss of its draws (docs/retrieval.md, "Islands").
+        modes the contacts allow, and which one is a coin toss of its draws (docs/estimators.md, "Islands").
     select : {"cost", "posterior", "grasp", "mode", "held_mean"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
         minus the particle's log-weight ("posterior": the trajectory's evidence counts too); ("grasp")
         the lowest posterior among the particles held by the paper grasp, of those aimed at each refined
         particle, that holds the largest share of the refined set weighted by exp(-posterior) (the Bayes
-        decision for the grasp script; docs/retrieval.md, "Choosing the estimate the grasp needs"); ("mode")
+        decision for the grasp script; docs/estimators.md, "The estimate: the posterior mean of what the grasp holds");
+        ("mode")
         the particle whose own paper grasp holds that largest share (measured and not the default, ibid.); or
         (default, "held_mean") the posterior mean of the particles "grasp" chooses among: those that grasp holds
-        whose yaw is within ``mean_yaw`` of the "grasp" particle's, weighted by exp(-posterior) (docs/retrieval.md,
-        "The posterior mean of what the grasp holds").
+        whose yaw is within ``mean_yaw`` of the "grasp" particle's, weighted by exp(-posterior) (docs/estimators.md,
+        "The estimate: the posterior mean of what the grasp holds").
     mean_yaw : float, radians
         Yaw window of "held_mean" around the chosen particle (0.05: the box grasp's tolerance).
     """

@@ -1,5 +1,6 @@
 """The quasi-static model of planar pushing with an ellipsoidal limit surface (Lynch, Mason), the motion model of
-the pushtrack estimator (docs/retrieval.md, "The pushtrack estimator"; :mod:`pipeline.estimators.pushtrack.filter` is its
+the pushtrack estimator (docs/estimators.md, "The pushtrack estimator"; :mod:`pipeline.estimators.pushtrack.filter` is
+its
 filter).
 
 A pusher at a point of the target's surface moves by d. The target's twist is proportional to (f, m / c^2) for

@@ -1,5 +1,5 @@
-"""The gripper's slice as the pusher: the ``sweep`` motion of the pushtrack estimator (docs/retrieval.md, "The
-gripper's slice pushes").
+"""The gripper's slice as the pusher: the ``sweep`` motion of the pushtrack estimator (docs/estimators.md, "Pushing
+models").
 
 The point pusher of :func:`pipeline.estimators.pushtrack.quasistatic.push_step` starts at the contact minus the in-contact
 displacement and treats the gripper as a point. The gripper is a hand about 14 x 20 cm at contact height with
@@ -248,8 +248,8 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
                 if abs(nx_) > abs(ny_) and abs(qy) > 1e-9:
                     # A long face pushed off its middle: the box rests on its leading long edge and turns about a
                     # point of that edge's line on the far side: just beyond its far corner when pushed near an end,
-                    # further out (but not beyond tip_reach * hy) when pushed near the middle (docs/retrieval.md,
-                    # "The tipped box's centre of rotation"). The side flips with the offset's sign, as a tipped box
+                    # further out (but not beyond tip_reach * hy) when pushed near the middle (docs/estimators.md,
+                    # "Pushing models"). The side flips with the offset's sign, as a tipped box
                     # falls to one side or the other; pushed exactly at the middle, no side is the far one: the
                     # limit surface below pushes it straight.
                     lead = hx if nx_ > 0.0 else -hx
