@@ -15,8 +15,8 @@ Every problem is a :class:`SceneError` whose one-line message names the file and
 from pipeline.scenes.files import (SCENE_DIR, load_all, load_scene, scene_digest, scene_from_text, scene_hash,
                                    scene_names, scene_path)
 from pipeline.scenes.parse import parse_scene
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
-                                   WallSpec)
+from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, WORKSPACE_M, Effects, ObjectSpec, Plane, Scene, SceneError,
+                                   WalkSpec, WallSpec)
 
 __all__ = [
     "SCENE_DIR",
@@ -36,4 +36,5 @@ __all__ = [
     "scene_digest",
     "parse_scene",
     "DEFAULT_ACTION_SCALE",
+    "WORKSPACE_M",
 ]
