@@ -8,7 +8,11 @@ code. One role per module:
   :class:`Plane`, :class:`Effects`, :class:`WalkSpec`) and :class:`SceneError`;
 * :mod:`~pipeline.scenes.parse`: :func:`parse_scene`, a decoded TOML document validated into a :class:`Scene`;
 * :mod:`~pipeline.scenes.files`: :data:`SCENE_DIR`, finding a scene by name or path, :func:`load_scene`,
-  :func:`load_all`, and :func:`scene_hash` for seeding.
+  :func:`load_all`, and :func:`scene_hash` for seeding;
+* :mod:`~pipeline.scenes.generate` (knobs and one random draw), :mod:`~pipeline.scenes.catalogue` (the tasks'
+  objects and walls), :mod:`~pipeline.scenes.footprint` (outlines on the plane), :mod:`~pipeline.scenes.coverage`
+  (a rummage from a region and a start) and :mod:`~pipeline.scenes.generated_toml` (a draw's file): generated
+  retrieval scenes, checked after settling in :mod:`pipeline.sim.generate` (docs/scene_generator.md).
 
 Every problem is a :class:`SceneError` whose one-line message names the file and the offending key.
 """

@@ -122,9 +122,10 @@ class GeneratorSpec:
             raise GeneratorSpecError("area_m", self.area_m, f"lies outside the workspace (x, y in [{wx0:g}, {wx1:g}] "
                                                             "m)")
         gripper_depth = GRIPPER_OUTLINE_M[1][0] - GRIPPER_OUTLINE_M[0][0]
-        if x0 - gripper_depth - START_CLEARANCE_M[1] < wx0:
+        x_low = wx0 + gripper_depth + START_CLEARANCE_M[1]
+        if x0 < x_low:
             raise GeneratorSpecError("area_m", self.area_m, f"leaves no room in the workspace for the gripper start "
-                                                            f"before it (x_min >= {wx0 + gripper_depth + START_CLEARANCE_M[1]:.3f} m)")
+                                                            f"before it (x_min >= {x_low:.3f} m)")
         width, height = sorted((x1 - x0, y1 - y0))
         for m in self.target_models():
             short, long = _sides(m)
@@ -213,7 +214,7 @@ def sample_layout(seed: int, index: int, draw: int, spec: GeneratorSpec) -> Layo
     centre = np.array([rng.uniform(x_low, ax1 - radius), rng.uniform(ay0 + radius, ay1 - radius)])
     mass = float(rng.uniform(*TARGET_MASS_KG))
     target = _object(target_model, target_model.key, centre, yaw, mass, float(rng.uniform(*LATERAL_FRICTION)), True)
-    placer.add(target, float(rng.uniform(GAP_MIN_M, gap_high)))
+    placer.add(target)
     (wx0, wy0), (wx1, wy1) = WORKSPACE_M
     start_y = float(np.clip(centre[1] + rng.uniform(-0.1, 0.1), wy0 - GRIPPER_OUTLINE_M[0][1] + GAP_MIN_M,
                             wy1 - GRIPPER_OUTLINE_M[1][1] - GAP_MIN_M))
@@ -272,9 +273,10 @@ def sample_layout(seed: int, index: int, draw: int, spec: GeneratorSpec) -> Layo
     hidden = hidden_fraction(start, placer.outlines[0], placer.outlines[1:])
     if hidden < spec.hiddenness:
         raise DrawRejected(f"target {hidden:.0%} hidden, below {spec.hiddenness:.0%}")
+    # Coarse knowledge only: the whole clutter's box, grown by drawn margins, rounded outward to the centimetre.
     margin = rng.uniform(*spec.region_margin_m, size=4)
-    region = ((max(wx0, math.floor((bx0 - margin[0]) * 100) / 100), max(wy0, math.floor((by0 - margin[1]) * 100) / 100)),
-              (min(wx1, math.ceil((bx1 + margin[2]) * 100) / 100), min(wy1, math.ceil((by1 + margin[3]) * 100) / 100)))
+    region = ((max(wx0, _cm_floor(bx0 - margin[0])), max(wy0, _cm_floor(by0 - margin[1]))),
+              (min(wx1, _cm_ceil(bx1 + margin[2])), min(wy1, _cm_ceil(by1 + margin[3]))))
     return Layout(seed=seed, index=index, draw=draw, objects=tuple(placer.objects), walls=walls, start=start,
                   region=region, placement=placement, hidden=hidden)
 
@@ -288,7 +290,7 @@ class _Placer:
         self.objects: list[ObjectSpec] = []
         self.outlines: list[np.ndarray] = []
 
-    def add(self, obj: ObjectSpec, gap: float) -> None:
+    def add(self, obj: ObjectSpec) -> None:
         self.objects.append(obj)
         self.outlines.append(object_outline(obj))
 
@@ -322,7 +324,7 @@ class _Placer:
         poly = object_outline(placed)
         if not self.fits(poly):
             return False
-        self.add(placed, gap)
+        self.add(placed)
         return True
 
 
@@ -364,6 +366,14 @@ def _radius(m: Model) -> float:
 
 def _real(v: object) -> bool:
     return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _cm_floor(x: float) -> float:
+    return math.floor(x * 100.0) / 100.0
+
+
+def _cm_ceil(x: float) -> float:
+    return math.ceil(x * 100.0) / 100.0
 
 
 def _round(x: float) -> float:

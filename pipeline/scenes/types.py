@@ -15,7 +15,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_ACTION_SCALE", "WORKSPACE_M", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects", "WalkSpec", "Scene"]
+__all__ = ["DEFAULT_ACTION_SCALE", "WORKSPACE_M", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects",
+           "WalkSpec", "Scene"]
 
 #: Normalised actions are multiplied by this (m) to give a displacement (the authors' MAX_PUSH_DIST; docs/simulation.md,
 #: "Scenes are data").
