@@ -9,16 +9,23 @@ import click
 from pipeline import registry
 from stucco_cli.bench import bench
 from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.generate import generate_scenes_command
 
 
-@click.command()
-def scenes() -> None:
-    """List the scenes (data/scenes/*.toml) with a one-line description each."""
+@click.group(invoke_without_command=True)
+@click.pass_context
+def scenes(ctx: click.Context) -> None:
+    """List the scenes (data/scenes/*.toml) with a one-line description each; `scenes generate` draws new ones."""
+    if ctx.invoked_subcommand is not None:
+        return
     from pipeline.scenes import SCENE_DIR, load_all
 
     with user_errors():
         for s in load_all(SCENE_DIR):
             click.echo(f"{s.name:<8} {s.kind:<9} {s.description}")
+
+
+scenes.add_command(generate_scenes_command)
 
 
 def _load(scene: str):

@@ -8,15 +8,19 @@ code. One role per module:
   :class:`Plane`, :class:`Effects`, :class:`WalkSpec`) and :class:`SceneError`;
 * :mod:`~pipeline.scenes.parse`: :func:`parse_scene`, a decoded TOML document validated into a :class:`Scene`;
 * :mod:`~pipeline.scenes.files`: :data:`SCENE_DIR`, finding a scene by name or path, :func:`load_scene`,
-  :func:`load_all`, and :func:`scene_hash` for seeding.
+  :func:`load_all`, and :func:`scene_hash` for seeding;
+* :mod:`~pipeline.scenes.generate` (knobs and one random draw), :mod:`~pipeline.scenes.catalogue` (the tasks'
+  objects and walls), :mod:`~pipeline.scenes.footprint` (outlines on the plane), :mod:`~pipeline.scenes.coverage`
+  (a rummage from a region and a start) and :mod:`~pipeline.scenes.generated_toml` (a draw's file): generated
+  retrieval scenes, checked after settling in :mod:`pipeline.sim.generate` (docs/scene_generator.md).
 
 Every problem is a :class:`SceneError` whose one-line message names the file and the offending key.
 """
 from pipeline.scenes.files import (SCENE_DIR, load_all, load_scene, scene_digest, scene_from_text, scene_hash,
                                    scene_names, scene_path)
 from pipeline.scenes.parse import parse_scene
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
-                                   WallSpec)
+from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, WORKSPACE_M, Effects, ObjectSpec, Plane, Scene, SceneError,
+                                   WalkSpec, WallSpec)
 
 __all__ = [
     "SCENE_DIR",
@@ -36,4 +40,5 @@ __all__ = [
     "scene_digest",
     "parse_scene",
     "DEFAULT_ACTION_SCALE",
+    "WORKSPACE_M",
 ]

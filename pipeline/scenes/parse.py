@@ -11,8 +11,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
-                                   WallSpec)
+from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, WORKSPACE_M, Effects, ObjectSpec, Plane, Scene, SceneError,
+                                   WalkSpec, WallSpec)
 
 __all__ = ["parse_scene", "NAME_PATTERN", "MAX_EXTENT_M", "MAX_SIZE_M", "MAX_MASS_KG", "MAX_FRICTION",
            "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS"]
@@ -134,7 +134,7 @@ class _Reader:
 
 
 _TOP_KEYS = {"name", "description", "kind", "notes", "gripper", "plane", "effects", "objects", "walls", "actions",
-             "walk"}
+             "walk", "target_region"}
 _OBJECT_KEYS = {"name", "shape", "size", "position", "yaw", "rp", "z", "mass", "lateral_friction",
                 "spinning_friction", "rolling_friction", "shape_offset", "shape_yaw", "com_offset", "com_yaw",
                 "model", "target"}
@@ -240,6 +240,37 @@ def _parse_walk(r: _Reader | None) -> WalkSpec | None:
     )
 
 
+def _parse_target_region(r: _Reader | None, objects: tuple[ObjectSpec, ...]
+                         ) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``[target_region] min = [x, y], max = [x, y]`` (metres): inside the workspace, min < max on both axes, and
+    holding the target (its centre inside, its footprint not wider than the region); the workspace if absent."""
+    if r is None:
+        return WORKSPACE_M
+    r.check_keys({"min", "max"})
+    lo, hi = r.vector("min", 2), r.vector("max", 2)
+    (w_lo_x, w_lo_y), (w_hi_x, w_hi_y) = WORKSPACE_M
+    for k, v in (("min", lo), ("max", hi)):
+        if not (w_lo_x <= v[0] <= w_hi_x and w_lo_y <= v[1] <= w_hi_y):
+            raise r.fail(k, f"{list(v)} lies outside the workspace (x in [{w_lo_x:g}, {w_hi_x:g}] m, "
+                            f"y in [{w_lo_y:g}, {w_hi_y:g}] m)")
+    if not (lo[0] < hi[0] and lo[1] < hi[1]):
+        raise r.fail("min", f"expected min < max on both axes, got min {list(lo)}, max {list(hi)}")
+    target = next((o for o in objects if o.target), None)
+    if target is None:
+        raise r.fail("min", "a target region needs an object with target = true")
+    short, long = target.footprint_sides_m
+    width, height = sorted((hi[0] - lo[0], hi[1] - lo[1]))
+    # Refuse only what cannot fit in any orientation: a side wider than the region's narrow side, or a long side
+    # beyond its diagonal.
+    if short > width or long > math.hypot(width, height):
+        raise r.fail("max", f"the target {target.name!r} (footprint {short:.3f} x {long:.3f} m) does not fit in the "
+                            f"region ({hi[0] - lo[0]:.3f} x {hi[1] - lo[1]:.3f} m)")
+    cx, cy = target.centre_xy
+    if not (lo[0] <= cx <= hi[0] and lo[1] <= cy <= hi[1]):
+        raise r.fail("min", f"the target {target.name!r} (centre ({cx:.3f}, {cy:.3f}) m) lies outside the region")
+    return lo, hi
+
+
 def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     """Validate a decoded TOML document into a :class:`Scene` (``path`` only names the file in errors)."""
     r = _Reader(path, data)
@@ -271,6 +302,7 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     effects = _parse_effects(r.sub("effects"), [o.name for o in objects])
     actions, scale = _parse_actions(r.sub("actions"))
     walk = _parse_walk(r.sub("walk"))
+    region = _parse_target_region(r.sub("target_region"), objects)
     if kind == "retrieval":
         if actions is None:
             raise r.fail("actions", "a retrieval scene needs [actions] with a sequence")
@@ -285,4 +317,4 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
         raise r.fail("description", "expected one line")
     return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
                  objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, walk=walk,
-                 notes=r.string("notes", ""))
+                 target_region=region, notes=r.string("notes", ""))

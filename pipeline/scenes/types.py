@@ -10,15 +10,21 @@ Coordinates are world metres on the plane (z up), angles radians. An object's ``
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_ACTION_SCALE", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects", "WalkSpec", "Scene"]
+__all__ = ["DEFAULT_ACTION_SCALE", "WORKSPACE_M", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects",
+           "WalkSpec", "Scene"]
 
 #: Normalised actions are multiplied by this (m) to give a displacement (the authors' MAX_PUSH_DIST; docs/simulation.md,
 #: "Scenes are data").
 DEFAULT_ACTION_SCALE = 0.03
+#: The table top, ((x_min, y_min), (x_max, y_max)) in metres: every shipped scene's objects, walls and walk bounds
+#: lie in it. A scene's ``[target_region]`` must lie in it, and is it when the file declares none
+#: (docs/simulation.md, "Scenes are data").
+WORKSPACE_M = ((-1.0, -1.0), (1.0, 1.0))
 
 
 class SceneError(ValueError):
@@ -98,6 +104,25 @@ class ObjectSpec:
     def spawn_z(self) -> float:
         """float, metres: link-frame height at spawn."""
         return self.half_height if self.z is None else self.z
+
+    @property
+    def centre_xy(self) -> tuple[float, float]:
+        """(float, float), metres: the primitive's centre in the plane at spawn (link frame + ``shape_offset``)."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        ox, oy = self.shape_offset
+        return self.position[0] + c * ox - s * oy, self.position[1] + s * ox + c * oy
+
+    @property
+    def footprint_sides_m(self) -> tuple[float, float]:
+        """(short, long), metres: sides of the smallest rectangle the object's outline on the plane can fit in
+        upright (box: its x, y extents; cylinder: its diameter twice); lying down, a lower bound (the two
+        smallest extents; a cylinder's diameter and height)."""
+        if self.shape == "cylinder":
+            sides = (2.0 * self.size[0], 2.0 * self.size[0]) if self.rp == (0.0, 0.0) else \
+                (2.0 * self.size[0], self.size[1])
+        else:
+            sides = tuple(self.size[:2]) if self.rp == (0.0, 0.0) else tuple(sorted(self.size)[:2])
+        return min(sides), max(sides)
 
 
 @dataclass(frozen=True)
@@ -192,6 +217,9 @@ class Scene:
     action_scale : float, metres
         Displacement per unit action.
     walk : WalkSpec or None
+    target_region : ((float, float), (float, float)), metres
+        ((x_min, y_min), (x_max, y_max)): the rectangle of the plane the user knows the target lies in (prior
+        knowledge for retrieval); :data:`WORKSPACE_M` when the file declares no ``[target_region]``.
     source : str
         The TOML text the scene was parsed from ('' if built in code); collect stores it in every run file so the
         later stages use this scene, not whatever file has its name then (docs/simulation.md).
@@ -209,6 +237,7 @@ class Scene:
     actions: tuple[tuple[float, float], ...] | None = None
     action_scale: float = DEFAULT_ACTION_SCALE
     walk: WalkSpec | None = None
+    target_region: tuple[tuple[float, float], tuple[float, float]] = WORKSPACE_M
     notes: str = field(default="", compare=False)
     source: str = field(default="", compare=False, repr=False)
 
