@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from types import MappingProxyType
 from typing import Mapping, Sequence
 
 from pipeline.registry import DEFAULT_ESTIMATOR
@@ -145,8 +144,9 @@ class JobPaths:
     """Every partition file of one job (scene, seed, method), for each of its pose estimators; made once per job
     (:func:`job_paths`) and handed to the freshness check and the stage runner.
 
-    ``files[estimator][kind]`` is a path; the kinds not in :data:`PER_ESTIMATOR` are the same file for every
-    estimator. ``method`` None: the files of a (scene, seed) shared by its methods only (:func:`run_paths`).
+    ``files[estimator][kind]`` is a path (not to be changed); the kinds not in :data:`PER_ESTIMATOR` are the same
+    file for every estimator. ``method`` None: only the files of a (scene, seed) shared by its methods
+    (:func:`run_paths`).
     """
 
     scene: str
@@ -188,10 +188,11 @@ def job_paths(out: str | Path, job, estimators: Sequence[str] | str = (DEFAULT_E
         raise ValueError("job_paths needs at least one estimator")
     out = Path(out)
     kinds = SHARED if job.method is None else KINDS
-    files = {est: MappingProxyType({k: partition(out, k, job.scene, job.seed, None if k in SHARED else job.method,
-                                                 est) for k in kinds})
+    # plain dicts: a JobPaths goes to worker processes (pickled), which a mappingproxy cannot
+    files = {est: {k: partition(out, k, job.scene, job.seed, None if k in SHARED else job.method, est)
+                   for k in kinds}
              for est in estimators}
-    return JobPaths(job.scene, int(job.seed), job.method, estimators, MappingProxyType(files))
+    return JobPaths(job.scene, int(job.seed), job.method, estimators, files)
 
 
 @dataclass(frozen=True)

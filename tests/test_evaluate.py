@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import pickle
 import re
 import shutil
 from pathlib import Path
@@ -328,6 +329,15 @@ def test_a_partly_rerun_job_keeps_the_stored_times_of_the_stages_it_skips(copy):
     assert {k: v for k, v in after.items() if k[0] == "gmphd"} == {k: v for k, v in before.items() if k[0] == "gmphd"}
 
 
+def test_a_method_added_to_the_grid_books_the_stored_times_of_its_seeds_shared_stages(copy):
+    ev = evaluate(copy, ["IB"], [0], (*METHODS, "dbscan"), CFG, jobs=1, progress=True, figures=False)
+    assert {r.job.method: r.ran for r in ev.results} == {"stucco": (), "gmphd": (), "dbscan": STAGES[2:]}
+    rows = {(r["method"], r["estimator"]): r for r in read_kind(copy, "scores").to_pylist()}
+    for est in registry.estimator_names():
+        for c in ("stage_collect_s", "stage_isolate_s"):  # collected and isolated once, for every method
+            assert rows[("dbscan", est)][c] == rows[("stucco", est)][c] is not None
+
+
 def test_no_side_file_is_written_beside_the_tables(evaluated):
     for kind in KINDS:
         others = [p for p in (evaluated / kind).rglob("*") if p.is_file() and p.suffix != ".parquet"]
@@ -364,6 +374,7 @@ def test_stage_specs_declare_every_kind_once_and_inputs_made_before(tmp_path):
     assert paths.of("scores", "paper") == partition(tmp_path, "scores", "FB", 3, "kmeans", "paper")
     assert paths["tracks"] == partition(tmp_path, "tracks", "FB", 3, "kmeans")
     assert paths.inputs(STAGE_SPECS[1]) == {"FB-003": partition(tmp_path, "runs", "FB", 3)}
+    assert pickle.loads(pickle.dumps(paths)) == paths  # handed to worker processes
     assert paths.inputs(STAGE_SPECS[5], "paper") == {
         "retrieval": partition(tmp_path, "retrieval", "FB", 3, "kmeans", "paper"),
         "segments": paths["segments"], "diagnostics": paths["diagnostics"]}

@@ -22,7 +22,7 @@ from pipeline.registry import DEFAULT_ESTIMATOR
 from pipeline.estimators.estimate import needs_every_step
 
 __all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
-           "run_stale", "figure_stale"]
+           "figure_stale"]
 
 def file_digest(path: Path) -> str:
     """SHA-256 (hex) of a file's bytes (:func:`pipeline.schema.file_digest`): every digest the freshness check
@@ -109,11 +109,6 @@ def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests) -> tu
     isolate = stage_spec("isolate")
     fresh = all(up_to_date(p, paths.inputs(isolate), digest) for p in paths.outputs(isolate).values())
     return () if fresh else (isolate.name,)
-
-
-def run_stale(out: Path, scene: str, seed: int) -> bool:
-    """The (scene, seed)'s collected run is missing, or its contacts are not up to date with it."""
-    return bool(shared_stale_stages(Path(out), scene, seed, Digests()))
 
 
 def figure_stale(png: Path, inputs: Iterable[Path]) -> bool:

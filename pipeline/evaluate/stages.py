@@ -17,7 +17,7 @@ import math
 import shutil
 import time
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, Optional
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -40,7 +40,7 @@ __all__ = ["STAGE_COLUMNS", "StageTimes", "run_collect", "run_isolate", "run_tra
 #: Columns the evaluation adds to the scores table (seconds of wall time per stage; null if unknown).
 STAGE_COLUMNS = tuple(f"stage_{s}_s" for s in STAGES)
 #: Stage name -> its wall time in seconds (None: unknown, e.g. a run copied by ``--from-runs``).
-StageTimes = dict[str, "float | None"]
+StageTimes = dict[str, Optional[float]]
 
 _COLLECT, _ISOLATE, _TRACK, _SEGMENT, _RETRIEVE, _SCORE = (stage_spec(s) for s in STAGES)
 
