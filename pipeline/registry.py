@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Union
 
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
            "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
            "estimator_names", "policy_names", "default_policy", "method_title", "resolve", "build_params", "choices",
-           "DEFAULT_ESTIMATOR"]
+           "side_path", "DEFAULT_ESTIMATOR"]
 
 #: An object, or ``"package.module:attribute"`` resolved on first use.
 Ref = Union[str, Callable[..., Any], type, None]
@@ -117,6 +118,14 @@ class PolicySpec:
         How ``retrieve`` ends a run this policy collected: ``retrieval(info, method, root_seed, grasp,
         grasp_params) -> dict`` of the retrieval row's pose, errors, grasp and notes (the active protocol's own
         pose and grasp for the whole plausible set). None: the estimator's pose and the paper's grasp script.
+    side_files : tuple of str
+        Suffixes of the files a run collected with this policy keeps beside its run file (what must not go in the
+        Parquet file, e.g. wall times: the same command writes the run byte for byte again); the run file
+        ``R.parquet`` has the side file ``_R<suffix>`` (:func:`side_path`). ``evaluate --from-runs`` copies them
+        with the run.
+    save_side_files : callable, import path or None
+        ``save_side_files(run_path, result)`` writes the side files of a run just collected, from
+        :class:`pipeline.collect.CollectResult` ``result``; None: the policy has none.
     """
 
     name: str
@@ -126,6 +135,19 @@ class PolicySpec:
     needs: tuple[tuple[str, str], ...] = ()
     default_for: tuple[str, ...] = ()
     retrieval: Ref = None
+    side_files: tuple[str, ...] = ()
+    save_side_files: Ref = None
+
+    def side_paths(self, run_file: str | Path) -> tuple[Path, ...]:
+        """The side files of run file ``run_file`` (:attr:`side_files`, in order; they may not exist)."""
+        return tuple(side_path(run_file, suffix) for suffix in self.side_files)
+
+
+def side_path(run_file: str | Path, suffix: str) -> Path:
+    """The side file ``_<stem><suffix>`` beside ``run_file``: the leading ``_`` keeps it out of a Parquet
+    dataset of the folder (pyarrow skips such names; a ``*.parquet`` glob never matches a side file)."""
+    run_file = Path(run_file)
+    return run_file.with_name(f"_{run_file.stem}{suffix}")
 
 
 Spec = Union[TrackerSpec, EstimatorSpec, PolicySpec]
@@ -141,6 +163,11 @@ def register(spec: Spec, *, replace: bool = False) -> Spec:
         raise ValueError(f"invalid {kind} name {spec.name!r}")
     if spec.name in _REGISTRY[kind] and not replace:
         raise ValueError(f"{kind} {spec.name!r} is already registered")
+    for suffix in getattr(spec, "side_files", ()):
+        # a side file must not look like a partition of the runs folder, nor leave it
+        if not suffix.startswith(".") or suffix.endswith(".parquet") or "/" in suffix or "\\" in suffix:
+            raise ValueError(f"policy {spec.name!r}: side file suffix {suffix!r} must start with '.', stay in the "
+                             "run's folder and not end with '.parquet'")
     _REGISTRY[kind][spec.name] = spec
     return spec
 
@@ -313,7 +340,8 @@ register(PolicySpec("greedy-walk", "a greedy random walk to a random goal (the t
 register(PolicySpec("scripted+probe", "the scripted actions, then probes until the target's pose is known, and a "
                                       "grasp for the whole plausible set (active retrieval)",
                     "pipeline.probe.mover:ScriptedProbePolicy", params="pipeline.probe.policy:ProbeParams",
-                    needs=(("actions", "action sequence"),), retrieval="pipeline.probe.retrieval:active_row"))
+                    needs=(("actions", "action sequence"),), retrieval="pipeline.probe.retrieval:active_row",
+                    side_files=(".probe_s.json",), save_side_files="pipeline.probe.report:save_collect_times"))
 register(PolicySpec("rummage", "the scene's action sequence played again and again from the scene's starting "
                                "state until a given number of actions end in contact (long runs for `bench scale "
                                "--contacts`)",

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import pickle
 import re
 import shutil
 from pathlib import Path
@@ -18,8 +19,8 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import registry, schema
-from pipeline.evaluate import (KINDS, STAGE_COLUMNS, STAGES, EvalConfig, Job, evaluate, parse_methods,
-                               parse_scenes, partition, read_kind, stale_stages)
+from pipeline.evaluate import (KINDS, STAGE_COLUMNS, STAGE_SPECS, STAGES, EvalConfig, Job, evaluate, job_paths,
+                               parse_methods, parse_scenes, partition, read_kind, stale_stages)
 from pipeline.figures import figure_path
 
 CFG = EvalConfig(root_seed=0, max_actions=12, restarts=5)
@@ -238,3 +239,142 @@ def test_another_estimator_stream_reruns_only_the_estimators_draws(evaluated, tm
     assert res.exit_code == 1
     assert "was made with estimator_stream=1, this evaluation asks for estimator_stream=0" in res.output
     assert "Traceback" not in res.output
+
+
+# --- One pass through a job: each input hashed once, the stale stages and paths handed on, times in memory -------
+
+def _count_digests(monkeypatch) -> dict[Path, int]:
+    """Count every digest the evaluation takes to decide what is stale, per file (the stages' own checks inside
+    their ``<stage>_file`` functions, the same as on the command line, are not the evaluation's)."""
+    from pipeline.evaluate import freshness
+
+    calls: dict[Path, int] = {}
+    real = freshness.file_digest
+
+    def counting(path):
+        calls[Path(path)] = calls.get(Path(path), 0) + 1
+        return real(path)
+
+    monkeypatch.setattr(freshness, "file_digest", counting)
+    return calls
+
+
+def _inputs_of_every_job(out: Path) -> set[Path]:
+    """Every file some stage of the module's grid records as an input (StageSpec.inputs)."""
+    files = set()
+    for m in METHODS:
+        paths = job_paths(out, Job("IB", 0, m), registry.estimator_names())
+        for spec in STAGE_SPECS:
+            for est in paths.estimators:
+                files |= set(paths.inputs(spec, est).values())
+    return files
+
+
+def test_a_resumed_evaluation_with_nothing_stale_hashes_each_input_once_and_runs_no_stage(copy, monkeypatch):
+    from pipeline.evaluate import jobs as jobs_module
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("no stage may run")
+
+    for name in ("run_collect", "run_isolate", "run_track", "run_segment", "run_retrieve", "run_score"):
+        monkeypatch.setattr(jobs_module, name, refuse)
+    calls = _count_digests(monkeypatch)
+    every = {}  # every SHA-256 taken by anyone: with no stage run, only the freshness check's
+    real = schema.file_digest
+    monkeypatch.setattr(schema, "file_digest", lambda p: every.setdefault(Path(p), []).append(1) or real(p))
+    ev = _run(copy)
+    assert [r.ran for r in ev.results] == [(), ()] and ev.prepared == []
+    assert {p: len(v) for p, v in every.items()} == calls
+    # runs, contacts; per method tracks, segments, diagnostics; per method and estimator retrieval: once each
+    assert set(calls) == _inputs_of_every_job(copy)
+    assert len(calls) == 2 + 3 * len(METHODS) + len(METHODS) * len(registry.estimator_names())
+    assert set(calls.values()) == {1}, calls
+
+
+def test_each_input_of_a_job_is_hashed_once_per_evaluation_call(copy, monkeypatch):
+    # One job resumes from retrieve (its retrieval deleted), the other is finished: the check of both, the
+    # preparation and the job itself hash each input at most once in all.
+    partition(copy, "retrieval", "IB", 0, "stucco").unlink()
+    calls = _count_digests(monkeypatch)
+    ev = _run(copy)
+    assert {r.job.method: r.ran for r in ev.results} == {"stucco": ("retrieve", "score"), "gmphd": ()}
+    assert max(calls.values()) == 1, calls
+    assert partition(copy, "contacts", "IB", 0) in calls and partition(copy, "runs", "IB", 0) in calls
+
+
+def test_a_fresh_evaluation_hashes_each_input_at_most_once(tmp_path, monkeypatch):
+    calls = _count_digests(monkeypatch)
+    cfg = EvalConfig(root_seed=0, max_actions=6, restarts=2, estimators=("plausible",), grasp=False)
+    evaluate(tmp_path / "ev", ["IB"], [0], ("gmphd",), cfg, jobs=1, progress=True, figures=False)
+    assert not calls or max(calls.values()) == 1, calls
+
+
+def test_a_partly_rerun_job_keeps_the_stored_times_of_the_stages_it_skips(copy):
+    def times(out):
+        return {(r["method"], r["estimator"]): {c: r[c] for c in STAGE_COLUMNS}
+                for r in read_kind(out, "scores").to_pylist()}
+
+    before = times(copy)
+    partition(copy, "retrieval", "IB", 0, "stucco").unlink()  # the default estimator's
+    ev = _run(copy)
+    after = times(copy)
+    (stucco,) = [r for r in ev.results if r.job.method == "stucco"]
+    for est in registry.estimator_names():
+        # what the job returned in memory is what its scores hold
+        assert {f"stage_{s}_s": v for s, v in stucco.stage_s[est].items()} == after[("stucco", est)]
+        for stage in ("collect", "isolate", "track", "segment"):  # not rerun: the stored times
+            c = f"stage_{stage}_s"
+            assert after[("stucco", est)][c] == before[("stucco", est)][c], (est, c)
+        assert after[("stucco", est)]["stage_score_s"] != before[("stucco", est)]["stage_score_s"]
+    assert {k: v for k, v in after.items() if k[0] == "gmphd"} == {k: v for k, v in before.items() if k[0] == "gmphd"}
+
+
+def test_a_method_added_to_the_grid_books_the_stored_times_of_its_seeds_shared_stages(copy):
+    ev = evaluate(copy, ["IB"], [0], (*METHODS, "dbscan"), CFG, jobs=1, progress=True, figures=False)
+    assert {r.job.method: r.ran for r in ev.results} == {"stucco": (), "gmphd": (), "dbscan": STAGES[2:]}
+    rows = {(r["method"], r["estimator"]): r for r in read_kind(copy, "scores").to_pylist()}
+    for est in registry.estimator_names():
+        for c in ("stage_collect_s", "stage_isolate_s"):  # collected and isolated once, for every method
+            assert rows[("dbscan", est)][c] == rows[("stucco", est)][c] is not None
+
+
+def test_no_side_file_is_written_beside_the_tables(evaluated):
+    for kind in KINDS:
+        others = [p for p in (evaluated / kind).rglob("*") if p.is_file() and p.suffix != ".parquet"]
+        assert not others, others
+
+
+def test_a_folder_of_layout_2_is_migrated_in_place_and_resumes(copy):
+    from pipeline.layout import LAYOUT_VERSION
+
+    config = json.loads((copy / "evaluation.json").read_text())
+    (copy / "evaluation.json").write_text(json.dumps(dict(config, layout=2)))
+    hive = partition(copy, "tracks", "IB", 0, "stucco").parent / "_wall_s.json"
+    flat = copy / "scores" / "_wall_s" / "IB-000-stucco-plausible.json"
+    flat.parent.mkdir()
+    for p in (hive, flat):
+        p.write_text('{"wall_s": 1.0}')
+    old_side = copy / "runs" / "IB-000.probe_s.json"
+    old_side.write_text('{"decision_s": [0.5], "prior_s": 0.25}')
+    before = _mtimes(copy)
+    ev = _run(copy)
+    assert [r.ran for r in ev.results] == [(), ()] and _mtimes(copy) == before
+    assert not hive.exists() and not flat.parent.exists() and not old_side.exists()
+    assert registry.side_path(partition(copy, "runs", "IB", 0), ".probe_s.json").read_text().startswith('{"decision')
+    assert json.loads((copy / "evaluation.json").read_text()) == dict(config, layout=LAYOUT_VERSION)
+
+
+def test_stage_specs_declare_every_kind_once_and_inputs_made_before(tmp_path):
+    made: list[str] = []
+    for spec in STAGE_SPECS:
+        assert all(kind in made for _, kind in spec.inputs) and all(k in made for k in spec.reads), spec.name
+        made += spec.outputs
+    assert sorted(made) == sorted(KINDS) and tuple(s.name for s in STAGE_SPECS) == STAGES
+    paths = job_paths(tmp_path, Job("FB", 3, "kmeans"), ("plausible", "paper"))
+    assert paths.of("scores", "paper") == partition(tmp_path, "scores", "FB", 3, "kmeans", "paper")
+    assert paths["tracks"] == partition(tmp_path, "tracks", "FB", 3, "kmeans")
+    assert paths.inputs(STAGE_SPECS[1]) == {"FB-003": partition(tmp_path, "runs", "FB", 3)}
+    assert pickle.loads(pickle.dumps(paths)) == paths  # handed to worker processes
+    assert paths.inputs(STAGE_SPECS[5], "paper") == {
+        "retrieval": partition(tmp_path, "retrieval", "FB", 3, "kmeans", "paper"),
+        "segments": paths["segments"], "diagnostics": paths["diagnostics"]}

@@ -3,6 +3,7 @@ writes a folder (issue 12, items 4 and 5; docs/evaluation.md, "The output direct
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import duckdb
@@ -13,7 +14,8 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.atomic import exclusive
-from pipeline.layout import CONFIG, FLAT, KINDS, LOCK
+from pipeline import registry
+from pipeline.layout import CONFIG, FLAT, KINDS, LOCK, PER_ESTIMATOR, SHARED
 from stucco_cli.main import cli
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
@@ -50,6 +52,31 @@ def test_every_kind_opens_with_pyarrow_pandas_and_duckdb(evaluation, kind):
     con = duckdb.connect()
     got = con.execute(f"SELECT count(*), count(DISTINCT scene) FROM '{folder}/**/*.parquet'").fetchone()
     assert got == (n, 2)
+
+
+def _keys(kind: str) -> list[str]:
+    return ["scene", "seed"] + (["method"] if kind not in SHARED else []) + (["estimator"] if kind in PER_ESTIMATOR
+                                                                           else [])
+
+
+def test_every_table_of_an_evaluation_opens_with_one_pattern(evaluation):
+    # Every folder of the evaluation holding Parquet is a table, and each opens with the same DuckDB call and the
+    # same pyarrow call, its keys as columns with the same values either way (issue: one layout for every table).
+    tables = sorted({p.relative_to(evaluation).parts[0] for p in evaluation.rglob("*.parquet")})
+    assert tables == sorted(KINDS)
+    # A policy's side file beside a run (the active protocol's times) must not stop either reader.
+    registry.side_path(evaluation / "runs" / "FB-000.parquet", ".probe_s.json").write_text('{"decision_s": []}')
+    con = duckdb.connect()
+    for table in tables:
+        keys = _keys(table)
+        q = (f"SELECT {', '.join(keys)}, count(*) FROM read_parquet('{evaluation}/{table}/**/*.parquet', "
+             f"hive_partitioning=true) GROUP BY ALL ORDER BY ALL")
+        by_duckdb = con.execute(q).fetchall()
+        t = ds.dataset(evaluation / table, partitioning="hive").to_table(columns=keys)
+        by_pyarrow = sorted(Counter(tuple(r[k] for k in keys) for r in t.to_pylist()).items())
+        assert [(*k, n) for k, n in by_pyarrow] == by_duckdb, table
+        assert sum(n for *_, n in by_duckdb) == _rows_in_files(evaluation / table), table
+        assert {r[0] for r in by_duckdb} == {"FB", "TC"} and {r[1] for r in by_duckdb} == {0}, table
 
 
 def test_flat_kinds_hold_their_keys_and_runs_is_a_run_directory(evaluation):

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.atomic import write_text
+from pipeline.evaluate.migrate import MIGRATES_FROM, migrate
 from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline import registry
 from pipeline.estimators.params import MAX_COUNT
@@ -203,7 +204,9 @@ def parse_methods(text: str) -> tuple[str, ...]:
 
 def check_config(out: Path, cfg: EvalConfig) -> None:
     """Write ``cfg`` to ``out/evaluation.json`` (atomically, creating ``out``), or check that an existing one
-    matches it; ValueError (one line) naming the first differing field otherwise."""
+    matches it; ValueError (one line) naming the first differing field otherwise. A matching folder of the
+    previous layout is migrated in place (:func:`pipeline.evaluate.migrate.migrate`), then its
+    ``evaluation.json`` rewritten; an older layout is refused."""
     path = out / CONFIG
     want = dict(cfg.to_dict(), layout=LAYOUT_VERSION)
     if path.is_file():
@@ -214,6 +217,10 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
         if not isinstance(have, dict):
             raise ValueError(f"{path}: holds {type(have).__name__} {json.dumps(have)[:40]}, not the JSON object "
                              "stucco evaluate writes; remove it or use another --out")
+        # A folder of the previous layout holds the same tables: migrated in place once it matches otherwise.
+        older = have.get("layout") == MIGRATES_FROM and MIGRATES_FROM + 1 == LAYOUT_VERSION
+        if older:
+            have = dict(have, layout=LAYOUT_VERSION)
         diff = sorted(k for k in set(want) | set(have) if have.get(k) != want.get(k))
         if "layout" in diff:
             raise ValueError(f"{out}: was made with another layout of the output folder (layout "
@@ -225,7 +232,9 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
             default = getattr(EvalConfig(), k, None)
             raise ValueError(f"{out}: was made with {k}={have.get(k, default)!r}, this evaluation asks for "
                              f"{k}={want.get(k, default)!r}; use another --out (or delete {out})")
-        return
+        if not older:
+            return
+        migrate(out)
     write_text(path, json.dumps(want, indent=1, sort_keys=True) + "\n")
 
 

@@ -5,6 +5,10 @@ An output is up to date when it exists and the SHA-256 of every input recorded i
 first out-of-date stage and everything after it; a job whose scores are up to date is skipped. Deleting a file,
 or rewriting it with other content, reruns its stage and every later one; a byte-identical rewrite (a CLI rerun of
 a deterministic stage) reruns nothing (docs/evaluation.md, "Resuming and skipping").
+
+What each stage records is declared once, in :data:`pipeline.layout.STAGE_SPECS`. The driver checks every job with
+one :class:`Digests`, so each file is hashed at most once per evaluation call (the shared contacts of a seed once
+for all its methods), and hands the stale stages on to the job (:func:`pipeline.evaluate.run_job`).
 """
 from __future__ import annotations
 
@@ -13,24 +17,35 @@ from typing import Iterable, Sequence
 
 from pipeline import schema
 from pipeline.evaluate.config import Job
-from pipeline.layout import STAGES, job_paths, partition
+from pipeline.layout import STAGE_SPECS, STAGES, JobPaths, job_paths, run_paths, stage_spec
 from pipeline.registry import DEFAULT_ESTIMATOR
 from pipeline.estimators.estimate import needs_every_step
 
-__all__ = ["Digests", "up_to_date", "stale_stages", "run_stale", "figure_stale"]
+__all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
+           "figure_stale"]
+
+def file_digest(path: Path) -> str:
+    """SHA-256 (hex) of a file's bytes (:func:`pipeline.schema.file_digest`): every digest the freshness check
+    takes goes through this function (the stages' own checks inside their ``<stage>_file`` functions do not)."""
+    return schema.file_digest(path)
 
 
 class Digests:
-    """SHA-256 (hex) of files, each computed once per check; None for a missing file."""
+    """SHA-256 (hex) of files, each computed once for the life of this object; None for a missing file.
+
+    Share one between checks made while the files stay unchanged (the driver's check of every job, after the
+    runs are collected and isolated); a file rewritten after its digest was taken needs a new object.
+    """
 
     def __init__(self) -> None:
         self._d: dict[Path, str] = {}
 
     def __call__(self, path: Path) -> str | None:
+        path = Path(path)
         if path not in self._d:
             if not path.is_file():
                 return None
-            self._d[path] = schema.file_digest(path)
+            self._d[path] = file_digest(path)
         return self._d[path]
 
 
@@ -49,42 +64,32 @@ def up_to_date(path: Path, inputs: dict[str, Path], digest: Digests) -> bool:
     return True
 
 
-def _stage_inputs(p: dict[str, Path]) -> dict[str, tuple[tuple[str, dict[str, Path]], ...]]:
-    """Stage -> ((output kind, {role: input file}), ...) as the stages record them."""
-    return {
-        "collect": (("runs", {}),),
-        "isolate": (("contacts", {p["runs"].stem: p["runs"]}),),  # isolate names a run file's role by its stem
-        "track": (("diagnostics", {"contacts": p["contacts"]}), ("tracks", {"contacts": p["contacts"]})),
-        "segment": (("segments", {"tracks": p["tracks"]}),),
-        "retrieve": (("candidates", {"segments": p["segments"]}), ("retrieval", {"segments": p["segments"]})),
-        "score": (("scores", {"retrieval": p["retrieval"], "segments": p["segments"],
-                              "diagnostics": p["diagnostics"]}),),
-    }
+def job_stale_stages(paths: JobPaths, digest: Digests) -> tuple[str, ...]:
+    """The stages of the job of ``paths`` to (re)run: the first whose outputs (for any of ``paths.estimators``)
+    are missing or out of date, and all after it; empty when the job is finished.
 
-
-def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT_ESTIMATOR,)) -> tuple[str, ...]:
-    """The stages of ``job`` to (re)run: the first whose outputs (for any of ``estimators``) are missing or out
-    of date, and all after it.
-
-    Empty when the job is finished (its scores are up to date with the whole chain, for every estimator). Tracks
-    without the estimate after every step are out of date when one of ``estimators`` needs it.
+    Tracks without the estimate after every step are out of date when one of the estimators needs it.
     """
-    digest = Digests()
     first = len(STAGES)
-    tracks = partition(Path(out), "tracks", job.scene, job.seed, job.method)
-    if needs_every_step(estimators) and tracks.is_file() and not _every_step(tracks):
+    tracks = paths["tracks"]
+    if needs_every_step(paths.estimators) and tracks.is_file() and not _every_step(tracks):
         # Tracks of a folder made before an estimator read every in-contact step: track again (the final estimate is
         # the same bits, docs/estimators.md "Online, as the authors ran it"), and everything after.
         first = STAGES.index("track")
-    for est in estimators:
-        p = job_paths(Path(out), job, est)
-        for i, (stage, outputs) in enumerate(_stage_inputs(p).items()):
-            if i >= first:
-                break
-            if not all(up_to_date(p[kind], inputs, digest) for kind, inputs in outputs):
-                first = i
-                break
+    for i, spec in enumerate(STAGE_SPECS[:first]):
+        ests = paths.estimators if spec.per_estimator else paths.estimators[:1]
+        if not all(up_to_date(out, paths.inputs(spec, est), digest)
+                   for est in ests for out in paths.outputs(spec, est).values()):
+            first = i
+            break
     return STAGES[first:]
+
+
+def stale_stages(out: str | Path, job: Job, estimators: Sequence[str] = (DEFAULT_ESTIMATOR,),
+                 digest: Digests | None = None) -> tuple[str, ...]:
+    """:func:`job_stale_stages` of ``job`` under ``out`` (its paths made here; a new :class:`Digests` unless
+    given)."""
+    return job_stale_stages(job_paths(out, job, estimators), Digests() if digest is None else digest)
 
 
 def _every_step(path: Path) -> bool:
@@ -95,11 +100,15 @@ def _every_step(path: Path) -> bool:
         return False
 
 
-def run_stale(out: Path, scene: str, seed: int) -> bool:
-    """The (scene, seed)'s collected run is missing, or its contacts are not up to date with it."""
-    runs = partition(out, "runs", scene, seed)
-    return not runs.is_file() or not up_to_date(partition(out, "contacts", scene, seed), {runs.stem: runs},
-                                                Digests())
+def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests) -> tuple[str, ...]:
+    """The stages of a (scene, seed) shared by its methods to (re)run: ``("collect", "isolate")`` when the run
+    file is missing, ``("isolate",)`` when the contacts are not up to date with it, else ``()``."""
+    paths = run_paths(out, scene, seed)
+    if not paths["runs"].is_file():
+        return "collect", "isolate"
+    isolate = stage_spec("isolate")
+    fresh = all(up_to_date(p, paths.inputs(isolate), digest) for p in paths.outputs(isolate).values())
+    return () if fresh else (isolate.name,)
 
 
 def figure_stale(png: Path, inputs: Iterable[Path]) -> bool:

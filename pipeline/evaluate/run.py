@@ -16,18 +16,22 @@ from tqdm import tqdm
 
 from pipeline.atomic import exclusive
 from pipeline.evaluate.config import EvalConfig, Job, check_config, config_lines
-from pipeline.evaluate.freshness import figure_stale, run_stale, stale_stages
-from pipeline.evaluate.jobs import JobResult, prepare_one, run_job
+from pipeline.evaluate.freshness import Digests, figure_stale, job_stale_stages, shared_stale_stages
+from pipeline.evaluate.jobs import JobResult, PreparedRun, prepare_one, run_job
 from pipeline.evaluate.parallel import parallel_backend
 from pipeline.evaluate.results import gather_scores, write_report
+from pipeline.evaluate.stages import StageTimes, stored_stage_s
 from pipeline.figures import figure_path, run_figure, summary_figure
-from pipeline.layout import LOCK, partition
+from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths
 from pipeline.parallel import map_jobs
 from pipeline.report import table_ii
 from pipeline import schema
 from pipeline.retrieve import load_run, run_files_by_name
 
 __all__ = ["Evaluation", "evaluate"]
+
+#: The stages a (scene, seed) shares between its methods, prepared before the jobs.
+SHARED_STAGES = tuple(s.name for s in STAGE_SPECS if s.shared)
 
 
 @dataclass
@@ -116,12 +120,18 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         check_config(out, cfg)
         job_list = [Job(sc, s, m) for sc, s in pairs for m in methods]
 
-        need = [(out, sc, s, cfg) for sc, s in pairs if run_stale(out, sc, s)]
+        # One pass over the files: every digest taken once (the prepare phase writes only files not hashed
+        # yet: a missing run, and contacts, which are checked as outputs here), the stale stages handed on.
+        digest = Digests()
+        shared_todo = {(sc, s): shared_stale_stages(out, sc, s, digest) for sc, s in pairs}
+        need = [(out, sc, s, cfg, todo) for (sc, s), todo in shared_todo.items() if todo]
         with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
-            prepared = map_jobs(prepare_one, need, jobs, bar)
-        todo = [(out, j, cfg) for j in job_list if stale_stages(out, j, cfg.estimators)]
-        pending = {t[1] for t in todo}
-        done = [JobResult(j, (), 0.0) for j in job_list if j not in pending]
+            prepared = {(p.scene, p.seed): p for p in map_jobs(prepare_one, need, jobs, bar)}
+        paths = {j: job_paths(out, j, cfg.estimators) for j in job_list}
+        stale = {j: job_stale_stages(paths[j], digest) for j in job_list}
+        known = _shared_times(job_list, paths, stale, prepared)
+        todo = [(out, j, cfg, stale[j], paths[j], known[(j.scene, j.seed)]) for j in job_list if stale[j]]
+        done = [JobResult(j, (), 0.0) for j in job_list if not stale[j]]
         with tqdm(total=len(todo), desc="jobs", unit="job", disable=progress or not todo) as bar:
             results = done + map_jobs(run_job, todo, jobs, bar)
         results.sort(key=lambda r: r.job)
@@ -133,11 +143,33 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
                      estimator_stream=cfg.estimator_stream)
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
-            stale_figs = [(out, sc, s, methods, cfg.estimators[0]) for sc, s in pairs
+            first = cfg.estimators[0]
+            stale_figs = [(out, sc, s, methods, first) for sc, s in pairs
                           if figure_stale(figure_path(out, sc, s),
-                                          [partition(out, "scores", sc, s, m, cfg.estimators[0]) for m in methods])]
+                                          [paths[Job(sc, s, m)].of("scores", first) for m in methods])]
             with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
                 map_jobs(run_figure, stale_figs, jobs, bar)
             summary_figure(table_ii(scores), out / "summary.png")
         return Evaluation(out=out, jobs=job_list, results=results, scores=scores,
-                          prepared=[p for p in prepared if p[2]], wall_s=time.perf_counter() - t0)
+                          prepared=[(p.scene, p.seed, p.ran) for p in prepared.values() if p.ran],
+                          wall_s=time.perf_counter() - t0)
+
+
+def _shared_times(job_list: Sequence[Job], paths: dict[Job, JobPaths], stale: dict[Job, tuple[str, ...]],
+                  prepared: dict[tuple[str, int], PreparedRun]) -> dict[tuple[str, int], StageTimes]:
+    """(scene, seed) -> wall times (s) of its shared stages (collect, isolate) for the stale jobs: those of this
+    call's preparation, else those the stored scores of any job of the seed record (another method's, when a
+    method is added to the grid)."""
+    known: dict[tuple[str, int], StageTimes] = {}
+    for j in job_list:
+        key = (j.scene, j.seed)
+        if not stale[j] or key in known:
+            continue
+        ran = prepared[key].stage_s if key in prepared else {}
+        times: StageTimes = {}
+        if len(ran) < len(SHARED_STAGES):
+            siblings = (paths[k].of("scores", e) for k in job_list if (k.scene, k.seed) == key
+                        for e in paths[k].estimators)
+            times = {s: v for s, v in stored_stage_s(siblings).items() if s in SHARED_STAGES}
+        known[key] = {**times, **ran}
+    return known

@@ -1,98 +1,92 @@
-"""Each stage of one evaluation job, run as the CLI runs it, with its wall time kept beside its output.
+"""Each stage of one evaluation job, run as the CLI runs it, returning its wall time.
 
 Every function here calls the stage's ``<stage>_file`` function, the one its ``stucco`` command calls (so the
-parameters, metadata and atomic writes are those of the CLI), with the root seed and the stage's partitions
-(:mod:`pipeline.layout`) as files; a stored run (``--from-runs``) is copied instead of collected.
+parameters, metadata and atomic writes are those of the CLI), with the root seed and the files its
+:class:`~pipeline.layout.StageSpec` declares, taken from the job's :class:`~pipeline.layout.JobPaths`; a stored
+run (``--from-runs``) is copied instead of collected.
 
-**Wall times**: each stage's wall time (seconds) goes to a ``_wall_s.json`` beside its file (ignored by pyarrow
-datasets and by the stages, which only read ``*.parquet``), and the scores table gets ``stage_<name>_s`` columns
-and ``wall_s`` = their sum, the time to produce the run from nothing (collect and isolate, shared by the methods
-of a seed, are counted in each); docs/evaluation.md, "Wall times".
+**Wall times**: each function returns its stage's wall time (seconds) to the caller, which hands them on in
+memory; the scores table gets ``stage_<name>_s`` columns and ``wall_s`` = their sum, the time to produce the run
+from nothing (collect and isolate, shared by the methods of a seed, are counted in each; docs/evaluation.md,
+"Wall times"). The scores are the only place they persist: a later call that reruns part of a job takes the
+times of the stages it does not rerun from the job's stored scores (:func:`stored_stage_s`).
 """
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import time
 from pathlib import Path
+from typing import Iterable, Mapping, Optional
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 
-from pipeline.atomic import atomic_path, write_text
+from pipeline import registry
+from pipeline.atomic import atomic_path
 from pipeline.collect import collect_file, output_path
 from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
-from pipeline.layout import STAGE_KIND, STAGES, wall_path
+from pipeline.layout import STAGES, JobPaths, stage_spec
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
 from pipeline.estimators.estimate import needs_every_step
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
-__all__ = ["STAGE_COLUMNS", "write_wall", "read_wall", "run_collect", "run_isolate", "run_track", "run_segment",
-           "run_retrieve", "run_score", "with_stage_times"]
+__all__ = ["STAGE_COLUMNS", "StageTimes", "run_collect", "run_isolate", "run_track", "run_segment", "run_retrieve",
+           "run_score", "with_stage_times", "stored_stage_s"]
 
 #: Columns the evaluation adds to the scores table (seconds of wall time per stage; null if unknown).
 STAGE_COLUMNS = tuple(f"stage_{s}_s" for s in STAGES)
+#: Stage name -> its wall time in seconds (None: unknown, e.g. a run copied by ``--from-runs``).
+StageTimes = dict[str, Optional[float]]
+
+_COLLECT, _ISOLATE, _TRACK, _SEGMENT, _RETRIEVE, _SCORE = (stage_spec(s) for s in STAGES)
 
 
-def write_wall(path: Path, seconds: float) -> None:
-    """``{"wall_s": seconds}`` (rounded to the microsecond) into the ``_wall_s.json`` beside ``path``."""
-    write_text(wall_path(path), json.dumps({"wall_s": round(float(seconds), 6)}))
+def _side_suffixes() -> tuple[str, ...]:
+    """The side-file suffixes every registered policy declares (a stored run may come from any of them)."""
+    return tuple(dict.fromkeys(s for spec in registry.policies() for s in spec.side_files))
 
 
-def read_wall(path: Path) -> float | None:
-    """The wall time (s) recorded beside ``path``; None if missing, unreadable or not finite."""
-    try:
-        v = json.loads(wall_path(path).read_text())["wall_s"]
-        return float(v) if math.isfinite(float(v)) else None
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def run_collect(scene_name: str, seed: int, cfg: EvalConfig, dest: Path) -> None:
-    """Collect the scripted run (or copy the stored one of ``cfg.source``) to ``dest``.
-
-    A copied run has no wall time (its side file is removed): it was not produced here.
-    """
+def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
+    """Collect the scripted run (or copy the stored one of ``cfg.source``, with its policy's side files) into the
+    job's run file; returns the wall time (s), None for a copied run (it was not produced here)."""
+    dest = paths.outputs(_COLLECT)["runs"]
+    scene, seed = paths.scene, paths.seed
     t0 = time.perf_counter()
     if cfg.source is not None:
-        src = output_path(cfg.source, scene_name, seed)
+        src = output_path(cfg.source, scene, seed)
         if not src.is_file():
-            raise FileNotFoundError(f"{src}: no stored run for {scene_name} seed {seed}")
+            raise FileNotFoundError(f"{src}: no stored run for {scene} seed {seed}")
         with atomic_path(dest) as tmp:
             shutil.copyfile(src, tmp)
-        from pipeline.probe.report import times_path  # imported here: only probing runs have a times file
-
-        if times_path(src).is_file():  # the probing policy's decision times, kept beside the run
-            with atomic_path(times_path(dest)) as tmp:
-                shutil.copyfile(times_path(src), tmp)
-        wall = None
-    else:
-        res = collect_file(cfg.scene(scene_name), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
-                           max_actions=cfg.max_actions, keep_discarded=True)
-        if res.probe_s is not None:
-            from pipeline.probe.report import save_times  # imported here: only the probing policy times decisions
-
-            save_times(dest, res.probe_s)
-        wall = time.perf_counter() - t0
-    if wall is None:
-        wall_path(dest).unlink(missing_ok=True)
-    else:
-        write_wall(dest, wall)
+        for suffix in _side_suffixes():
+            side = registry.side_path(src, suffix)
+            if side.is_file():
+                with atomic_path(registry.side_path(dest, suffix)) as tmp:
+                    shutil.copyfile(side, tmp)
+        return None
+    res = collect_file(cfg.scene(scene), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
+                       max_actions=cfg.max_actions, keep_discarded=True)
+    save = registry.policy(cfg.collect_policy).save_side_files
+    if save is not None:
+        registry.resolve(save)(dest, res)
+    return time.perf_counter() - t0
 
 
-def run_isolate(runs: Path, dest: Path, cfg: EvalConfig) -> None:
-    """Isolate the contacts of one collected run file into ``dest`` (default detection and isolation)."""
+def run_isolate(paths: JobPaths, cfg: EvalConfig) -> float:
+    """Isolate the contacts of the job's run file (default detection and isolation); returns the wall time (s)."""
     t0 = time.perf_counter()
-    isolate_file([runs], dest, seed=cfg.root_seed)
-    write_wall(dest, time.perf_counter() - t0)
+    isolate_file(list(paths.inputs(_ISOLATE).values()), paths.outputs(_ISOLATE)["contacts"], seed=cfg.root_seed)
+    return time.perf_counter() - t0
 
 
-def run_track(p: dict[str, Path], method: str, cfg: EvalConfig) -> None:
+def run_track(paths: JobPaths, method: str, cfg: EvalConfig) -> float:
     """Track the contacts with ``method`` (default parameters) into the tracks and diagnostics partitions; the
-    estimate after every step too when one of ``cfg.estimators`` needs it (the final estimate is the same)."""
+    estimate after every step too when one of ``cfg.estimators`` needs it (the final estimate is the same).
+    Returns the wall time (s)."""
     # Imported here: the trackers load numba's kernels (about a quarter of a second), which only the processes
     # that track need.
     from pipeline.track.stage import TrackConfig, track_file
@@ -100,49 +94,74 @@ def run_track(p: dict[str, Path], method: str, cfg: EvalConfig) -> None:
     t0 = time.perf_counter()
     # An estimator that runs at every in-contact step (the paper's, online) reads the estimate after every step.
     config = TrackConfig(method=method, robot=cfg.robot, params={}, every_step=needs_every_step(cfg.estimators))
-    track_file(p["contacts"], p["tracks"], config, seed=cfg.root_seed, jobs=1, diagnostics_path=p["diagnostics"])
-    write_wall(p["tracks"], time.perf_counter() - t0)
+    out = paths.outputs(_TRACK)
+    track_file(paths.inputs(_TRACK)["contacts"], out["tracks"], config, seed=cfg.root_seed, jobs=1,
+               diagnostics_path=out["diagnostics"])
+    return time.perf_counter() - t0
 
 
-def run_segment(p: dict[str, Path], cfg: EvalConfig) -> None:
-    """Segment the tracks (``by="auto"``: Alg. 3's components for STUCCO, the tracker's own labels otherwise)."""
+def run_segment(paths: JobPaths, cfg: EvalConfig) -> float:
+    """Segment the tracks (``by="auto"``: Alg. 3's components for STUCCO, the tracker's own labels otherwise);
+    returns the wall time (s)."""
     t0 = time.perf_counter()
-    segment_file(p["tracks"], p["segments"], seed=cfg.root_seed, by="auto")
-    write_wall(p["segments"], time.perf_counter() - t0)
+    segment_file(paths.inputs(_SEGMENT)["tracks"], paths.outputs(_SEGMENT)["segments"], seed=cfg.root_seed,
+                 by="auto")
+    return time.perf_counter() - t0
 
 
-def run_retrieve(p: dict[str, Path], method: str, cfg: EvalConfig, estimator: str) -> None:
+def run_retrieve(paths: JobPaths, method: str, cfg: EvalConfig, estimator: str) -> float:
     """Estimate the target's pose with ``estimator`` (and simulate the grasp if ``cfg.grasp``) into the
-    retrieval and candidates partitions of that estimator (``p`` from :func:`pipeline.layout.job_paths`)."""
+    retrieval and candidates partitions of that estimator; returns the wall time (s)."""
     t0 = time.perf_counter()
     config = RetrieveConfig(method=method, estimator=estimator,
                             params=RetrievalParams(n_restarts=cfg.restarts, robot=cfg.robot), grasp=cfg.grasp,
                             grasp_params=GraspParams(), stream=cfg.estimator_stream)
-    retrieve_file(p["segments"], p["runs"], p["retrieval"], p["candidates"], config, seed=cfg.root_seed, jobs=1)
-    write_wall(p["retrieval"], time.perf_counter() - t0)
+    out = paths.outputs(_RETRIEVE, estimator)
+    retrieve_file(paths.inputs(_RETRIEVE, estimator)["segments"], paths.reads(_RETRIEVE, estimator)["runs"],
+                  out["retrieval"], out["candidates"], config, seed=cfg.root_seed, jobs=1)
+    return time.perf_counter() - t0
 
 
-def run_score(p: dict[str, Path], cfg: EvalConfig) -> None:
-    """Score one estimator's retrieval into its scores partition, with every stage's wall time
-    (:func:`with_stage_times`)."""
+def run_score(paths: JobPaths, cfg: EvalConfig, estimator: str, walls: StageTimes) -> float:
+    """Score one estimator's retrieval into its scores partition, with the wall time of every stage
+    (:func:`with_stage_times`): those of ``walls`` (stage -> s, the earlier stages) and the score's own, which is
+    also returned (s) and set in ``walls``."""
     t0 = time.perf_counter()
-    walls = {s: read_wall(p[k]) for s, k in STAGE_KIND.items() if s != "score"}
+    inputs = paths.inputs(_SCORE, estimator)
 
     def timed(table: pa.Table) -> pa.Table:
         walls["score"] = time.perf_counter() - t0
         return with_stage_times(table, walls)
 
-    score_file(p["retrieval"], p["segments"], p["runs"], p["scores"], seed=cfg.root_seed,
-               diagnostics_path=p["diagnostics"], amend=timed)
+    score_file(inputs["retrieval"], inputs["segments"], paths.reads(_SCORE, estimator)["runs"],
+               paths.outputs(_SCORE, estimator)["scores"], seed=cfg.root_seed,
+               diagnostics_path=inputs["diagnostics"], amend=timed)
+    return walls["score"]
 
 
-def with_stage_times(table: pa.Table, walls: dict[str, float | None]) -> pa.Table:
+def with_stage_times(table: pa.Table, walls: Mapping[str, float | None]) -> pa.Table:
     """Scores + one ``stage_<name>_s`` column per stage (seconds, null if unknown); ``wall_s`` = the sum of the
     known ones."""
     n = table.num_rows
     for s in STAGES:
         v = walls.get(s)
         table = table.append_column(f"stage_{s}_s", pa.array([v] * n, pa.float64()))
-    total = float(sum(v for v in walls.values() if v is not None))
+    total = float(sum(v for s, v in walls.items() if s in STAGES and v is not None))
     i = table.column_names.index("wall_s")
     return table.set_column(i, "wall_s", pa.array([total] * n, pa.float64()))
+
+
+def stored_stage_s(scores_files: Iterable[Path]) -> StageTimes:
+    """Stage -> wall time (s) recorded in the first existing file of ``scores_files`` (its ``stage_<name>_s``
+    columns, first row); the stages it has no finite value for are left out; {} when none exists."""
+    for path in scores_files:
+        if not Path(path).is_file():
+            continue
+        names = set(pq.read_schema(path).names)
+        cols = [c for c in STAGE_COLUMNS if c in names]
+        row = pq.read_table(path, columns=cols).slice(0, 1).to_pylist()
+        if not row:
+            continue
+        return {s: float(v) for s, c in zip(STAGES, STAGE_COLUMNS)
+                if (v := row[0].get(c)) is not None and math.isfinite(v)}
+    return {}

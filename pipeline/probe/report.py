@@ -10,19 +10,28 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.atomic import write_text
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 
-__all__ = ["run_stats", "probe_lines", "times_path", "save_times"]
+__all__ = ["PROBE_POLICY", "run_stats", "probe_lines", "times_path", "save_times", "save_collect_times"]
+
+#: The probing policy, whose :class:`~pipeline.registry.PolicySpec` declares the times side file.
+PROBE_POLICY = "scripted+probe"
 
 
 def times_path(path: str | Path) -> Path:
-    """The side file of a run file holding the policy's decision times (``<run>.probe_s.json``): wall times are
-    kept out of the Parquet file, which the same command must write byte for byte again."""
+    """The side file of a run file holding the policy's decision times (the first side file its
+    :class:`~pipeline.registry.PolicySpec` declares, ``_<run>.probe_s.json``): wall times are kept out of the
+    Parquet file, which the same command must write byte for byte again."""
+    return registry.policy(PROBE_POLICY).side_paths(path)[0]
+
+
+def _legacy_times_path(path: str | Path) -> Path:
+    """Where runs collected before layout 3 kept their times: ``<run>.probe_s.json`` (no leading ``_``)."""
     path = Path(path)
-    return path.with_name(path.stem + ".probe_s.json")
+    return path.with_name(path.stem + registry.policy(PROBE_POLICY).side_files[0])
 
 
 def save_times(path: str | Path, times: dict | None) -> None:
@@ -34,13 +43,24 @@ def save_times(path: str | Path, times: dict | None) -> None:
                                                  "prior_s": round(float(times.get("prior_s") or 0.0), 6)}))
 
 
+def save_collect_times(path: str | Path, result) -> None:
+    """:attr:`pipeline.registry.PolicySpec.save_side_files` of the probing policy: the times of
+    :class:`pipeline.collect.CollectResult` ``result`` (its ``probe_s``) beside the run file ``path``."""
+    save_times(path, getattr(result, "probe_s", None))
+
+
 def _read_times(path: str | Path) -> tuple[list[float], float | None]:
-    """(decision times, prior time or None) from a run file's side file; a side file written before the prior
-    was timed holds the list of decision times alone; none at all (e.g. a run copied by evaluate --from-runs
-    without it): ([], None)."""
-    try:
-        times = json.loads(times_path(path).read_text())
-    except (OSError, ValueError):
+    """(decision times, prior time or None) from a run file's side file (or its name before layout 3); a side
+    file written before the prior was timed holds the list of decision times alone; none at all (e.g. a run
+    copied by evaluate --from-runs without it): ([], None)."""
+    times = None
+    for side in (times_path(path), _legacy_times_path(path)):
+        try:
+            times = json.loads(side.read_text())
+            break
+        except (OSError, ValueError):
+            continue
+    if times is None:
         return [], None
     if isinstance(times, list):
         return [float(v) for v in times], None

@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 from pipeline.atomic import save_figure, write_csv_rows
 from pipeline.collect import collect_file
 from pipeline.evaluate import EvalConfig, Job, single_threaded
-from pipeline.evaluate.stages import run_isolate, run_retrieve, run_score, run_segment, run_track, write_wall
+from pipeline.evaluate.stages import run_isolate, run_retrieve, run_score, run_segment, run_track
 from pipeline.layout import STAGES, job_paths
 from pipeline.policies import RummageParams
 
@@ -46,7 +46,7 @@ def _timed(fn, *args) -> tuple[float, float]:
 def _one_run(dest: Path, scene: str, seed: int, contacts: int, method: str, estimators: Sequence[str],
              cfg: EvalConfig, warmup: bool) -> list[dict]:
     job = Job(scene, seed, method)
-    p = job_paths(dest, job)
+    p = job_paths(dest, job, estimators)
     sc = cfg.scene(scene)
 
     def collect() -> None:
@@ -55,17 +55,17 @@ def _one_run(dest: Path, scene: str, seed: int, contacts: int, method: str, esti
 
     times: list[tuple[str, str, float, float]] = []
     with single_threaded():
-        t = _timed(collect)
-        write_wall(p["runs"], t[0])
-        times.append(("collect", "", *t))
-        times.append(("isolate", "", *_timed(run_isolate, p["runs"], p["contacts"], cfg)))
+        times.append(("collect", "", *_timed(collect)))
+        times.append(("isolate", "", *_timed(run_isolate, p, cfg)))
         times.append(("track", "", *_timed(run_track, p, method, cfg)))
         times.append(("segment", "", *_timed(run_segment, p, cfg)))
         for est in estimators:
-            pe = job_paths(dest, job, est)
-            times.append(("retrieve", est, *_timed(run_retrieve, pe, method, cfg, est)))
+            times.append(("retrieve", est, *_timed(run_retrieve, p, method, cfg, est)))
+        walls = {(s, e): wall for s, e, wall, _ in times}  # what each estimator's scores record
         for est in estimators:
-            times.append(("score", est, *_timed(run_score, job_paths(dest, job, est), cfg)))
+            earlier = {s: walls[(s, "")] for s in ("collect", "isolate", "track", "segment")}
+            earlier["retrieve"] = walls[("retrieve", est)]
+            times.append(("score", est, *_timed(run_score, p, cfg, est, earlier)))
     load = os.getloadavg()[0]
     actions = pq.read_metadata(p["runs"]).num_rows
     xs = pq.read_table(p["contacts"], columns=["contact_x_m"]).column(0)
