@@ -71,7 +71,7 @@ def _apply(name: str, ctx: click.Context, value) -> None:
 
 def _setter(name: str, refuse: str | None):
     def callback(ctx: click.Context, param: click.Parameter, value):
-        if value is None or value is False or value == 0 and name == "verbose":
+        if value is None or value is False or (name == "verbose" and value == 0):  # not given
             return
         if refuse:
             flag = "/".join(sorted(param.opts, key=len))
@@ -87,7 +87,7 @@ def global_options(jobs: str | None = None, seed: str | None = None, own_jobs: b
     ``jobs`` / ``seed``: None when the option applies to the command, else why it does not (the usage error then
     says so and where the option goes). ``own_jobs``: the command has its own ``-j`` (``evaluate``), left alone.
     """
-    opts = [click.option("--seed", type=SEED, default=None, expose_value=False, is_eager=False,
+    opts = [click.option("--seed", type=SEED, default=None, expose_value=False,
                          callback=_setter("seed", seed), hidden=seed is not None,
                          help="Root seed, as `stucco --seed` (before or after the command).")]
     if not own_jobs:
@@ -116,12 +116,14 @@ FORCE_OVERWRITE = click.option("--force-overwrite", is_flag=True,
                                help="Replace existing output files (without it the command refuses to overwrite).")
 
 
-def refuse_overwrite(outputs: dict[str, object], force: bool) -> None:
+def refuse_overwrite(outputs: dict[str, object] | list[tuple[str, object]], force: bool) -> None:
     """The one overwrite rule of every stage command: an output that exists is refused, in one line naming it, the
-    option that names it and the flag that allows replacing it, unless ``force`` (``--force-overwrite``)."""
+    option that names it and the flag that allows replacing it, unless ``force`` (``--force-overwrite``).
+
+    ``outputs``: option -> path, or (option, path) pairs where one option names several files (collect's runs)."""
     if force:
         return
-    for opt, path in outputs.items():
+    for opt, path in (outputs.items() if isinstance(outputs, dict) else outputs):
         if path is not None and Path(path).expanduser().exists():
             raise click.ClickException(f"{path}: exists ({opt}); pass --force-overwrite to replace it")
 

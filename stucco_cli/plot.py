@@ -24,7 +24,7 @@ from stucco_cli.common import (FORCE_OVERWRITE, NOT_RANDOM, ONE_PROCESS, Setting
 def plot(settings: Settings, in_path: Path, out_path: Path, run: str | None, run_dir: Path | None,
          force_overwrite: bool) -> None:
     """Draw one run of a table over its scene: objects at their final poses (target shaded, named), the gripper's
-    trail (the probing policy's actions in orange), and the table's own layer: true contact points (run),
+    trail (the probing policy's actions in amber), and the table's own layer: true contact points (run),
     isolated contacts (contacts), tracked points by label (tracks), points by segment with the true object as
     marker (segments), or the estimate and the grasp attempted at it (retrieval). The scene is the one the run
     file carries (checked against the table's recorded run digests)."""

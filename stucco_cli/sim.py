@@ -75,7 +75,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
                                        + (f"; use --policy {' or '.join(usable)}" if usable else ""))
     if noise_mm is not None:
         sc = sc.with_effects(noise_mm=noise_mm)
-    refuse_overwrite({"--out": output_path(out_dir, sc.name, s) for s in seed_list}, force_overwrite)
+    refuse_overwrite([("--out", output_path(out_dir, sc.name, s)) for s in seed_list], force_overwrite)
     with user_errors():
         results = run_collect(sc, seed_list, out_dir, policy=policy, root_seed=settings.seed, jobs=settings.jobs,
                               progress=bars_off(settings), max_actions=max_actions, keep_discarded=keep_discarded)

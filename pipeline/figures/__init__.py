@@ -2,7 +2,7 @@
 
 * :func:`run_figure`: one panel per method for a (scene, seed) — walls and objects outlined at their poses after
   the last action (the target drawn thicker and shaded), the gripper's trail (the active protocol's probes in
-  orange), the final tracked contact points coloured by segment (the segment chosen as the target ringed in
+  amber), the final tracked contact points coloured by segment (the segment chosen as the target ringed in
   black), the estimated target outline (dashed red) and the grasp attempted at it (an arrow, green if it held);
   the title gives grasp success, FMI, CE and the position error.
 * :func:`summary_figure`: GS %, FMI and CE per scene and method as bars, the paper's Table II values as black
@@ -94,8 +94,8 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
         ax.tick_params(labelsize=6)
-    probes = " and probes (orange)" if probe.any() else ""
-    head = (f"{scene} seed {seed}: objects after the last action (target shaded), gripper trail (blue){probes}, "
+    probes = " and probes (amber)" if probe.any() else ""
+    head = (f"{scene} seed {seed}: objects after the last action (target shaded), gripper trail (grey){probes}, "
             f"tracked points by segment (chosen ringed), {estimator} estimate (red dashed), grasp at it (arrow: "
             f"green held, red failed)")
     fig.suptitle(wrap(head, width, 8), fontsize=8)

@@ -92,7 +92,7 @@ def draw_scene(ax, shapes, names: bool = False) -> None:
 
 
 def draw_trail(ax, ee: np.ndarray, probe: np.ndarray | None = None, label: bool = True) -> None:
-    """The gripper's trail ``ee`` (K + 1, 2): scripted actions as a thin blue line, the probing policy's actions
+    """The gripper's trail ``ee`` (K + 1, 2): scripted actions as a thin grey line, the probing policy's actions
     (``probe``, (K,) bool) as thick amber segments with their end points, the start as a dot."""
     ee = np.asarray(ee, dtype=np.float64)
     probe = np.zeros(len(ee) - 1, bool) if probe is None else np.asarray(probe, bool)

@@ -50,3 +50,10 @@ def test_force_overwrite_replaces(stages, name):
 def test_every_stage_command_takes_force_overwrite():
     for name in COMMANDS:
         assert "--force-overwrite" in invoke(name, "--help").output, name
+
+
+def test_collect_checks_the_file_of_every_seed(stages):
+    d, _ = stages
+    res = invoke("collect", "--scene", "FB", "--seeds", "0-1", "--max-actions", 1, "--out", d / "runs")
+    assert res.exit_code == 1 and f"{d / 'runs' / 'FB-000.parquet'}: exists (--out)" in res.stderr, res.output
+    assert not (d / "runs" / "FB-001.parquet").exists()
