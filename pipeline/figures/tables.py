@@ -23,7 +23,7 @@ from pipeline import schema
 from pipeline.atomic import all_or_none, save_figure
 from pipeline.figures.draw import (draw_estimate, draw_grasp, draw_points, draw_scene, draw_trail, legend_outside,
                                    pyplot, scene_shapes, window, wrap)
-from pipeline.retrieve import load_run, read_retrieval, run_files_by_name
+from pipeline.retrieve import load_run, run_files_by_name
 from pipeline.segment import final_estimates, segment_file
 
 __all__ = ["PLOTTABLE", "probe_actions", "find_run_file", "plot_table", "segments_with_plot"]
@@ -225,7 +225,7 @@ def segments_figure(segments: pa.Table, tracks_path: str | Path, path: str | Pat
         rows = final.filter(pc.equal(final.column("run"), run))
         try:
             run_path = find_run_file(tracks_path, run, runs)
-            info, probe = load_run(run_path), None
+            info = load_run(run_path)
             probe = probe_actions(run_path, len(info.ee) - 1)
         except (ValueError, schema.SchemaError) as e:
             info, probe = None, None
