@@ -66,8 +66,10 @@ lock:
 	@echo "requirements.lock refreshed; 'make setup' installs it (review the diff, rerun make test)"
 
 # FB seeds 0-1, every method, end to end: prints Table II, writes out/quick/report.md, figures/, summary.png.
+# JOBS worker processes (`make quick JOBS=1` on a busy machine).
+JOBS ?= 2
 quick: setup
-	$(BIN)/stucco --seed 0 evaluate --quick --jobs 2
+	$(BIN)/stucco --seed 0 evaluate --quick --jobs $(JOBS)
 
 # The paper's Table II: 4 tasks x 20 seeds x 5 methods into out/reproduce (resumes if interrupted).
 reproduce: setup

@@ -5,6 +5,11 @@ is a list of rows (one per scene, method and estimator) that render as CSV, and 
 scene and method and the grasp success of every estimator side by side; :func:`claims` checks the paper's two
 claims about STUCCO (grasp success of at least 65 % and the lowest contact error on every task).
 
+Only the paper's tasks as shipped (``data/scenes/{FB,BC,IB,TC}.toml``) are compared with the paper: a scene is one
+of them when the scores record its digest (``scene_sha256``) and it is the shipped file's, whatever its name, so a
+user's own scene named ``FB`` gets neither the paper's figures nor its verdicts (:func:`paper_tasks`). Scores
+written before they recorded the digest (no column, or nulls) are taken by their name.
+
 Statistics: GS % = 100 x successes / runs with a grasp attempt; FMI and CE are the mean and the population
 standard deviation (``numpy.std``, ddof 0) over runs with a value; null values (no labelled points, no points,
 no grasp) are left out, never counted as zero.
@@ -19,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.registry import method_title, tracker_names
+from pipeline.scenes.files import shipped_digest
 
 
 #: The paper's Table II (20 runs per task in simulation): GS %, FMI mean (std), CE cm mean (std).
@@ -57,7 +63,7 @@ class ReportRow:
     fmi_std: float
     ce_cm_mean: float
     ce_cm_std: float
-    position_error_m_median: float
+    position_error_cm_median: float
     wall_s_mean: float
     track_s_mean: float
     paper_gs_pct: float | None
@@ -72,14 +78,29 @@ def _ordered(values, order):
     return sorted(set(values), key=lambda v: (rank.get(v, len(rank)), v))
 
 
+def paper_tasks(scores) -> set[str]:
+    """The scenes of a scores table that are the paper's tasks as shipped: named in :data:`PAPER_TABLE_II`, and
+    every digest the table records for them (``scene_sha256``) is the shipped scene file's. Rows without a digest
+    (tables written before scores recorded it) do not disqualify a scene."""
+    scene = scores.column("scene").to_pylist()
+    digests = (scores.column("scene_sha256").to_pylist() if "scene_sha256" in scores.column_names
+               else [None] * len(scene))
+    seen: dict[str, set] = {}
+    for sc, d in zip(scene, digests):
+        seen.setdefault(sc, set())
+        if d is not None:
+            seen[sc].add(d)
+    return {sc for sc, ds in seen.items() if sc in PAPER_TABLE_II and ds <= {shipped_digest(sc)}}
+
+
 def table_ii(scores, estimator_stream: int = 0) -> list[ReportRow]:
     """Aggregate a scores table (pyarrow) into one row per (scene, method, estimator), scenes and methods in paper
     order, estimators in order of first appearance; ``estimator_stream`` (the stream the scores were made with) is
-    copied into every row."""
+    copied into every row. The paper's figures fill the ``paper_*`` fields of the :func:`paper_tasks` only."""
     # Nulls (a run with no tracked points, or scored without a grasp) are "not measured": floats become NaN and
     # drop out of the statistics, and grasp success counts only runs where a grasp was attempted.
     col = {name: np.array([math.nan if v is None else v for v in scores.column(name).to_pylist()], dtype=float)
-           for name in ("fmi", "contact_error_cm", "position_error_m", "wall_s", "track_s")}
+           for name in ("fmi", "contact_error_cm", "position_error_cm", "wall_s", "track_s")}
     col["grasp_success"] = np.array([math.nan if v is None else float(v)
                                      for v in scores.column("grasp_success").to_pylist()])
     for name in ("scene", "method"):
@@ -89,6 +110,7 @@ def table_ii(scores, estimator_stream: int = 0) -> list[ReportRow]:
     estimator = (np.array(scores.column("estimator").to_pylist(), dtype=object).astype(str)
                  if "estimator" in scores.column_names else np.full(scores.num_rows, "", dtype=object))
     est_order = tuple(dict.fromkeys(estimator))
+    shipped = paper_tasks(scores)
     rows = []
     for sc, m, e in ((sc, m, e) for sc in _ordered(scene, tuple(PAPER_TABLE_II))
                      for m in _ordered(method[scene == sc], tracker_names())
@@ -100,13 +122,13 @@ def table_ii(scores, estimator_stream: int = 0) -> list[ReportRow]:
             v = v[np.isfinite(v)]
             return float(fn(v)) if v.size else math.nan
 
-        paper = PAPER_TABLE_II.get(sc, {}).get(m)
+        paper = PAPER_TABLE_II[sc].get(m) if sc in shipped else None
         rows.append(ReportRow(
             scene=sc, method=m, estimator=e, estimator_stream=int(estimator_stream), runs=int(sel.sum()),
             grasp_success_pct=100.0 * stat("grasp_success", np.mean),
             fmi_mean=stat("fmi", np.mean), fmi_std=stat("fmi", np.std),
             ce_cm_mean=stat("contact_error_cm", np.mean), ce_cm_std=stat("contact_error_cm", np.std),
-            position_error_m_median=stat("position_error_m", np.median), wall_s_mean=stat("wall_s", np.mean),
+            position_error_cm_median=stat("position_error_cm", np.median), wall_s_mean=stat("wall_s", np.mean),
             track_s_mean=stat("track_s", np.mean),
             paper_gs_pct=None if paper is None else float(paper[0]),
             paper_fmi_mean=None if paper is None else paper[1], paper_fmi_std=None if paper is None else paper[2],
@@ -148,7 +170,7 @@ def to_markdown(rows: list[ReportRow]) -> str:
             f"| {r.scene} | {method_title(r.method)} | {r.runs} | {gs} "
             f"| {paper_gs} | {_ms(r.fmi_mean, r.fmi_std, '.2f')} | {_ms(r.paper_fmi_mean, r.paper_fmi_std, '.2f')} "
             f"| {_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')} | {_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')} "
-            f"| {_num(r.position_error_m_median * 100, '.1f')} | {_num(r.track_s_mean, '.2f')} "
+            f"| {_num(r.position_error_cm_median, '.1f')} | {_num(r.track_s_mean, '.2f')} "
             f"| {_num(r.wall_s_mean, '.1f')} |")
     return "\n".join(lines) + "\n"
 
@@ -172,7 +194,8 @@ def claims(rows: list[ReportRow], method: str = "stucco") -> list[str]:
     and has the lowest mean CE.
 
     One line per scene where ``method`` was evaluated (nothing when it was not), saying "holds" or by how much it
-    falls short.
+    falls short; for a scene that is not one of the paper's tasks as shipped (its rows carry no paper figures,
+    :func:`table_ii`), a line saying there is nothing to compare, never a verdict.
     """
     out = []
     several = len({r.estimator for r in rows}) > 1
@@ -185,6 +208,10 @@ def claims(rows: list[ReportRow], method: str = "stucco") -> list[str]:
         if ours is None:
             continue
         name = method_title(method)
+        if ours.paper_gs_pct is None:
+            out.append(f"{sc}: not one of the paper's tasks as shipped (data/scenes/{{FB,BC,IB,TC}}.toml): no paper "
+                       f"figures, no verdict")
+            continue
         gs = "; ".join(_gs_claim(r, several) for r in rows if r.scene == sc and r.method == method)
         others = {m: r.ce_cm_mean for m, r in here.items() if m != method and not math.isnan(r.ce_cm_mean)}
         if math.isnan(ours.ce_cm_mean) or not others:

@@ -9,7 +9,11 @@
 * **FMI** (paper §III): ``sklearn.metrics.fowlkes_mallows_score`` between the ground-truth object id and the segment
   over the final tracked points with a known object (``object_id >= 0``). An unassigned point (segment -1)
   counts as its own cluster.
-* **Grasp success and pose error**: from the retrieval table (:mod:`pipeline.retrieve`, :mod:`pipeline.grasp`).
+* **Grasp success and pose error**: from the retrieval table (:mod:`pipeline.retrieve`, :mod:`pipeline.grasp`);
+  the position error in cm (``position_error_cm``, the retrieval table's metres x 100), like the contact error, so
+  the table has one length unit; the yaw error stays in rad.
+* **Scene**: ``scene_sha256``, the digest of the scene the run was collected in, by which the report tells the
+  shipped tasks (compared with the paper) from a user's scene of the same name.
 * **Timings**: ``track_s`` (sum of the tracker's per-step update times, from the track diagnostics table when it
   is found), ``retrieve_s`` (ICP and selection), ``grasp_s`` (grasp simulation); ``wall_s`` is their sum (the
   collect and isolate stages record no per-run time).
@@ -27,6 +31,7 @@ from pipeline import schema
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.metrics import fmi
 from pipeline.retrieve import check_runs, load_run, read_retrieval, run_files_by_name
+from pipeline.scenes.files import scene_digest
 from pipeline.schema.results import SCORES, SCORES_COLUMNS
 from pipeline.segment import final_estimates
 
@@ -153,9 +158,10 @@ def score(segments: pa.Table, retrieval: pa.Table, run_dir: str | Path, *, diagn
         rows.append(dict(scene=r["scene"], seed=r["seed"], method=r["method"], estimator=r["estimator"], run=name,
                          grasp_success=r["grasp_success"], grasp_attempts=r["grasp_attempts"],
                          grasp_success_any=r["grasp_success_any"], fmi=f, contact_error_cm=ce,
-                         position_error_m=r["position_error_m"], yaw_error_rad=r["yaw_error_rad"],
+                         position_error_cm=r["position_error_m"] * 100.0, yaw_error_rad=r["yaw_error_rad"],
                          low_confidence=r["low_confidence"], n_points=int(m.sum()), n_segments=r["n_segments"],
-                         track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts))))
+                         track_s=ts, retrieve_s=r["icp_s"], grasp_s=r["grasp_s"], wall_s=float(sum(parts)),
+                         scene_sha256=scene_digest(info.scene.source)))
     arrays = {c.name: pa.array([row[c.name] for row in rows], type=c.type) for c in SCORES_COLUMNS}
     return validate_scores(pa.table(arrays), "the scores computed from the retrieval, segments and diagnostics")
 
@@ -179,7 +185,7 @@ def summary_lines(scores: pa.Table) -> list[str]:
     def col(n):
         return np.array([np.nan if v is None else v for v in scores.column(n).to_pylist()], dtype=np.float64)
 
-    f, ce, pe, ye = col("fmi"), col("contact_error_cm"), col("position_error_m"), col("yaw_error_rad")
+    f, ce, pe, ye = col("fmi"), col("contact_error_cm"), col("position_error_cm"), col("yaw_error_rad")
     est = np.asarray(scores.column("estimator").to_pylist(), dtype=object)
     for key in dict.fromkeys(zip(scene.tolist(), method.tolist(), est.tolist())):
         m = (scene == key[0]) & (method == key[1]) & (est == key[2])
@@ -196,7 +202,7 @@ def summary_lines(scores: pa.Table) -> list[str]:
         yem = np.nanmedian(ye[m]) if np.isfinite(ye[m]).any() else math.nan
         lines.append(f"{key[0]:<6} {key[1]:<8} {key[2]:<9} runs {int(m.sum()):>3}  GS {gtxt} %  "
                      f"FMI {ms(f)}  CE {ms(ce)} cm  "
-                     f"pos err median {pem * 100:.1f} cm  yaw err median {yem:.2f} rad")
+                     f"pos err median {pem:.1f} cm  yaw err median {yem:.2f} rad")
     return lines
 
 

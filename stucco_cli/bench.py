@@ -8,16 +8,21 @@ from typing import Sequence
 import click
 
 from pipeline import registry
-from stucco_cli.common import JOBS, check_paths, parsed, pass_settings, unique, user_errors, writable_dir
-from stucco_cli.progress import run_bar
+from stucco_cli.common import (JOBS, ONE_PROCESS, check_paths, global_options, parsed, pass_settings, say, user_errors,
+                               writable_dir)
+from stucco_cli.progress import bars_off
 
 
 @click.group()
+@global_options()
 def bench() -> None:
-    """Benchmarks: what accuracy costs in time."""
+    """Benchmarks: what accuracy costs in time.
+
+    Commands: track, accuracy, sim (here and in stucco_cli/sim.py), retrieval, pushes, probe
+    (stucco_cli/bench_runs.py), scale (stucco_cli/bench_scale.py)."""
 
 
-def _choices(name: str, text: str, allowed: Sequence[str], what: str = "value", allow_none: bool = True
+def parse_choices(name: str, text: str, allowed: Sequence[str], what: str = "value", allow_none: bool = True
              ) -> tuple[str, ...]:
     """Comma-separated words of ``allowed`` for option `name`; '' gives () where ``allow_none``."""
     out = tuple(t.strip() for t in text.split(",") if t.strip())
@@ -28,7 +33,7 @@ def _choices(name: str, text: str, allowed: Sequence[str], what: str = "value", 
     return out
 
 
-def _ints(name: str, text: str, lo: int = 1, hi: int = 100_000) -> tuple[int, ...]:
+def parse_ints(name: str, text: str, lo: int = 1, hi: int = 100_000) -> tuple[int, ...]:
     """Comma-separated integers in [lo, hi] for option `name`; '' gives ()."""
     out = []
     for t in (t.strip() for t in text.split(",")):
@@ -60,11 +65,13 @@ def _ints(name: str, text: str, lo: int = 1, hi: int = 100_000) -> tuple[int, ..
               help="Seconds of replay after which the authors' harness stops a rerun (a cut rerun gives a lower "
                    "bound on the speed-up).")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also save every figure.")
-def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, reference_python, reference_budget,
+@global_options(jobs=ONE_PROCESS, seed="its tracker seeds are --accuracy-seeds")
+@pass_settings
+def bench_track(settings, streams, t_list, n_list, repeats, accuracy_seeds, methods, reference_python, reference_budget,
                 json_path) -> None:
     """Replay the authors' anchor streams: time per update, memory, FMI and CE, against the reference."""
     # Everything cheap is checked before the measurements, which a late failure would lose.
-    ts, ns, method_list = _ints("--T", t_list), _ints("--N", n_list), _methods(methods)
+    ts, ns, method_list = parse_ints("--T", t_list), parse_ints("--N", n_list), parse_methods(methods)
     for name, values in (("--T", ts), ("--N", ns)):
         if not values:
             raise click.BadParameter("expected at least one value", param_hint=name)
@@ -83,9 +90,10 @@ def bench_track(streams, t_list, n_list, repeats, accuracy_seeds, methods, refer
                           methods=method_list, echo=click.echo)
     if json_path:
         write_text(json_path, json.dumps(res, indent=1))  # atomically, like every other output
+        say(settings, f"-> {json_path}")
 
 
-def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[float, ...]:
+def parse_floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[float, ...]:
     """Comma-separated finite numbers in [lo, hi] for option `name`; '' gives ()."""
     out = []
     for t in (t.strip() for t in text.split(",") if t.strip()):
@@ -99,8 +107,8 @@ def _floats(name: str, text: str, lo: float = 0.1, hi: float = 100.0) -> tuple[f
     return tuple(out)
 
 
-def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False) -> tuple[str, ...]:
-    return _choices(param_hint, text, registry.tracker_names(), "method", allow_none)
+def parse_methods(text: str, param_hint: str = "--methods", allow_none: bool = False) -> tuple[str, ...]:
+    return parse_choices(param_hint, text, registry.tracker_names(), "method", allow_none)
 
 
 @bench.command("accuracy")
@@ -141,7 +149,8 @@ def _methods(text: str, param_hint: str = "--methods", allow_none: bool = False)
                    "fairly; docs/evaluation.md, \"The estimator's own randomness\").")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/accuracy"),
               show_default=True, help="Runs, contacts, accuracy.csv, summary.csv, pareto.png.")
-@click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed).")
+@click.option("--jobs", "-j", type=JOBS, default=None, help="Processes over (scene, seed) [the group's -j].")
+@global_options(own_jobs=True)
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
                    pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_motion, pt_select, stream_list,
@@ -161,26 +170,26 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
 
     scene_list = parsed("--scenes", parse_scenes, scenes)
     seed_list = parsed("--seeds", parse_seeds, seeds)
-    streams = _ints("--streams", stream_list, 0, 1_000_000)
+    streams = parse_ints("--streams", stream_list, 0, 1_000_000)
     if not streams:
         raise click.BadParameter("at least one stream is needed", param_hint="--streams")
-    sweep = accuracy_settings(_ints("--N", n_list), _ints("--restarts", restart_list, 1, 1000),
-                              _floats("--sdf-mm", sdf_list, 0.25, 20.0),
-                              hypotheses=_ints("--hypotheses", hyp_list, 1, 4096),
-                              free_mm=_floats("--free-mm", free_list, 0.5, 100.0),
+    sweep = accuracy_settings(parse_ints("--N", n_list), parse_ints("--restarts", restart_list, 1, 1000),
+                              parse_floats("--sdf-mm", sdf_list, 0.25, 20.0),
+                              hypotheses=parse_ints("--hypotheses", hyp_list, 1, 4096),
+                              free_mm=parse_floats("--free-mm", free_list, 0.5, 100.0),
                               paper_estimator=paper_estimator,
-                              pushtrack=(("n_particles", _ints("--pushtrack-particles", pt_particles, 8, 16384)),
-                                         ("n_refine", _ints("--pushtrack-refine", pt_refine, 0, 256)),
-                                         ("substeps", _ints("--pushtrack-substeps", pt_substeps, 1, 64)),
-                                         ("starts", _ints("--pushtrack-starts", pt_starts, 1, 64)),
-                                         ("islands", _ints("--pushtrack-islands", pt_islands, 1, 64)),
-                                         ("motion", _choices("--pushtrack-motion", pt_motion, MOTIONS, "choice")),
-                                         ("select", _choices("--pushtrack-select", pt_select, SELECT_RULES,
+                              pushtrack=(("n_particles", parse_ints("--pushtrack-particles", pt_particles, 8, 16384)),
+                                         ("n_refine", parse_ints("--pushtrack-refine", pt_refine, 0, 256)),
+                                         ("substeps", parse_ints("--pushtrack-substeps", pt_substeps, 1, 64)),
+                                         ("starts", parse_ints("--pushtrack-starts", pt_starts, 1, 64)),
+                                         ("islands", parse_ints("--pushtrack-islands", pt_islands, 1, 64)),
+                                         ("motion", parse_choices("--pushtrack-motion", pt_motion, MOTIONS, "choice")),
+                                         ("select", parse_choices("--pushtrack-select", pt_select, SELECT_RULES,
                                                              "choice"))),
-                              baselines=None if baselines is None else _methods(baselines, "--baselines", True))
+                              baselines=None if baselines is None else parse_methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,
-                               jobs=jobs or settings.jobs, progress=settings.progress, streams=streams)
+                               jobs=jobs or settings.jobs, progress=bars_off(settings), streams=streams)
         rows = summarise_settings(table)
         write_csv(pa.Table.from_pylist(rows), out_dir / "summary.csv")
         png = pareto_figure(rows, out_dir / "pareto.png")
@@ -191,243 +200,4 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     k = [r["setting"] for r in rows if r.get("knee")]
     if k:
         click.echo(f"knee (cheapest N within 10% of the best median CE of the N sweep): {k[0]}")
-    click.echo(f"-> {out_dir / 'accuracy.csv'}, {out_dir / 'summary.csv'}, {png}", err=True)
-
-
-def _evaluation_dir(runs_from: Path) -> None:
-    """Usage error (``--runs-from``) unless ``runs_from`` is an evaluation directory (``stucco evaluate``'s)."""
-    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
-        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
-                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
-
-
-def _collected_pairs(runs_from: Path, scene_list, seed_list) -> list[tuple[str, int]]:
-    """Every (scene, seed) of the grid; a usage error (``--runs-from``) naming the first without a run file."""
-    from pipeline.evaluate import partition
-
-    pairs = [(sc, s) for sc in scene_list for s in seed_list]
-    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
-    if missing:
-        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
-                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
-    return pairs
-
-
-@bench.command("retrieval")
-@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
-              help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
-@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
-@click.option("--seeds", default="0-19", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--estimators", default="all", show_default=True,
-              help="Pose estimators of the estimator rungs (comma-separated: "
-                   + ", ".join(registry.estimator_names()) + "; or 'all').")
-@click.option("--method", default=registry.tracker_names()[0], show_default=True,
-              help="Tracking method of the tracker rung.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/retrieval"), show_default=True,
-              help="ladder.csv, ladder_summary.csv, ladder.png.")
-@pass_settings
-def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_dir) -> None:
-    """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
-    the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
-    writable_dir("--out", out_dir)
-    from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
-    from pipeline.estimators.estimate import parse_estimators
-    from pipeline.studies.retrieval_ladder import ladder_rows
-    from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
-
-    _evaluation_dir(runs_from)
-    scene_list = parsed("--scenes", parse_scenes, scenes)
-    seed_list = parsed("--seeds", parse_seeds, seeds)
-    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
-    _methods(method, "--method")
-    pairs = _collected_pairs(runs_from, scene_list, seed_list)
-    with user_errors("bench retrieval"):
-        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs,
-                           progress=run_bar(settings, "ladder"))
-        paths = write_outputs(rows, out_dir)
-    summary = summarise(rows)
-    click.echo(ladder_tables(summary))
-    click.echo(summary_markdown(summary), nl=False)
-    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
-
-
-@bench.command("pushes")
-@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
-              help="Evaluation directory made by `stucco evaluate` (its runs are used).")
-@click.option("--scenes", default="FB,BC,IB", show_default=True, help="Comma-separated retrieval tasks.")
-@click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--replay/--no-replay", default=True, show_default=True,
-              help="Also replay each push in pybullet, the whole scene and the target alone.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/pushes"), show_default=True,
-              help="pushes.csv, pushes_summary.csv, pushes.png.")
-@pass_settings
-def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
-    """The pushing models against the simulator, push by push: each push of the target run by every pushtrack
-    pushing model from its recorded pose before (and replayed in pybullet), against its recorded pose after."""
-    writable_dir("--out", out_dir)
-    from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
-    from pipeline.studies.pushes import push_rows, summarise, summary_markdown, write_outputs
-
-    _evaluation_dir(runs_from)
-    pairs = _collected_pairs(runs_from, parsed("--scenes", parse_scenes, scenes), parsed("--seeds", parse_seeds, seeds))
-    with user_errors("bench pushes"):
-        rows = push_rows(runs_from, pairs, replay=replay, jobs=settings.jobs, progress=run_bar(settings, "pushes"))
-        paths = write_outputs(rows, out_dir)
-    click.echo(summary_markdown(summarise(rows)), nl=False)
-    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
-
-
-@bench.command("probe")
-@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
-@click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
-@click.option("--budgets", default="0,1,2,4,8,12", show_default=True, help="Probe budgets.")
-@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/probe/runs"), show_default=True,
-              help="Run files of `collect --policy scripted+probe` (made here when missing).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/probe"), show_default=True,
-              help="probe_budget.csv, probe_budget_summary.csv, probe_budget.png.")
-@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Where the PNG goes instead (e.g. docs/img/probe_budget.png).")
-@pass_settings
-def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
-    """Active retrieval: grasp success against the probe budget per task, with probes used, time per probe
-    decision and how far probing moved the target (docs/active.md)."""
-    writable_dir("--out", out_dir)
-    from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
-    from pipeline.studies.probe_budget import budget_rows, summarise, write_outputs
-
-    scene_list = parsed("--scenes", parse_scenes, scenes)
-    seed_list = parsed("--seeds", parse_seeds, seeds)
-    budget_list = tuple(sorted(set(_ints("--budgets", budgets, lo=0, hi=64))))
-    if not budget_list:
-        raise click.BadParameter("expected at least one budget", param_hint="--budgets")
-    with user_errors("bench probe"):
-        rows = budget_rows([(sc, s) for sc in scene_list for s in seed_list], runs_dir, budget_list, settings.seed,
-                           jobs=settings.jobs, progress=run_bar(settings, "probe"))
-        summary = summarise(rows)
-        paths = write_outputs(rows, summary, out_dir, png)
-    click.echo("| task | budget | runs | GS % | probes | decision s (median / max) | target moved mm / rad | wide |")
-    click.echo("|---|---|---|---|---|---|---|---|")
-    for s in summary:
-        click.echo(f"| {s['scene']} | {s['budget']} | {s['runs']} | {s['gs_pct']:.0f} | {s['probes_mean']:.2f} | "
-                   f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['moved_mm_median']:.1f} / "
-                   f"{s['turned_rad_median']:.3f} | {s['wide']} |")
-    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
-
-
-@bench.command("scale")
-@click.option("--scene", default="TC", show_default=True, help="The retrieval task whose seeds make the grid.")
-@click.option("--runs", "run_counts", default="20,100", show_default=True,
-              help="Comma-separated grid sizes: the first N seeds, each evaluated from scratch.")
-@click.option("--methods", default=registry.tracker_names()[0], show_default=True,
-              help="Comma-separated tracking methods of every run.")
-@click.option("--estimators", default="all", show_default=True,
-              help="Pose estimators of every job (comma-separated: " + ", ".join(registry.estimator_names())
-                   + "; or 'all').")
-@click.option("--max-actions", type=click.IntRange(min=1), default=None,
-              help="Cut every run after N actions (small grids for a try).")
-@click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True,
-              help="loky: -j local processes; dask: joblib's Dask backend on --scheduler.")
-@click.option("--scheduler", default=None, help="Dask scheduler address for --backend dask (tcp://HOST:8786).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/scale"), show_default=True,
-              help="One evaluation folder per grid size, scale.csv and scale.png.")
-@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Also draw the figure here (e.g. docs/img/scale.png).")
-@click.option("--contacts", "contact_counts", default=None,
-              help="Instead of the runs axis: comma-separated contacts per run (e.g. 50,200,500,2000); one run of "
-                   "--scene per size, collected with the rummage policy, each stage timed (wall and CPU s) -> "
-                   "scale_contacts.csv and scale_contacts.png.")
-@click.option("--run-seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Run seed of the --contacts runs.")
-@pass_settings
-def bench_scale(settings, scene, run_counts, methods, estimators, max_actions, backend, scheduler, out_dir,
-                png, contact_counts, run_seed) -> None:
-    """How `stucco evaluate` wall time grows with the number of runs of one task (collection included), or with
-    --contacts, how each stage's time grows with the contacts of one run."""
-    writable_dir("--out", out_dir)
-    check_paths({}, {"--png": png})
-    if contact_counts is not None:
-        _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed)
-        return
-    from pipeline.estimators.estimate import parse_estimators
-    from pipeline.studies.scale import scale_rows, write_outputs
-
-    scene_list, counts = _one_task_and_sizes(scene, "--runs", run_counts, "grid size")
-    method_list = _methods(methods)
-    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
-    if backend == "dask" and not scheduler:
-        raise click.BadParameter("--backend dask needs --scheduler ADDRESS", param_hint="--scheduler")
-    taken = [n for n in counts if (out_dir / f"{scene_list[0]}-{n}").exists()]
-    if taken:
-        raise click.BadParameter(f"{out_dir / f'{scene_list[0]}-{taken[0]}'} exists: a resumed evaluation is not a "
-                                 "measurement; remove it or choose another --out", param_hint="--out")
-    with user_errors("bench scale"):
-        rows = scale_rows(out_dir, scene_list[0], counts, method_list, est, jobs=settings.jobs,
-                          root_seed=settings.seed, max_actions=max_actions, backend=backend, scheduler=scheduler,
-                          progress=settings.progress)
-        paths = write_outputs(rows, out_dir, png)
-    click.echo("| task | runs | jobs | workers | backend | wall s | work s | wall per run s | efficiency | load |")
-    click.echo("|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        eff = "-" if r["efficiency"] is None else f"{r['efficiency']:.2f}"
-        click.echo(f"| {r['scene']} | {r['runs']} | {r['jobs']} | {r['workers'] or '-'} | {r['backend']} | "
-                   f"{r['wall_s']:.1f} | {r['work_s']:.1f} | {r['wall_per_run_s']:.2f} | {eff} | {r['load_avg']:.1f} |")
-    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
-
-
-def _one_task_and_sizes(scene: str, option: str, sizes: str, what: str) -> tuple[list, list[int]]:
-    """`bench scale`'s one task (--scene) and its sizes (``option``: at least one positive integer)."""
-    from pipeline.evaluate import parse_scenes  # imported here: start-up time
-
-    scene_list = parsed("--scene", parse_scenes, scene)
-    if len(scene_list) != 1:
-        raise click.BadParameter("expected one task", param_hint="--scene")
-    counts = _ints(option, sizes, 1, 100_000)
-    if not counts:
-        raise click.BadParameter(f"expected at least one {what}", param_hint=option)
-    return scene_list, counts
-
-
-def _scale_contacts(settings, scene, contact_counts, methods, estimators, out_dir, png, run_seed) -> None:
-    """`bench scale --contacts`: every stage timed against the contacts of one run (docs/evaluation.md, "Scale")."""
-    ctx = click.get_current_context()
-    for name in ("run_counts", "max_actions", "backend", "scheduler"):
-        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
-            opt = next(p.opts[0] for p in ctx.command.params if p.name == name)
-            raise click.BadParameter(f"{opt} does not apply to the contacts axis (one axis per call)",
-                                     param_hint="--contacts")
-    from pipeline.estimators.estimate import parse_estimators
-    from pipeline.studies.scale_contacts import WARMUP_CONTACTS, contact_rows, growth, write_contact_outputs
-
-    scene_list, counts = _one_task_and_sizes(scene, "--contacts", contact_counts, "contact count")
-    method_list = _methods(methods)
-    if len(method_list) != 1:
-        raise click.BadParameter("expected one method with --contacts", param_hint="--methods")
-    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
-    for tag in ["warmup"] + [f"c{n}" for n in counts]:
-        if (out_dir / f"{scene_list[0]}-{tag}").exists():
-            raise click.BadParameter(f"{out_dir / f'{scene_list[0]}-{tag}'} exists: a rerun stage is not a "
-                                     "measurement; remove it or choose another --out", param_hint="--out")
-    say = None if settings.progress else (lambda text: click.echo(text, err=True))
-    with user_errors("bench scale"):
-        rows = contact_rows(out_dir, scene_list[0], sorted(set(counts)), method_list[0], est,
-                            root_seed=settings.seed, seed=run_seed, progress=say)
-        paths = write_contact_outputs(rows, out_dir, png)
-    click.echo("| task | contacts (asked) | actions | stage | wall s | CPU s | load |")
-    click.echo("|---|---|---|---|---|---|---|")
-    for r in rows:
-        stage = r["stage"] + (f" ({r['estimator']})" if r["estimator"] else "")
-        asked = f"warm-up ({WARMUP_CONTACTS})" if r["warmup"] else str(r["requested"])
-        click.echo(f"| {r['scene']} | {r['contacts']} ({asked}) | {r['actions']} | {stage} | {r['wall_s']:.2f} | "
-                   f"{r['cpu_s']:.2f} | {r['load_avg']:.1f} |")
-    slopes = growth(rows)
-    click.echo("growth, CPU s ~ contacts^b: " + ", ".join(
-        f"{k} b={'-' if v is None else f'{v:.2f}'}" for k, v in slopes.items()))
-    click.echo(f"-> {', '.join(str(p) for p in paths)}", err=True)
+    say(settings, f"-> {out_dir / 'accuracy.csv'}, {out_dir / 'summary.csv'}, {png}")

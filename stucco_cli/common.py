@@ -6,30 +6,126 @@ never as a traceback.
 """
 from __future__ import annotations
 
+import logging
 import os
 from contextlib import contextmanager
-from pathlib import Path
 from dataclasses import dataclass
+from pathlib import Path
 
 import click
 
 
-
 @dataclass
 class Settings:
-    """Options of the `stucco` group, shared with every command through the click context."""
+    """The global options (``--seed``, ``-j``, ``-v``, ``-q``), shared with every command through the click context.
+
+    They may be given before the command (``stucco -j 2 track ...``) or after it (``stucco track ... -j 2``), with
+    the same meaning; given in both places, the one after the command wins.
+    """
 
     seed: int = 0
     jobs: int = 1
     verbosity: int = 0  # -1 quiet, 0 normal, >0 verbose
 
     @property
-    def progress(self) -> bool | None:
-        """tqdm's `disable` argument: bars off when quiet, auto (TTY only) otherwise."""
-        return True if self.verbosity < 0 else None
+    def quiet(self) -> bool:
+        return self.verbosity < 0
 
 
 pass_settings = click.make_pass_decorator(Settings, ensure=True)
+
+
+def configure_logging(verbosity: int) -> None:
+    """Root log level for ``verbosity`` (-1: errors only; 0: warnings; 1: info; 2+: debug)."""
+    level = logging.ERROR if verbosity < 0 else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbosity, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+
+
+def say(settings: Settings, text: str) -> None:
+    """What a command did (the files it wrote), one line to stderr; nothing with ``-q``."""
+    if not settings.quiet:
+        click.echo(text, err=True)
+
+
+#: Worker processes: each holds pybullet, numba and Open3D (a few hundred MB), so 64 already fill a 24 GiB machine.
+JOBS = click.IntRange(1, 64)
+SEED = click.IntRange(min=0)
+
+#: Commands that run independent runs in worker processes, where ``-j`` applies (stated in its messages).
+JOBS_COMMANDS = "collect, track, retrieve, evaluate, study, bench"
+
+
+def _apply(name: str, ctx: click.Context, value) -> None:
+    s = ctx.ensure_object(Settings)
+    if name == "seed":
+        s.seed = value
+    elif name == "jobs":
+        s.jobs = value
+    elif name == "verbose":
+        s.verbosity = value if s.verbosity < 0 else s.verbosity + value
+    elif name == "quiet":
+        s.verbosity = -1
+    configure_logging(s.verbosity)
+
+
+def _setter(name: str, refuse: str | None):
+    def callback(ctx: click.Context, param: click.Parameter, value):
+        if value is None or value is False or (name == "verbose" and value == 0):  # not given
+            return
+        if refuse:
+            flag = "/".join(sorted(param.opts, key=len))
+            raise click.UsageError(f"{flag} does not apply to `{ctx.command_path}`: {refuse}")
+        _apply(name, ctx, value)
+
+    return callback
+
+
+def global_options(jobs: str | None = None, seed: str | None = None, own_jobs: bool = False):
+    """Accept the group's global options after a command too, with the same meaning.
+
+    ``jobs`` / ``seed``: None when the option applies to the command, else why it does not (the usage error then
+    says so and where the option goes). ``own_jobs``: the command has its own ``-j`` (``evaluate``), left alone.
+    """
+    opts = [click.option("--seed", type=SEED, default=None, expose_value=False,
+                         callback=_setter("seed", seed), hidden=seed is not None,
+                         help="Root seed, as `stucco --seed` (before or after the command).")]
+    if not own_jobs:
+        opts.append(click.option("--jobs", "-j", type=JOBS, default=None, expose_value=False,
+                                 callback=_setter("jobs", jobs), hidden=jobs is not None,
+                                 help="Worker processes, as `stucco -j` (before or after the command)."))
+    opts += [click.option("-v", "--verbose", count=True, expose_value=False, callback=_setter("verbose", None),
+                          help="More log output, as `stucco -v`."),
+             click.option("-q", "--quiet", is_flag=True, default=False, expose_value=False,
+                          callback=_setter("quiet", None), help="Only errors, as `stucco -q`.")]
+
+    def decorate(f):
+        for o in reversed(opts):
+            f = o(f)
+        return f
+
+    return decorate
+
+
+#: Why ``-j`` does not apply to a command that runs in one process, and where it goes.
+ONE_PROCESS = f"it runs in one process; -j goes with {JOBS_COMMANDS} (before or after the command name)"
+#: Why ``--seed`` does not apply to a command that draws nothing at random.
+NOT_RANDOM = "it draws nothing at random; --seed goes with the stages (collect ... score), evaluate, study, bench"
+
+FORCE_OVERWRITE = click.option("--force-overwrite", is_flag=True,
+                               help="Replace existing output files (without it the command refuses to overwrite).")
+
+
+def refuse_overwrite(outputs: dict[str, object] | list[tuple[str, object]], force: bool) -> None:
+    """The one overwrite rule of every stage command: an output that exists is refused, in one line naming it, the
+    option that names it and the flag that allows replacing it, unless ``force`` (``--force-overwrite``).
+
+    ``outputs``: option -> path, or (option, path) pairs where one option names several files (collect's runs)."""
+    if force:
+        return
+    for opt, path in (outputs.items() if isinstance(outputs, dict) else outputs):
+        if path is not None and Path(path).expanduser().exists():
+            raise click.ClickException(f"{path}: exists ({opt}); pass --force-overwrite to replace it")
 
 
 @contextmanager
@@ -84,10 +180,6 @@ class FiniteFloat(click.FloatRange):
 POSITIVE = FiniteFloat(min=0.0, min_open=True)
 NON_NEGATIVE = FiniteFloat(min=0.0)
 ALPHA = FiniteFloat(min=0.0, max=1.0, min_open=True, max_open=True)  # exp(-d^2/l) > alpha: 0 and 1 are degenerate
-#: Worker processes: each holds pybullet, numba and Open3D (a few hundred MB), so 64 already fill a 24 GiB machine.
-JOBS = click.IntRange(1, 64)
-
-
 def check_paths(inputs: dict[str, object], outputs: dict[str, object]) -> None:
     """Refuse, in one line and before any work, outputs that could not be written or would destroy data.
 

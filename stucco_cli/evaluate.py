@@ -6,7 +6,8 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, user_errors, writable_dir
+from stucco_cli.common import JOBS, Settings, global_options, parsed, pass_settings, unique, user_errors, writable_dir
+from stucco_cli.progress import bars_off
 
 
 @click.command()
@@ -49,6 +50,7 @@ from stucco_cli.common import JOBS, Settings, parsed, pass_settings, unique, use
               help="The pose estimators' random stream: 0 the default; 1, 2, ... rerun every stochastic estimator "
                    "with independent draws on the same segments, to see how much of a grasp success is its luck "
                    "(docs/evaluation.md, \"The estimator's own randomness\"; use one --out per stream).")
+@global_options(own_jobs=True)
 @pass_settings
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
@@ -115,7 +117,7 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
     from pipeline.report import claims, table_ii, to_markdown
 
     with user_errors("evaluate"):
-        ev = run_evaluate(out_dir, scenes, seeds, methods, cfg, jobs=jobs, progress=settings.progress,
+        ev = run_evaluate(out_dir, scenes, seeds, methods, cfg, jobs=jobs, progress=bars_off(settings),
                           figures=figures, backend=backend, scheduler=scheduler)
         if snapshot_dir is not None:
             written = write_snapshot(out_dir, ev.jobs, snapshot_dir, cfg)

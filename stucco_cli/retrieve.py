@@ -6,9 +6,9 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import Settings, check_paths, pass_settings, user_errors
+from stucco_cli.common import (FORCE_OVERWRITE, Settings, check_paths, global_options, pass_settings, refuse_overwrite,
+                               say, user_errors)
 from stucco_cli.progress import run_bar
-
 
 
 def _side_path(out_path: Path, suffix: str) -> Path:
@@ -39,10 +39,12 @@ def _side_path(out_path: Path, suffix: str) -> Path:
               help="The estimator's random stream: 0 the default; 1, 2, ... independent reruns of a stochastic "
                    "estimator on the same segments (recorded in the metadata).")
 @click.option("--print", "print_table", is_flag=True, help="Print one line per run to stdout.")
+@FORCE_OVERWRITE
+@global_options()
 @pass_settings
 def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: Path, cand_path: Path | None,
              estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
-             stream: int, print_table: bool) -> None:
+             stream: int, print_table: bool, force_overwrite: bool) -> None:
     """Estimate the target pose of every run from its segments and grasp it in simulation."""
     from pipeline.grasp import GraspParams
     from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
@@ -58,6 +60,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
     check_paths({"--segments": segments_path, "--runs": run_dir}, {"--out": out_path, "--candidates": cand_path})
+    refuse_overwrite({"--out": out_path, "--candidates": cand_path}, force_overwrite)
     with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
         # --hypotheses sets the estimator's own n_hypotheses (the plausible one's); other estimators ignore it.
@@ -75,10 +78,9 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
             click.echo(f"{r['run']:<10} {r['x_m']:7.3f} {r['y_m']:7.3f} {r['yaw_rad']:6.2f} {r['segment']:>4} "
                        f"{r['n_points']:>4} {r['position_error_m'] * 100:10.2f} {r['yaw_error_rad']:7.3f} {g:>6}  "
                        f"{r['notes'] or '-'} / {r['grasp_outcome'] or '-'}")
-    if settings.verbosity >= 0:
-        icp = sum(table.column("icp_s").to_pylist())
-        gs = [v for v in table.column("grasp_s").to_pylist() if v is not None]
-        ok = [v for v in table.column("grasp_success").to_pylist() if v is not None]
-        click.echo(f"retrieved {table.num_rows} run(s) with the {estimator} estimator -> {out_path} "
-                   f"(candidates -> {cand_path}); estimation {icp:.2f} s"
-                   + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""), err=True)
+    icp = sum(table.column("icp_s").to_pylist())
+    gs = [v for v in table.column("grasp_s").to_pylist() if v is not None]
+    ok = [v for v in table.column("grasp_success").to_pylist() if v is not None]
+    say(settings, f"retrieved {table.num_rows} run(s) with the {estimator} estimator -> {out_path} "
+                  f"(candidates -> {cand_path}); estimation {icp:.2f} s"
+                  + (f", grasps {sum(ok)}/{len(ok)} in {sum(gs):.2f} s" if gs else ""))

@@ -7,12 +7,14 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.bench import bench
-from stucco_cli.common import NON_NEGATIVE, Settings, check_paths, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import (FORCE_OVERWRITE, NON_NEGATIVE, NOT_RANDOM, ONE_PROCESS, Settings, check_paths,
+                               global_options, parsed, pass_settings, refuse_overwrite, say, user_errors, writable_dir)
 from stucco_cli.generate import generate_scenes_command
+from stucco_cli.progress import bars_off
 
 
 @click.group(invoke_without_command=True)
+@global_options(jobs=ONE_PROCESS, seed=NOT_RANDOM)
 @click.pass_context
 def scenes(ctx: click.Context) -> None:
     """List the scenes (data/scenes/*.toml) with a one-line description each; `scenes generate` draws new ones."""
@@ -35,6 +37,18 @@ def _load(scene: str):
         return load_scene(scene)
 
 
+def _not_shadowing(sc) -> None:
+    """Refuse, in one line naming the file and its ``name`` field, a scene file that takes a shipped scene's name
+    with other content: its runs would be filed, replayed and reported as that scene's."""
+    from pipeline.scenes.files import shadows_shipped
+
+    if shadows_shipped(sc):
+        raise click.ClickException(
+            f"{sc.path}: name = \"{sc.name}\" is the name of a shipped scene but the file differs from "
+            f"data/scenes/{sc.name}.toml; rename it (e.g. name = \"my_{sc.name}\") so its runs are not taken "
+            f"for {sc.name}'s")
+
+
 @click.command()
 @click.option("--scene", required=True, help="Scene name (see `stucco scenes`) or path to a scene .toml file.")
 @click.option("--seeds", default="0", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
@@ -48,7 +62,8 @@ def _load(scene: str):
 @click.option("--noise-mm", type=NON_NEGATIVE, default=None,
               help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
 @click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
-@click.option("--force-overwrite", is_flag=True, help="Replace existing run files.")
+@FORCE_OVERWRITE
+@global_options()
 @pass_settings
 def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_dir: Path, max_actions: int | None,
             noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
@@ -57,6 +72,7 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
     from pipeline.collect import collect as run_collect, output_path, parse_seeds
 
     sc = _load(scene)
+    _not_shadowing(sc)
     seed_list = parsed("--seeds", parse_seeds, seeds)
     policy = policy or registry.default_policy(sc.kind)
     for key, what in registry.policy(policy).needs:
@@ -66,20 +82,18 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
                                        + (f"; use --policy {' or '.join(usable)}" if usable else ""))
     if noise_mm is not None:
         sc = sc.with_effects(noise_mm=noise_mm)
-    if not force_overwrite:
-        for s in seed_list:
-            path = output_path(out_dir, sc.name, s)
-            if path.exists():
-                raise click.ClickException(f"{path}: exists; pass --force-overwrite to replace it")
+    refuse_overwrite([("--out", output_path(out_dir, sc.name, s)) for s in seed_list], force_overwrite)
     with user_errors():
         results = run_collect(sc, seed_list, out_dir, policy=policy, root_seed=settings.seed, jobs=settings.jobs,
-                              progress=settings.progress, max_actions=max_actions, keep_discarded=keep_discarded)
-    if settings.verbosity >= 0:
-        for r in results:
-            touched = ", ".join(f"{k} x{v}" for k, v in r.touched.items()) or "nothing"
-            state = f"discarded ({r.discarded})" if r.discarded else ("written" if r.path else "not written")
-            click.echo(f"{r.scene} seed {r.seed}: {r.n_actions} actions, {r.n_contact} in contact, touched "
-                       f"{touched}; {state}; {r.wall_s:.2f} s", err=True)
+                              progress=bars_off(settings), max_actions=max_actions, keep_discarded=keep_discarded)
+    for r in results:
+        touched = ", ".join(f"{k} x{v}" for k, v in r.touched.items()) or "nothing"
+        state = f"discarded ({r.discarded})" if r.discarded else ("written" if r.path else "not written")
+        say(settings, f"{r.scene} seed {r.seed}: {r.n_actions} actions, {r.n_contact} in contact, touched "
+                      f"{touched}; {state}; {r.wall_s:.2f} s")
+    written = sum(1 for r in results if r.path)
+    say(settings, f"wrote {written} run file(s) to {out_dir}"
+                  + (f" ({len(results) - written} discarded)" if written < len(results) else ""))
 
 
 @click.command()
@@ -88,7 +102,8 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Contacts table to write (Parquet).")
 @click.option("--report", is_flag=True, help="Print the isolation error (median, 90th percentile) to stdout.")
-@click.option("--force-overwrite", is_flag=True, help="Replace an existing output file.")
+@FORCE_OVERWRITE
+@global_options(jobs=ONE_PROCESS)
 @pass_settings
 def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, force_overwrite: bool) -> None:
     """Detect contacts from the wrench residual and isolate them on the gripper surface -> contacts table."""
@@ -103,8 +118,7 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
         files = [in_path]
     else:
         raise click.ClickException(f"{in_path}: does not exist")
-    if out_path.exists() and not force_overwrite:
-        raise click.ClickException(f"{out_path}: exists; pass --force-overwrite to replace it")
+    refuse_overwrite({"--out": out_path}, force_overwrite)
     with user_errors():
         res = isolate_file(files, out_path, seed=settings.seed)
     summary = res.error_summary()
@@ -117,15 +131,18 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
         else:
             click.echo(f"isolation error: no contacts with a known true point ({res.n_runs} runs, "
                        f"{res.n_actions} actions)")
+    say(settings, f"isolated {res.n_contact - res.n_unisolated} contact(s) of {res.n_contact} in contact over "
+                  f"{res.n_actions} actions of {res.n_runs} run(s) -> {out_path}")
 
 
-@bench.command("sim")
+@click.command("sim")
 @click.option("--scene", default="FB", show_default=True, help="Scene name or .toml path.")
 @click.option("--actions", "n_actions", type=click.IntRange(min=1), default=None,
               help="Actions per measurement [the whole scripted sequence].")
 @click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True,
               help="Measurements per variant (the minimum is reported).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@global_options(jobs=ONE_PROCESS, seed="it times one run with the scene's fixed draws")
 def sim_bench(scene: str, n_actions: int | None, repeat: int, as_json: bool) -> None:
     """Time one scripted run of a scene with every effect on, then with each effect switched off."""
     from pipeline.studies.sim_effects import effect_costs

@@ -6,10 +6,12 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import JOBS, Settings, parsed, pass_settings, user_errors, writable_dir
+from stucco_cli.common import JOBS, Settings, global_options, parsed, pass_settings, say, user_errors, writable_dir
+from stucco_cli.progress import bars_off
 
 
 @click.group()
+@global_options()
 def study() -> None:
     """Studies on the training set (SELECT1-4, greedy random walk)."""
 
@@ -49,6 +51,7 @@ def _options(f):
 @study.command("training")
 @_options
 @click.option("--methods", default="all", show_default=True)
+@global_options(own_jobs=True)
 @pass_settings
 def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, methods) -> None:
     """Fig. 5: collect (greedy walk, discard rule), track with every method, median FMI against median CE with
@@ -61,7 +64,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
     method_list = parsed("--methods", parse_methods, methods)
     with user_errors("study training"):
         res = training_study(out_dir, names, seed_list, method_list, root_seed=settings.seed,
-                             jobs=jobs or settings.jobs, progress=settings.progress, max_actions=max_actions)
+                             jobs=jobs or settings.jobs, progress=bars_off(settings), max_actions=max_actions)
     click.echo(f"{res['kept']} of {res['collected']} trajectories kept by the discard rule "
                f"({json.dumps(res['per_scene_kept'])}; discarded: {json.dumps(res['discarded_by_reason'])}); "
                f"{res['ambiguous']} with ambiguity >= 0.3")
@@ -70,7 +73,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
         for m, s in res["summary"][key].items():
             click.echo(f"| {m} | {s['runs']} | {s['fmi']:.3f} [{s['fmi_lo']:.3f}-{s['fmi_hi']:.3f}] | "
                        f"{s['ce_cm']:.2f} [{s['ce_lo']:.2f}-{s['ce_hi']:.2f}] |")
-    click.echo(f"{res['wall_s']:.1f} s -> {out_dir / 'training.csv'}, {out_dir / 'fig5.png'}", err=True)
+    say(settings, f"{res['wall_s']:.1f} s -> {out_dir / 'training.csv'}, {out_dir / 'fig5.png'}")
 
 
 @study.command("tune")
@@ -78,6 +81,7 @@ def training(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
 @click.option("--methods", default="all", show_default=True)
 @click.option("--values", "values_json", default=None,
               help='JSON {"method": ["param", [v, ...]]} replacing the default grid of those methods.')
+@global_options(own_jobs=True)
 @pass_settings
 def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, methods, values_json) -> None:
     """Sweep STUCCO's characteristic length and each baseline's main parameter on the training set; report the
@@ -100,7 +104,7 @@ def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
         grid.update(extra)
     with user_errors("study tune"):
         res = tune(out_dir, grid, names, seed_list, root_seed=settings.seed, jobs=jobs or settings.jobs,
-                   progress=settings.progress, max_actions=max_actions)
+                   progress=bars_off(settings), max_actions=max_actions)
     click.echo("| method | parameter | value | runs | median FMI | median CE cm | |")
     for s in res["table"]:
         flag = ("chosen" if s["chosen"] else "") + (" default" if s["default"] else "")
@@ -108,4 +112,4 @@ def tune_cmd(settings: Settings, scenes, seeds, out_dir, jobs, max_actions, meth
                    f"{s['ce_cm']:.2f} | {flag.strip()} |")
     for m, c in res["chosen"].items():
         click.echo(f"{m}: {c['parameter']} = {c['value']:g} (default {c['default']:g})")
-    click.echo(f"{res['runs']} runs, {res['wall_s']:.1f} s -> {out_dir / 'tune.csv'}", err=True)
+    say(settings, f"{res['runs']} runs, {res['wall_s']:.1f} s -> {out_dir / 'tune.csv'}")

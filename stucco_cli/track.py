@@ -6,8 +6,8 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
-                             user_errors)
+from stucco_cli.common import (ALPHA, FORCE_OVERWRITE, NON_NEGATIVE, ONE_PROCESS, POSITIVE, FiniteFloat, Settings,
+                               check_paths, global_options, pass_settings, refuse_overwrite, say, user_errors)
 from stucco_cli.progress import run_bar
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so
@@ -79,9 +79,11 @@ def _check_options(method: str, name: str) -> None:
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads of STUCCO's particle loops [1, or $STUCCO_THREADS]; results do not depend on it. "
                    "More than one only pays on otherwise idle cores.")
+@FORCE_OVERWRITE
+@global_options()
 @pass_settings
 def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
-          sets: tuple[str, ...], every_step: bool, threads: int | None, **stucco_opts) -> None:
+          sets: tuple[str, ...], every_step: bool, threads: int | None, force_overwrite: bool, **stucco_opts) -> None:
     """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
     from pipeline.track.stage import TrackConfig, default_diagnostics_path, track_file
 
@@ -95,16 +97,16 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
     params.update(_parse_sets(sets))
     diag_path = diag_path or default_diagnostics_path(out_path)
     check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})
+    refuse_overwrite({"--out": out_path, "--diagnostics": diag_path}, force_overwrite)
     with user_errors("track"):
         config = TrackConfig(method=method, robot=robot, params=params, every_step=every_step)
     with user_errors("track"):
         tracks, diagnostics = track_file(in_path, out_path, config, seed=settings.seed, jobs=settings.jobs,
                                          diagnostics_path=diag_path, progress=run_bar(settings, "track"))
-    if settings.verbosity >= 0:
-        n_runs = len(set(tracks.column("run").to_pylist()))
-        ms = diagnostics.column("update_ms").to_numpy()
-        click.echo(f"tracked {n_runs} run(s), {tracks.num_rows} point rows -> {out_path} "
-                   f"({ms.sum() / 1e3:.2f} s in updates; diagnostics -> {diag_path})", err=True)
+    n_runs = len(set(tracks.column("run").to_pylist()))
+    ms = diagnostics.column("update_ms").to_numpy()
+    say(settings, f"tracked {n_runs} run(s), {tracks.num_rows} point rows -> {out_path} "
+                  f"({ms.sum() / 1e3:.2f} s in updates; diagnostics -> {diag_path})")
 
 
 @click.command()
@@ -115,18 +117,31 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
 @click.option("--length", type=POSITIVE, default=None, help="Characteristic length l, m^2 [from the tracks metadata].")
 @click.option("--alpha", type=ALPHA, default=None, help="Connection threshold, in (0, 1) [from the tracks metadata].")
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None,
-              help="Also draw the final segments of the first runs to this PNG.")
+              help="Also draw the final segments of the first runs over their scenes to this PNG.")
+@click.option("--runs", "run_dir", type=click.Path(path_type=Path), default=None,
+              help="Run files (folder or file) for --plot's scenes [found beside the tracks, as `stucco plot` does].")
 @click.option("--print", "print_table", is_flag=True, help="Print one line per segment to stdout.")
+@FORCE_OVERWRITE
+@global_options(jobs=ONE_PROCESS)
 @pass_settings
 def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: float | None, alpha: float | None,
-            plot_path: Path | None, print_table: bool) -> None:
+            plot_path: Path | None, run_dir: Path | None, print_table: bool, force_overwrite: bool) -> None:
     """Group tracked contact points into objects (Alg. 3 on the MAP particle, or the baseline's clusters)."""
     from pipeline.segment import segment_file, summarise
 
-    check_paths({"--in": in_path}, {"--out": out_path, "--plot": plot_path})
+    if run_dir is not None and plot_path is None:
+        raise click.UsageError("--runs names the scenes of --plot; give --plot FILE.png too")
+    check_paths({"--in": in_path, "--runs": run_dir}, {"--out": out_path, "--plot": plot_path})
+    refuse_overwrite({"--out": out_path, "--plot": plot_path}, force_overwrite)
+    notes: list[str] = []
     with user_errors("segment"):  # the table and its plot appear together or not at all
-        segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by,
-                                plot_path=plot_path)
+        if plot_path is None:
+            segments = segment_file(in_path, out_path, seed=settings.seed, length=length, alpha=alpha, by=by)
+        else:
+            from pipeline.figures import segments_with_plot
+
+            segments, notes = segments_with_plot(in_path, out_path, plot_path, seed=settings.seed, runs=run_dir,
+                                                 length=length, alpha=alpha, by=by)
     if print_table:
         rows = summarise(segments)
         click.echo(f"{'run':<16} {'segment':>7} {'points':>6} {'centroid_x_m':>12} {'centroid_y_m':>12} {'run_FMI':>8}")
@@ -134,6 +149,8 @@ def segment(settings: Settings, in_path: Path, out_path: Path, by: str, length: 
             fmi = "" if r["run_fmi"] is None else f"{r['run_fmi']:.3f}"
             click.echo(f"{r['run']:<16} {r['segment']:>7} {r['n_points']:>6} {r['centroid_x_m']:>12.4f} "
                        f"{r['centroid_y_m']:>12.4f} {fmi:>8}")
-    if settings.verbosity >= 0:
-        click.echo(f"segmented {segments.num_rows} rows -> {out_path}" +
-                   (f" (plot: {plot_path})" if plot_path else ""), err=True)
+    for note in notes:
+        say(settings, f"plot: {note}")
+    n_runs = len(set(segments.column("run").to_pylist()))
+    say(settings, f"segmented {n_runs} run(s), {segments.num_rows} rows -> {out_path}"
+                  + (f" (plot: {plot_path})" if plot_path else ""))

@@ -125,7 +125,7 @@ def test_a_stage_whose_second_output_fails_keeps_its_previous_outputs(tmp_path, 
         real(table, sink)
 
     monkeypatch.setattr(io, "_write_parquet", second_fails)
-    r = runner.invoke(cli, ["-q", "--seed", "5", *args[stage]])
+    r = runner.invoke(cli, ["-q", "--seed", "5", *args[stage], "--force-overwrite"])  # over the previous outputs
     assert r.exit_code == 1 and "No space left" in r.output, r.output
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
 
@@ -135,7 +135,7 @@ def test_segment_writes_no_table_when_its_plot_fails(tmp_path, monkeypatch):
 
     from click.testing import CliRunner
 
-    import pipeline.segment
+    import pipeline.figures.tables
     from stucco_cli.main import cli
 
     contacts = Path(__file__).resolve().parents[1] / "data" / "contacts" / "FB-000.parquet"
@@ -145,11 +145,11 @@ def test_segment_writes_no_table_when_its_plot_fails(tmp_path, monkeypatch):
                             "--particles", "10"])
     assert r.exit_code == 0, r.output
 
-    def plot_fails(segments, path, **kw):
+    def plot_fails(segments, tracks_path, path, **kw):
         Path(path).write_bytes(b"half a png")
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(pipeline.segment, "plot_segments", plot_fails)
+    monkeypatch.setattr(pipeline.figures.tables, "segments_figure", plot_fails)  # what `segment --plot` draws with
     before = sorted(p.name for p in tmp_path.iterdir())
     r = runner.invoke(cli, ["segment", "--in", str(tracks), "--out", str(tmp_path / "s.parquet"), "--plot",
                             str(tmp_path / "s.png")])

@@ -284,7 +284,7 @@ def test_cli_collect_writes_one_file_per_seed_and_refuses_to_overwrite(tmp_path)
     assert sorted(p.name for p in out.iterdir()) == ["FB-000.parquet", "FB-001.parquet"]
     assert pq.read_table(out / "FB-000.parquet").num_rows == 1
     res = CliRunner().invoke(_cli(), args)
-    assert res.exit_code == 1 and "FB-000.parquet: exists; pass --force-overwrite" in res.stderr
+    assert res.exit_code == 1 and "FB-000.parquet: exists (--out); pass --force-overwrite" in res.stderr
     res = CliRunner().invoke(_cli(), args + ["--force-overwrite"])
     assert res.exit_code == 0
 

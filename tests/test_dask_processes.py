@@ -23,7 +23,7 @@ pytest.importorskip("distributed")
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 BIN = Path(sys.executable).parent
 COMPARED = ["scene", "seed", "method", "estimator", "run", "grasp_success", "fmi", "contact_error_cm",
-            "position_error_m", "yaw_error_rad", "low_confidence", "n_points", "n_segments"]
+            "position_error_cm", "yaw_error_rad", "low_confidence", "n_points", "n_segments"]
 
 
 def _free_port() -> int:

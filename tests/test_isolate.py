@@ -158,7 +158,7 @@ def test_cli_isolate_writes_contacts_with_error_metadata_and_reports(tmp_path):
     err = meta["params"]["isolation_error"]
     assert err["median_m"] < MEDIAN_BOUND_M and err["p90_m"] < P90_BOUND_M
     res = CliRunner().invoke(_cli(), ["isolate", "--in", str(runs), "--out", str(out)])
-    assert res.exit_code == 1 and "exists; pass --force-overwrite" in res.stderr
+    assert res.exit_code == 1 and "exists (--out); pass --force-overwrite" in res.stderr
 
 
 def test_cli_isolate_empty_or_missing_input_is_a_one_line_error(tmp_path):

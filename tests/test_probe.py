@@ -399,7 +399,7 @@ def test_bench_probes_default_budgets_are_the_curves_budgets_and_end_at_the_poli
     # The CLI keeps numpy out of its import, so it repeats the list: the two must stay one fact, and the curve
     # ends at the budget the policy runs with (the run files of `make reproduce-active` replay every budget).
     from pipeline.studies.probe_budget import BUDGETS
-    from stucco_cli.bench import bench_probe
+    from stucco_cli.bench_runs import bench_probe
 
     option = next(p for p in bench_probe.params if p.name == "budgets")
     assert tuple(int(b) for b in option.default.split(",")) == BUDGETS

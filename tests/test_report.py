@@ -13,8 +13,8 @@ from pipeline.score import SCORES_COLUMNS
 
 
 def _scores(rows: list[dict]) -> pa.Table:
-    defaults = dict(run="", estimator="plausible", position_error_m=0.01, yaw_error_rad=0.0, low_confidence=False,
-                    n_points=10, n_segments=2, track_s=0.5, retrieve_s=0.1, grasp_s=0.4, wall_s=3.0,
+    defaults = dict(run="", estimator="plausible", position_error_cm=1.0, yaw_error_rad=0.0, low_confidence=False,
+                    n_points=10, n_segments=2, track_s=0.5, retrieve_s=0.1, grasp_s=0.4, wall_s=3.0, scene_sha256=None,
                     grasp_attempts=None, grasp_success_any=None)
     full = [dict(defaults, **r) for r in rows]
     for r in full:
@@ -30,17 +30,17 @@ def scores() -> pa.Table:
         dict(scene="TC", seed=0, method="stucco", grasp_success=True, fmi=1.0, contact_error_cm=0.3),
         dict(scene="TC", seed=1, method="stucco", grasp_success=True, fmi=1.0, contact_error_cm=0.5),
         dict(scene="FB", seed=0, method="kmeans", grasp_success=False, fmi=0.6, contact_error_cm=1.0,
-             position_error_m=0.10, wall_s=2.0, track_s=0.2),
+             position_error_cm=10.0, wall_s=2.0, track_s=0.2),
         dict(scene="FB", seed=1, method="kmeans", grasp_success=True, fmi=0.8, contact_error_cm=2.0,
-             position_error_m=0.30, wall_s=4.0, track_s=0.4),
+             position_error_cm=30.0, wall_s=4.0, track_s=0.4),
         dict(scene="FB", seed=0, method="stucco", grasp_success=True, fmi=0.5, contact_error_cm=1.0,
-             position_error_m=0.01, wall_s=1.0, track_s=1.0),
+             position_error_cm=1.0, wall_s=1.0, track_s=1.0),
         dict(scene="FB", seed=1, method="stucco", grasp_success=True, fmi=0.7, contact_error_cm=2.0,
-             position_error_m=0.02, wall_s=2.0, track_s=2.0),
+             position_error_cm=2.0, wall_s=2.0, track_s=2.0),
         dict(scene="FB", seed=2, method="stucco", grasp_success=False, fmi=0.9, contact_error_cm=3.0,
-             position_error_m=0.04, wall_s=3.0, track_s=3.0),
+             position_error_cm=4.0, wall_s=3.0, track_s=3.0),
         dict(scene="FB", seed=3, method="stucco", grasp_success=None, fmi=None, contact_error_cm=None,
-             position_error_m=0.50, wall_s=6.0, track_s=None),
+             position_error_cm=50.0, wall_s=6.0, track_s=None),
     ])
 
 
@@ -57,8 +57,8 @@ def test_table_ii_hand_computed(scores):
     # CE 1, 2, 3 cm: mean 2, std sqrt(2/3).
     assert fb.ce_cm_mean == pytest.approx(2.0)
     assert fb.ce_cm_std == pytest.approx(math.sqrt(2 / 3))
-    # Position errors 0.01, 0.02, 0.04, 0.50: median 0.03.
-    assert fb.position_error_m_median == pytest.approx(0.03)
+    # Position errors 1, 2, 4, 50 cm: median 3.
+    assert fb.position_error_cm_median == pytest.approx(3.0)
     assert fb.wall_s_mean == pytest.approx(3.0)  # (1 + 2 + 3 + 6) / 4
     assert fb.track_s_mean == pytest.approx(2.0)  # (1 + 2 + 3) / 3
     assert (fb.paper_gs_pct, fb.paper_fmi_mean, fb.paper_ce_cm_mean) == (70.0, 0.69, 0.72)

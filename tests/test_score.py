@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from pipeline.retrieve import primitive_of, retrieval_table
 from pipeline.schema import SchemaError, read_metadata, write_table
-from pipeline.scenes import load_scene
+from pipeline.scenes import load_scene, scene_digest
 from pipeline.score import (SCORES_COLUMNS, contact_error_cm, fmi, read_scores, scene_signed_distance, score,
                             validate_scores)
 
@@ -131,7 +131,8 @@ def test_score_by_hand(tmp_path):
     assert row["contact_error_cm"] == pytest.approx(11.48 / 5)
     assert (row["scene"], row["seed"], row["method"], row["run"]) == ("FB", 4, "stucco", "FB/4")
     assert row["grasp_success"] is True
-    assert row["position_error_m"] == 0.004 and row["yaw_error_rad"] == 0.05
+    assert row["position_error_cm"] == 0.004 * 100.0 and row["yaw_error_rad"] == 0.05  # cm, like the CE
+    assert row["scene_sha256"] == scene_digest(load_scene("FB").source)
     assert row["n_points"] == 5 and row["n_segments"] == 2
     assert row["track_s"] == pytest.approx(0.3) and row["retrieve_s"] == 0.1 and row["grasp_s"] == 0.5
     assert row["wall_s"] == pytest.approx(0.9)
@@ -152,7 +153,7 @@ def test_score_run_without_points_and_without_grasp(tmp_path):
 def test_scores_one_row_per_scene_seed_method():
     t = pa.table({c.name: pa.array([None], type=c.type) for c in SCORES_COLUMNS})
     t = t.set_column(0, "scene", pa.array(["FB"])).set_column(1, "seed", pa.array([1], pa.int64()))
-    vals = dict(method="stucco", estimator="plausible", run="FB/1", position_error_m=0.0, yaw_error_rad=0.0,
+    vals = dict(method="stucco", estimator="plausible", run="FB/1", position_error_cm=0.0, yaw_error_rad=0.0,
                 low_confidence=False, n_points=0, n_segments=0, retrieve_s=0.0, wall_s=0.0)
     for k, v in vals.items():
         i = t.column_names.index(k)

@@ -19,7 +19,7 @@ __all__ = ["SNAPSHOT_SCORE_COLUMNS", "snapshot", "write_snapshot"]
 
 #: Score columns compared by the regression test (the others are wall times).
 SNAPSHOT_SCORE_COLUMNS = ("scene", "seed", "method", "estimator", "run", "grasp_success", "fmi", "contact_error_cm",
-                          "position_error_m", "yaw_error_rad", "low_confidence", "n_points", "n_segments")
+                          "position_error_cm", "yaw_error_rad", "low_confidence", "n_points", "n_segments")
 
 
 def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str] | None = None

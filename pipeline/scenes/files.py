@@ -2,7 +2,10 @@
 
 A scene is one TOML file under ``data/scenes/``; :func:`load_scene` reads one and :func:`parse_scene
 <pipeline.scenes.parse.parse_scene>` validates it. :func:`scene_hash` turns a scene name into the stable
-integer every job's random stream is seeded with (docs/simulation.md, "`stucco collect`").
+integer every job's random stream is seeded with (docs/simulation.md, "`stucco collect`"). A scene is told
+apart from a shipped one by its content, never by its name: :func:`shipped_digest` and :func:`shadows_shipped`
+(a user's file named like a shipped scene but with other content, which ``stucco collect`` refuses and the
+report never compares with the paper).
 """
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from pipeline.scenes.parse import parse_scene
 from pipeline.scenes.types import Scene, SceneError
 
 __all__ = ["SCENE_DIR", "scene_names", "scene_path", "scene_hash", "load_scene", "load_all", "scene_from_text",
-           "scene_digest"]
+           "scene_digest", "shipped_digest", "shadows_shipped"]
 
 #: Directory of the shipped scene files (``data/scenes/`` at the repository root).
 SCENE_DIR = Path(__file__).resolve().parents[2] / "data" / "scenes"
@@ -81,3 +84,20 @@ def scene_from_text(text: str, path: Path) -> Scene:
 def scene_digest(text: str) -> str:
     """Hex SHA-256 of a scene's TOML text (UTF-8): what a run file records of the scene it was collected in."""
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def shipped_digest(name: str, directory: Path = SCENE_DIR) -> str | None:
+    """:func:`scene_digest` of the shipped scene ``name`` (its file in ``directory``), None when no scene of that
+    name is shipped (or its file cannot be read as text)."""
+    if not isinstance(name, str) or name not in scene_names(directory):
+        return None
+    try:
+        return scene_digest((Path(directory) / f"{name}.toml").read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def shadows_shipped(scene: Scene, directory: Path = SCENE_DIR) -> bool:
+    """Whether ``scene`` bears the name of a shipped scene but not its content (a byte-identical copy does not)."""
+    digest = shipped_digest(scene.name, directory)
+    return digest is not None and scene_digest(scene.source) != digest

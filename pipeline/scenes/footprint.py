@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 
-from pipeline.geometry import rotate
+from pipeline.geometry import dot2, rotate, wrap_angle
+from pipeline.portable import atan2
 from pipeline.scenes.types import ObjectSpec, WallSpec
 
 __all__ = ["GRIPPER_OUTLINE_M", "CIRCLE_SIDES", "object_outline", "wall_outline", "gripper_outline", "rectangle",
@@ -70,7 +71,8 @@ def separation(a: np.ndarray, b: np.ndarray) -> float:
     features are an edge and a vertex). Zero or negative: they touch or overlap.
     """
     axes = np.concatenate([_normals(a), _normals(b)])
-    pa, pb = a @ axes.T, b @ axes.T
+    # element-wise products, not BLAS: a redraw must not hinge on the last bits of a matrix product
+    pa, pb = dot2(a[:, None, :], axes[None, :, :]), dot2(b[:, None, :], axes[None, :, :])
     gaps = np.maximum(pb.min(axis=0) - pa.max(axis=0), pa.min(axis=0) - pb.max(axis=0))
     return float(gaps.max())
 
@@ -79,7 +81,7 @@ def ray_entry(origin: np.ndarray, direction: np.ndarray, poly: np.ndarray) -> fl
     """Distance (in units of ``direction``'s length) along the ray ``origin + t direction``, t >= 0, at which it
     enters the convex polygon; 0 if ``origin`` is inside, inf if the ray misses it (Cyrus-Beck clipping)."""
     normals = _normals(poly)
-    towards = normals @ direction  # < 0: the ray crosses this edge going in
+    towards = dot2(normals, direction)  # < 0: the ray crosses this edge going in
     offset = (poly - origin) * normals
     dist = offset.sum(axis=1)  # n . (p - o): > 0 while the origin is on the inner side of the edge
     t_in, t_out = 0.0, math.inf
@@ -106,7 +108,7 @@ def hidden_fraction(start: tuple[float, float], target: np.ndarray, others: list
     origin = np.asarray(start, dtype=np.float64)
     rel = target - origin
     centre = math.atan2(*(target.mean(axis=0) - origin)[::-1])
-    angles = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - centre)))  # relative, wrapped to (-pi, pi]
+    angles = wrap_angle(atan2(rel[:, 1], rel[:, 0]) - centre)  # relative, wrapped
     lo, hi = float(angles.min()), float(angles.max())
     hidden = 0
     for k in range(n_rays):

@@ -219,7 +219,7 @@ def sample_layout(seed: int, index: int, draw: int, spec: GeneratorSpec) -> Layo
     start_y = float(np.clip(centre[1] + rng.uniform(-0.1, 0.1), wy0 - GRIPPER_OUTLINE_M[0][1] + GAP_MIN_M,
                             wy1 - GRIPPER_OUTLINE_M[1][1] - GAP_MIN_M))
     ahead = centre - np.array([ax0 - 0.2, start_y])  # from about where the gripper will start
-    ahead /= np.linalg.norm(ahead)
+    ahead /= math.hypot(*ahead)
     side = np.array([-ahead[1], ahead[0]])
 
     hide = spec.hiddenness > 0.0

@@ -11,8 +11,17 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, WORKSPACE_M, Effects, ObjectSpec, Plane, Scene, SceneError,
-                                   WalkSpec, WallSpec)
+from pipeline.scenes.types import (
+    DEFAULT_ACTION_SCALE,
+    WORKSPACE_M,
+    Effects,
+    ObjectSpec,
+    Plane,
+    Scene,
+    SceneError,
+    WalkSpec,
+    WallSpec,
+)
 
 __all__ = ["parse_scene", "NAME_PATTERN", "MAX_EXTENT_M", "MAX_SIZE_M", "MAX_MASS_KG", "MAX_FRICTION",
            "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS"]

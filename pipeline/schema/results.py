@@ -131,8 +131,9 @@ SCORES_COLUMNS: tuple[Column, ...] = (
     _C("contact_error_cm", pa.float64(), "cm", True, "Mean |distance| of final tracked points to the nearest true "
                                                      "surface (objects and walls); null without points.",
        minimum=0.0),
-    _C("position_error_m", pa.float64(), "m", False, "Distance between estimated and true target centres.",
-       finite=True, minimum=0.0),
+    _C("position_error_cm", pa.float64(), "cm", False, "Distance between estimated and true target centres (the "
+       "retrieval table's `position_error_m` x 100: lengths in cm, like `contact_error_cm`).", finite=True,
+       minimum=0.0),
     _C("yaw_error_rad", pa.float64(), "rad", False, "Target yaw error modulo its symmetry.", finite=True,
        minimum=0.0),
     _C("low_confidence", pa.bool_(), "", False, "The pose estimate was flagged (see the retrieval table)."),
@@ -143,6 +144,9 @@ SCORES_COLUMNS: tuple[Column, ...] = (
     _C("retrieve_s", pa.float64(), "s", False, "Pose estimation time.", finite=True, minimum=0.0),
     _C("grasp_s", pa.float64(), "s", True, "Grasp simulation time; null if not simulated.", minimum=0.0),
     _C("wall_s", pa.float64(), "s", False, "Sum of the known stage times of the run.", finite=True, minimum=0.0),
+    _C("scene_sha256", pa.string(), "", True, "SHA-256 of the scene the run was collected in (its run file's "
+       "`params.scene_sha256`): the report compares a scene with the paper only when this is the shipped scene's "
+       "(null or absent in tables written before scores recorded it).", required=False),
 )
 
 

@@ -68,7 +68,8 @@ def _run_setting(runs: Path, contacts: pa.Table, s: Setting, root_seed: int,
         rows.append(dict(setting=s.name, method=s.method, knob=s.knob, value=s.value, scene=table["scene"],
                          seed=table["seed"], stream=stream, fmi=table["fmi"],
                          contact_error_cm=table["contact_error_cm"], grasp_success=table["grasp_success"],
-                         position_error_m=table["position_error_m"], track_s=track_s, segment_s=segment_s,
+                         position_error_m=retrieval.column("position_error_m")[0].as_py(),  # scores: in cm
+                         track_s=track_s, segment_s=segment_s,
                          icp_s=table["retrieve_s"], grasp_s=table["grasp_s"],
                          compute_s=track_s + segment_s + table["retrieve_s"]))
     return rows

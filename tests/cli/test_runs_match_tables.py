@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from pipeline.evaluate import EvalConfig
 from stucco_cli.main import cli
-from tests.cli.test_run_scene import _moved_fb
+from tests.cli.test_run_scene import _moved_fb, collect_file
 
 N_ACTIONS = 12
 
@@ -37,8 +37,7 @@ def made(tmp_path_factory):
     _ok("retrieve", "--segments", tmp / "segments.parquet", "--runs", tmp / "runs", "--out",
         tmp / "retrieval.parquet", "--no-grasp", "--estimator", "paper", "--restarts", 2)
     _ok("--seed", 1, "collect", "--scene", "FB", "--seeds", 0, "--max-actions", N_ACTIONS, "--out", tmp / "seed1")
-    _ok("collect", "--scene", _moved_fb(tmp / "my" / "FB.toml"), "--seeds", 0, "--max-actions", N_ACTIONS,
-        "--out", tmp / "moved")
+    collect_file(_moved_fb(tmp / "my" / "FB.toml"), tmp / "moved", N_ACTIONS)  # `stucco collect` refuses it
     run = pq.read_table(tmp / "runs" / "FB-000.parquet")
     (tmp / "cut").mkdir()
     pq.write_table(run.slice(0, 8), tmp / "cut" / "FB-000.parquet")

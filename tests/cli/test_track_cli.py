@@ -192,7 +192,7 @@ def test_segment_writes_segment_column_and_prints_a_summary(tmp_path, contacts_f
     assert sum(int(line.split()[2]) for line in lines[1:]) == 13
     assert all(line.split()[0] == "r" and 0.0 <= float(line.split()[-1]) <= 1.0 for line in lines[1:])
     assert png.read_bytes()[:4] == b"\x89PNG"
-    assert "segmented 13 rows" in res.stderr
+    assert "segmented 1 run(s), 13 rows" in res.stderr
 
 
 def test_segment_options_override_the_tracks_metadata(tmp_path, contacts_file):

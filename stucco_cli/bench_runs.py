@@ -1,0 +1,142 @@
+"""`stucco bench retrieval`, `bench pushes` and `bench probe`: benchmarks over collected runs (an evaluation
+directory's, or the active protocol's)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from pipeline import registry
+from stucco_cli.bench import parse_ints, parse_methods
+from stucco_cli.common import global_options, parsed, pass_settings, say, unique, user_errors, writable_dir
+from stucco_cli.progress import run_bar
+
+
+def _evaluation_dir(runs_from: Path) -> None:
+    """Usage error (``--runs-from``) unless ``runs_from`` is an evaluation directory (``stucco evaluate``'s)."""
+    if not runs_from.is_dir() or not (runs_from / "runs").is_dir():
+        raise click.BadParameter(f"{runs_from}: not an evaluation directory (no runs/ inside); make one with "
+                                 f"`stucco evaluate --out {runs_from}`", param_hint="--runs-from")
+
+
+def _collected_pairs(runs_from: Path, scene_list, seed_list) -> list[tuple[str, int]]:
+    """Every (scene, seed) of the grid; a usage error (``--runs-from``) naming the first without a run file."""
+    from pipeline.evaluate import partition
+
+    pairs = [(sc, s) for sc in scene_list for s in seed_list]
+    missing = [p for p in pairs if not partition(runs_from, "runs", *p).is_file()]
+    if missing:
+        raise click.BadParameter(f"{partition(runs_from, 'runs', *missing[0])}: no collected run for "
+                                 f"{missing[0][0]} seed {missing[0][1]}", param_hint="--runs-from")
+    return pairs
+
+
+@click.command("retrieval")
+@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
+              help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
+@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="0-19", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--estimators", default="all", show_default=True,
+              help="Pose estimators of the estimator rungs (comma-separated: "
+                   + ", ".join(registry.estimator_names()) + "; or 'all').")
+@click.option("--method", default=registry.tracker_names()[0], show_default=True,
+              help="Tracking method of the tracker rung.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/retrieval"), show_default=True,
+              help="ladder.csv, ladder_summary.csv, ladder.png.")
+@global_options()
+@pass_settings
+def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_dir) -> None:
+    """Where grasps are lost: grasp success at the true pose, the true pose perturbed, ideal contact points with
+    the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
+    writable_dir("--out", out_dir)
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes
+    from pipeline.estimators.estimate import parse_estimators
+    from pipeline.studies.retrieval_ladder import ladder_rows
+    from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
+
+    _evaluation_dir(runs_from)
+    scene_list = parsed("--scenes", parse_scenes, scenes)
+    seed_list = parsed("--seeds", parse_seeds, seeds)
+    est = unique("--estimators", parsed("--estimators", parse_estimators, estimators))
+    parse_methods(method, "--method")
+    pairs = _collected_pairs(runs_from, scene_list, seed_list)
+    with user_errors("bench retrieval"):
+        rows = ladder_rows(runs_from, pairs, est, method, settings.seed, jobs=settings.jobs,
+                           progress=run_bar(settings, "ladder"))
+        paths = write_outputs(rows, out_dir)
+    summary = summarise(rows)
+    click.echo(ladder_tables(summary))
+    click.echo(summary_markdown(summary), nl=False)
+    say(settings, f"-> {', '.join(str(p) for p in paths)}")
+
+
+@click.command("pushes")
+@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
+              help="Evaluation directory made by `stucco evaluate` (its runs are used).")
+@click.option("--scenes", default="FB,BC,IB", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--replay/--no-replay", default=True, show_default=True,
+              help="Also replay each push in pybullet, the whole scene and the target alone.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/pushes"), show_default=True,
+              help="pushes.csv, pushes_summary.csv, pushes.png.")
+@global_options()
+@pass_settings
+def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
+    """The pushing models against the simulator, push by push: each push of the target run by every pushtrack
+    pushing model from its recorded pose before (and replayed in pybullet), against its recorded pose after."""
+    writable_dir("--out", out_dir)
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes
+    from pipeline.studies.pushes import push_rows, summarise, summary_markdown, write_outputs
+
+    _evaluation_dir(runs_from)
+    pairs = _collected_pairs(runs_from, parsed("--scenes", parse_scenes, scenes), parsed("--seeds", parse_seeds, seeds))
+    with user_errors("bench pushes"):
+        rows = push_rows(runs_from, pairs, replay=replay, jobs=settings.jobs, progress=run_bar(settings, "pushes"))
+        paths = write_outputs(rows, out_dir)
+    click.echo(summary_markdown(summarise(rows)), nl=False)
+    say(settings, f"-> {', '.join(str(p) for p in paths)}")
+
+
+@click.command("probe")
+@click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
+@click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--budgets", default="0,1,2,4,8,12", show_default=True, help="Probe budgets.")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/probe/runs"), show_default=True,
+              help="Run files of `collect --policy scripted+probe` (made here when missing).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/probe"), show_default=True,
+              help="probe_budget.csv, probe_budget_summary.csv, probe_budget.png.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Where the PNG goes instead (e.g. docs/img/probe_budget.png).")
+@global_options()
+@pass_settings
+def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
+    """Active retrieval: grasp success against the probe budget per task, with probes used, time per probe
+    decision and how far probing moved the target (docs/active.md)."""
+    writable_dir("--out", out_dir)
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate import parse_scenes
+    from pipeline.studies.probe_budget import budget_rows, summarise, write_outputs
+
+    scene_list = parsed("--scenes", parse_scenes, scenes)
+    seed_list = parsed("--seeds", parse_seeds, seeds)
+    budget_list = tuple(sorted(set(parse_ints("--budgets", budgets, lo=0, hi=64))))
+    if not budget_list:
+        raise click.BadParameter("expected at least one budget", param_hint="--budgets")
+    with user_errors("bench probe"):
+        rows = budget_rows([(sc, s) for sc in scene_list for s in seed_list], runs_dir, budget_list, settings.seed,
+                           jobs=settings.jobs, progress=run_bar(settings, "probe"))
+        summary = summarise(rows)
+        paths = write_outputs(rows, summary, out_dir, png)
+    click.echo("| task | budget | runs | GS % | probes | decision s (median / max) | target moved mm / rad | wide |")
+    click.echo("|---|---|---|---|---|---|---|---|")
+    for s in summary:
+        click.echo(f"| {s['scene']} | {s['budget']} | {s['runs']} | {s['gs_pct']:.0f} | {s['probes_mean']:.2f} | "
+                   f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['moved_mm_median']:.1f} / "
+                   f"{s['turned_rad_median']:.3f} | {s['wide']} |")
+    say(settings, f"-> {', '.join(str(p) for p in paths)}")

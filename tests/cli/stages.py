@@ -1,0 +1,50 @@
+"""A small pipeline made through the CLI once per test session (FB seed 0, 12 actions, one grasp) for the tests of
+the commands' shared behaviour: the overwrite rule, global options after the command, what each command says it
+wrote, ``stucco plot``. Used through the ``stages`` fixture of tests/cli/conftest.py."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from stucco_cli.main import cli
+
+N_ACTIONS = 12
+FAST_TRACK = ("--robot", "disc:0.05", "--particles", "20")
+
+
+def invoke(*args, **kwargs):
+    return CliRunner().invoke(cli, [str(a) for a in args], **kwargs)
+
+
+def ok(res):
+    assert res.exit_code == 0, (res.exit_code, res.output, res.exception)
+    return res
+
+
+#: Each stage command of the small pipeline: name -> (arguments, {option: output file}), in pipeline order.
+def commands(d: Path) -> dict[str, tuple[list, dict[str, Path]]]:
+    return {
+        "collect": (["collect", "--scene", "FB", "--seeds", 0, "--max-actions", N_ACTIONS, "--out", d / "runs"],
+                    {"--out": d / "runs" / "FB-000.parquet"}),
+        "isolate": (["isolate", "--in", d / "runs", "--out", d / "contacts.parquet"],
+                    {"--out": d / "contacts.parquet"}),
+        "track": (["track", "--in", d / "contacts.parquet", "--out", d / "tracks.parquet", *FAST_TRACK],
+                  {"--out": d / "tracks.parquet", "--diagnostics": d / "tracks.diagnostics.parquet"}),
+        "segment": (["segment", "--in", d / "tracks.parquet", "--out", d / "segments.parquet", "--plot",
+                     d / "segments.png"], {"--out": d / "segments.parquet", "--plot": d / "segments.png"}),
+        "retrieve": (["retrieve", "--segments", d / "segments.parquet", "--runs", d / "runs", "--out",
+                      d / "retrieval.parquet", "--estimator", "plausible", "--hypotheses", 4],
+                     {"--out": d / "retrieval.parquet", "--candidates": d / "retrieval.candidates.parquet"}),
+        "score": (["score", "--retrieval", d / "retrieval.parquet", "--segments", d / "segments.parquet", "--runs",
+                   d / "runs", "--out", d / "scores.parquet"], {"--out": d / "scores.parquet"}),
+        "plot": (["plot", "--in", d / "segments.parquet", "--out", d / "plot.png"], {"--out": d / "plot.png"}),
+    }
+
+
+def make(d: Path) -> dict[str, str]:
+    """Run every command of :func:`commands` in ``d``; their stderr, by command."""
+    said = {}
+    for name, (args, _) in commands(d).items():
+        said[name] = ok(invoke(*args)).stderr
+    return said
