@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.constraints import Params
 from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
@@ -84,7 +85,7 @@ def plan_for(scene) -> GraspPlan:
 
 
 @dataclass(frozen=True)
-class GraspParams:
+class GraspParams(Params):
     """Grasp script and success rule parameters.
 
     Attributes

@@ -6,7 +6,7 @@ and measures the isolation error against the recorded true contact point.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -116,7 +116,7 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
 
 def params_dict(det: DetectionParams, iso: IsolationParams) -> dict:
     """Both parameter sets, JSON-friendly, for output metadata."""
-    return {"detection": asdict(det), "isolation": asdict(iso)}
+    return {"detection": det.to_dict(), "isolation": iso.to_dict()}
 
 
 def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: DetectionParams = DetectionParams(),

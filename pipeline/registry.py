@@ -253,9 +253,9 @@ def build_params(spec: Spec, values: Any = None) -> Any:
         return values
     if not isinstance(values, dict):
         raise ValueError(f"params for {spec.name!r} must be a dict or {cls.__name__}, got {type(values).__name__}")
-    from pipeline.constraints import from_dict  # imported here: it loads numpy, which importing the registry avoids
+    from pipeline.constraints import Params, from_dict  # imported here: it loads numpy, which the registry avoids
 
-    return from_dict(cls, values, spec.name)
+    return cls.from_dict(values, spec.name) if issubclass(cls, Params) else from_dict(cls, values, spec.name)
 
 
 def choices(kind: str) -> Any:

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from pipeline import registry
+from pipeline.constraints import plain
 from pipeline.geometry import Primitive
 from pipeline.estimators.paper.online import estimate_online
 from pipeline.estimators.paper.choice import Estimate, confidence_notes, estimate_run
@@ -106,9 +107,9 @@ def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extr
     meta = dict(params.to_dict(), estimator=estimator)
     own = registry.build_params(spec, own)
     if own is not None:
-        meta[spec.meta_key or spec.name] = asdict(own)
+        meta[spec.meta_key or spec.name] = plain(own)
     for k, v in extra.items():
-        meta[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
+        meta[k] = plain(v) if hasattr(v, "__dataclass_fields__") else v
     return meta
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.constraints import Params
 from pipeline.portable import log
 from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate, wrap_symmetric
 from pipeline.estimators.plausible.evidence import gripper_lattice
@@ -28,7 +29,7 @@ __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreemen
 
 
 @dataclass(frozen=True)
-class PlanParams:
+class PlanParams(Params):
     """Parameters of probe planning; serialised into the run's metadata.
 
     Attributes

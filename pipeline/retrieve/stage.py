@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow as pa
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none
+from pipeline.constraints import Params
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.parallel import run_calls
 from pipeline.estimators.estimate import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
@@ -27,7 +28,7 @@ __all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "
 
 
 @dataclass(frozen=True)
-class RetrieveConfig:
+class RetrieveConfig(Params):
     """What `stucco retrieve` was asked to do; recorded in the output metadata (:meth:`metadata`).
 
     Attributes
@@ -64,6 +65,7 @@ class RetrieveConfig:
             registry.tracker(self.method)  # ValueError naming the registered methods
         spec = registry.estimator(self.estimator)
         object.__setattr__(self, "estimator_params", registry.build_params(spec, self.estimator_params))
+        super().__post_init__()
 
     def metadata(self) -> dict:
         """The provenance ``params`` of the retrieval and candidates tables."""

@@ -27,7 +27,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.constraints import Constraint, check, integer, number, rule
+from pipeline.constraints import Constraint, Params, integer, number, rule
 from pipeline.track.gaussian_mixture import extract_targets, predict, prune, update
 
 __all__ = [
@@ -40,7 +40,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class GMPHDParams:
+class GMPHDParams(Params):
     """GM-PHD model and pruning parameters (defaults: the authors', tuned for BOR in simulation).
 
     Attributes
@@ -97,7 +97,7 @@ class GMPHDParams:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "bounds", tuple(float(b) for b in self.bounds))
-        check(self)
+        super().__post_init__()
 
     @classmethod
     def training_set(cls) -> "GMPHDParams":

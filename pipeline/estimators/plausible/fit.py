@@ -25,12 +25,12 @@ hypothesis at once: arrays (hypotheses, points, 2), no loop over points or hypot
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, Callable, ClassVar
+from dataclasses import dataclass
+from typing import Callable, ClassVar
 
 import numpy as np
 
-from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.constraints import Constraint, Params, integer, number, one_of
 from pipeline.geometry import (Primitive, com_pose, outline_point, primitive_pose, primitive_sdf, rotate, wrap_angle,
                                wrap_symmetric)
 from pipeline.portable import argmin_tolerant, exp, tie_key
@@ -50,7 +50,7 @@ MAX_HYPOTHESES = 4096
 
 
 @dataclass(frozen=True)
-class PlausibleParams:
+class PlausibleParams(Params):
     """Parameters of the plausible-set estimator; serialised into the retrieval metadata.
 
     Attributes
@@ -124,12 +124,6 @@ class PlausibleParams:
                                                       "max_spread", "uniform_sigma")},
         **{name: number(0) for name in ("free_tolerance", "free_weight", "other_tolerance", "margin")},
         "recency_growth": number(1), "min_share": number(0, 1), "pose_rule": one_of("best", "vote", "uniform")}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 # ---------------------------------------------------------------------------------------------------------------

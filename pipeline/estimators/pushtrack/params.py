@@ -2,10 +2,10 @@
 "The pushtrack estimator")."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import ClassVar
 
-from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.constraints import Constraint, Params, integer, number, one_of
 
 __all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "MAX_PARTICLES"]
 
@@ -20,7 +20,7 @@ SELECT_RULES = ("cost", "posterior", "grasp", "mode", "held_mean")
 
 
 @dataclass(frozen=True)
-class PushTrackParams:
+class PushTrackParams(Params):
     """Parameters of the pose-tracking estimator; serialised into the retrieval metadata.
 
     Attributes
@@ -191,9 +191,3 @@ class PushTrackParams:
                                         "yaw_floor", "free_tolerance", "mean_yaw")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
         "n_refine": integer(0, 256), "refine_growth": number(1)}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
