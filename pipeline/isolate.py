@@ -13,9 +13,10 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.robot import load_robot
 from pipeline.detection import (DetectionParams, IsolationParams, contact_forces, contact_window,
                                 isolate_point, residual, step_in_contact, window_in_contact)
-from pipeline.contact_isolation import _surface, isolate_run, isolation_surface
+from pipeline.contact_isolation import isolate_run, isolation_surface
 
 __all__ = [
     "DetectionParams",
@@ -83,7 +84,7 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
         Files written by :func:`pipeline.collect.collect` (any order; rows come out sorted by scene, seed,
         step).
     """
-    points, normals = _surface(iso)
+    points, normals = isolation_surface(load_robot(iso.robot), iso)
     allcols: dict[str, list] | None = None
     errors: list[float] = []
     unisolated = n_actions = 0
