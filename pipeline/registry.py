@@ -296,7 +296,7 @@ register(TrackerSpec("gmphd", "GM-PHD", "pipeline.track.gmphd:GMPHDParams", "pip
 register(EstimatorSpec("plausible", "the paper's segment choice, then the best pose of a plausible set fitted to "
                                     "the target's shape, the contacts and the gripper's free space",
                        "pipeline.estimators.estimate:plausible_estimator",
-                       params="pipeline.estimators.plausible.fit:PlausibleParams"))
+                       params="pipeline.estimators.plausible.params:PlausibleParams"))
 register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
                                 "warm-started, the grasp at the last in-contact step's estimate",
                        "pipeline.estimators.estimate:paper_estimator", needs=("every_step",)))

@@ -67,7 +67,7 @@ class Sensing:
     prior : pipeline.probe.history.HistoryPrior or None
         The prior the scripted part's pushes put on the target's pose, set once the scripted part is observed: its
         ``segment`` (the one it tracked) and ``cost(target, poses)``; the sets fitted to that segment from this
-        sensing add it (:func:`pipeline.probe.policy.set_from_steps`). None: no prior.
+        sensing add it (:func:`pipeline.probe.attribution.set_from_steps`). None: no prior.
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",

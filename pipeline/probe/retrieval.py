@@ -20,7 +20,8 @@ from pipeline.grasp import GraspParams, GraspResult
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
 from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.planning import PlanParams
-from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
+from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
+from pipeline.probe.params import ProbeParams
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
 from pipeline.estimators.estimate import Segment
 from pipeline.estimators.target_model import pose_error

@@ -41,7 +41,7 @@ class RetrieveConfig(Params):
     params : RetrievalParams
         The paper's estimation parameters, shared by every estimator.
     estimator_params : dataclass instance, dict or None
-        The estimator's own parameters (e.g. :class:`~pipeline.estimators.plausible.fit.PlausibleParams`), a dict of
+        The estimator's own parameters (e.g. :class:`~pipeline.estimators.plausible.params.PlausibleParams`), a dict of
         overrides, or None for its defaults; held as the built instance (None for an estimator without any).
     grasp : bool
         Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).

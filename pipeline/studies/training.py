@@ -19,7 +19,8 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from pipeline import registry, schema
-from pipeline.collect import MIN_REP_FORCE_N, collect, output_path
+from pipeline.action_summary import MIN_REP_FORCE_N
+from pipeline.collect import collect, output_path
 from pipeline.evaluate import map_jobs, single_threaded
 from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict
 from pipeline.retrieve import Primitive, primitive_of

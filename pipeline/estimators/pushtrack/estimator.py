@@ -28,7 +28,8 @@ from pipeline.estimators.estimate import Segment, estimate_plausible, paper_segm
 from pipeline.estimators.plausible.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.estimators.paper.choice import Estimate, confidence_notes
 from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.plausible.fit import PlausibleParams, refine
+from pipeline.estimators.plausible.cost import refine
+from pipeline.estimators.plausible.params import PlausibleParams
 from pipeline.estimators.pushtrack.filter import SLICE_MOTIONS, Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.estimators.run_info import RunInfo
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice
