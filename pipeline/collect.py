@@ -23,12 +23,11 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import registry
-from pipeline.action_summary import (WINDOW_STEPS, action_label, discard_reason, representative_force,
-                                     summarize_action)
+from pipeline.action_summary import WINDOW_STEPS, action_label, discard_reason, representative_force, summarize_action
 from pipeline.detection import DetectionParams
 from pipeline.parallel import map_jobs
-from pipeline.schema import SIM_RUN, write_table
 from pipeline.scenes import Scene, SceneError, scene_digest, scene_hash
+from pipeline.schema import SIM_RUN, write_table
 from pipeline.sim import STEPS_PER_ACTION, World
 
 __all__ = ["RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",

@@ -9,8 +9,14 @@ import math
 
 import numpy as np
 
-from pipeline.detection import (DetectionParams, IsolationParams, contact_window, fixed_column, isolate_point,
-                                step_in_contact)
+from pipeline.detection import (
+    DetectionParams,
+    IsolationParams,
+    contact_window,
+    fixed_column,
+    isolate_point,
+    step_in_contact,
+)
 from pipeline.geometry import gripper_yaw, rotate
 from pipeline.robot import surface_points
 

@@ -12,8 +12,8 @@ Files are written to a temporary name and renamed (matplotlib's Agg backend, no 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

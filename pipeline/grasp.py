@@ -225,8 +225,9 @@ def _pybullet():
     # On first use, not at the top: only a process that simulates a grasp pays for pybullet's import and banner
     # (ICP's last-bit differences between processes, once blamed on this import, are Open3D's own: see
     # tests/test_dask_processes.py).
-    import pipeline.sim  # noqa: F401
     import pybullet
+
+    import pipeline.sim  # noqa: F401
 
     return pybullet
 
@@ -297,7 +298,7 @@ def judge_box(fingers: list[FingerContacts], target: Primitive, pose: np.ndarray
     return True, "ok"
 
 
-def _finger_problem(k: int, f: "FingerContacts", params: "GraspParams") -> str | None:
+def _finger_problem(k: int, f: FingerContacts, params: GraspParams) -> str | None:
     """Why finger k cannot hold anything (no contact with the target, or too weak a push), or None."""
     if len(f.points) == 0:
         return f"finger {k} does not touch the target"
@@ -370,7 +371,7 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
 
 
 #: Grasps already simulated in this process (:func:`grasp_with`), most recent last; at most 64.
-_MEMO: "OrderedDict[tuple, GraspResult]" = OrderedDict()
+_MEMO: OrderedDict[tuple, GraspResult] = OrderedDict()
 
 
 def _bits(a) -> bytes:

@@ -13,10 +13,18 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.robot import load_robot
-from pipeline.detection import (DetectionParams, IsolationParams, contact_forces, contact_window,
-                                isolate_point, residual, step_in_contact, window_in_contact)
 from pipeline.contact_isolation import isolate_run, isolation_surface
+from pipeline.detection import (
+    DetectionParams,
+    IsolationParams,
+    contact_forces,
+    contact_window,
+    isolate_point,
+    residual,
+    step_in_contact,
+    window_in_contact,
+)
+from pipeline.robot import load_robot
 
 __all__ = [
     "DetectionParams",

@@ -14,8 +14,9 @@ registered later shows up in the CLI choices of any command run afterwards (docs
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Union
+from typing import Any
 
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
            "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
@@ -23,7 +24,7 @@ __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers"
            "DEFAULT_ESTIMATOR"]
 
 #: An object, or ``"package.module:attribute"`` resolved on first use.
-Ref = Union[str, Callable[..., Any], type, None]
+Ref = str | Callable[..., Any] | type | None
 
 
 def resolve(ref: Ref) -> Any:
@@ -128,7 +129,7 @@ class PolicySpec:
     retrieval: Ref = None
 
 
-Spec = Union[TrackerSpec, EstimatorSpec, PolicySpec]
+Spec = TrackerSpec | EstimatorSpec | PolicySpec
 _KIND = {TrackerSpec: "tracker", EstimatorSpec: "estimator", PolicySpec: "policy"}
 _REGISTRY: dict[str, dict[str, Spec]] = {"tracker": {}, "estimator": {}, "policy": {}}
 

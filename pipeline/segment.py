@@ -11,11 +11,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none, save_figure
-from pipeline.constraints import plain
+
 # Alg. 3's graph lives in pipeline/components.py (STUCCO's tracker uses it too); re-exported here.
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, connection_radius, segment_points  # noqa: F401
+from pipeline.constraints import plain
 from pipeline.labels import canonical_labels
 from pipeline.metrics import fmi
 

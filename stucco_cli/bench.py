@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import click
 
@@ -152,8 +152,8 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     import pyarrow as pa
 
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
     from pipeline.estimators.pushtrack.filter import MOTIONS, SELECT_RULES
+    from pipeline.evaluate import parse_scenes
     from pipeline.studies.accuracy import accuracy_bench
     from pipeline.studies.accuracy_settings import accuracy_settings
     from pipeline.studies.pareto import pareto_figure, summarise_settings, summary_markdown
@@ -232,8 +232,8 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
     from pipeline.estimators.estimate import parse_estimators
+    from pipeline.evaluate import parse_scenes
     from pipeline.studies.retrieval_ladder import ladder_rows
     from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
 

@@ -1,7 +1,7 @@
 """The progress bar the commands hand to a stage: one tqdm bar per stage call, off with ``-q``."""
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from stucco_cli.common import Settings
 

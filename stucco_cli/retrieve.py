@@ -10,7 +10,6 @@ from stucco_cli.common import Settings, check_paths, pass_settings, user_errors
 from stucco_cli.progress import run_bar
 
 
-
 def _side_path(out_path: Path, suffix: str) -> Path:
     return out_path.with_name(out_path.name.removesuffix(".parquet") + suffix)
 

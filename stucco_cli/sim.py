@@ -47,7 +47,8 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
             noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
     """Simulate runs of a scene and record one Parquet file per seed (table `sim_run`, docs/simulation.md)."""
     writable_dir("--out", out_dir)
-    from pipeline.collect import collect as run_collect, output_path, parse_seeds
+    from pipeline.collect import collect as run_collect
+    from pipeline.collect import output_path, parse_seeds
 
     sc = _load(scene)
     seed_list = parsed("--seeds", parse_seeds, seeds)

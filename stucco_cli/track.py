@@ -6,8 +6,16 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import (ALPHA, NON_NEGATIVE, POSITIVE, FiniteFloat, Settings, check_paths, pass_settings,
-                             user_errors)
+from stucco_cli.common import (
+    ALPHA,
+    NON_NEGATIVE,
+    POSITIVE,
+    FiniteFloat,
+    Settings,
+    check_paths,
+    pass_settings,
+    user_errors,
+)
 from stucco_cli.progress import run_bar
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so

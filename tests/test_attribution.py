@@ -121,7 +121,8 @@ def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(f
     # other waits for a later decision: one fit beyond the set's own.
     log = ProbeLog(other_steps=[40, 41])
     sensing = _Contacts({40: [0.5, 0.5], 41: [0.1, 0.0]})
-    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT), ProbeParams(reattribute="fit"))
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT),
+                                ProbeParams(reattribute="fit"))
     assert log.target_steps == [41] and log.other_steps == [40]
     assert sorted(fits["calls"]) == [(), (41,)]
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from pipeline import schema
+from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
 from pipeline.probe import attribution as attribution_mod
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
 from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
-from pipeline.estimators.target_model import target_primitive
 from pipeline.scenes import load_scene
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)

@@ -10,19 +10,18 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from pipeline import schema
+from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive, com_pose, primitive_pose
 from pipeline.grasp import plan_for
+from pipeline.grasp_rule import box_success, can_success
 from pipeline.probe import attribution as attribution_mod
 from pipeline.probe.belief import NO_TARGET, explaining, pose_set
-from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy,
-                                     ray_travel)
+from pipeline.probe.planning import PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy, ray_travel
 from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
-from pipeline.grasp_rule import box_success, can_success
 from pipeline.probe.set_grasp import choose_grasp
-from pipeline.estimators.target_model import target_primitive
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
-from pipeline import schema
 
 REG = Path(__file__).resolve().parents[1] / "data" / "regression"
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)

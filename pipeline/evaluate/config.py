@@ -10,11 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline import registry
 from pipeline.atomic import write_text
 from pipeline.constraints import Params
-from pipeline.layout import CONFIG, LAYOUT_VERSION
-from pipeline import registry
 from pipeline.estimators.params import MAX_COUNT
+from pipeline.layout import CONFIG, LAYOUT_VERSION
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 from pipeline.seeds import check_stream
 

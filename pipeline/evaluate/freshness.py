@@ -8,14 +8,14 @@ a deterministic stage) reruns nothing (docs/evaluation.md, "Resuming and skippin
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from pipeline import schema
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGES, job_paths, partition
 from pipeline.registry import DEFAULT_ESTIMATOR
-from pipeline.estimators.estimate import needs_every_step
 
 __all__ = ["Digests", "up_to_date", "stale_stages", "run_stale", "figure_stale"]
 

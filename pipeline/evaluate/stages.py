@@ -21,12 +21,12 @@ import pyarrow as pa
 
 from pipeline.atomic import atomic_path, write_text
 from pipeline.collect import collect_file, output_path
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGE_KIND, STAGES, wall_path
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
-from pipeline.estimators.estimate import needs_every_step
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 

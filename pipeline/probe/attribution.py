@@ -5,8 +5,8 @@ probing policy (:mod:`pipeline.probe.policy`) asks these at every decision.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Callable
 
 import numpy as np
 

@@ -17,22 +17,28 @@ positions and the target's known shape.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-from pipeline.portable import exp
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.paper.choice import estimate_run
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.plausible.evidence import (
+    cached_gripper_lattice,
+    free_space_points,
+    recency_sigma,
+    target_reach,
+)
+from pipeline.estimators.plausible.fit import PlausibleParams, fit_segment
+from pipeline.estimators.segment_choice import resisting_choice, segment_fits
 from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
-from pipeline.estimators.estimate import Segment
-from pipeline.estimators.plausible.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
-from pipeline.estimators.paper.choice import estimate_run
-from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.plausible.fit import PlausibleParams, fit_segment
-from pipeline.estimators.segment_choice import resisting_choice, segment_fits
+from pipeline.portable import exp
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up

@@ -15,14 +15,24 @@ contact) and back off by ``backoff``. A contact during the transit ends the prob
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pyarrow as pa
 
+from pipeline.estimators.run_info import retrieval_rng
+from pipeline.estimators.segment_choice import target_mass
 from pipeline.geometry import Primitive, primitive_of
-from pipeline.probe.attribution import (bunched, current_set, give_way_at_budget, mine_now, prior_for,
-                                        required_contacts, set_from_steps, set_share)
+from pipeline.probe.attribution import (
+    bunched,
+    current_set,
+    give_way_at_budget,
+    mine_now,
+    prior_for,
+    required_contacts,
+    set_from_steps,
+    set_share,
+)
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, misfit
 from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
@@ -30,8 +40,6 @@ from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import ProbePlan, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
-from pipeline.estimators.segment_choice import target_mass
-from pipeline.estimators.run_info import retrieval_rng
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "required_contacts",
            "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]

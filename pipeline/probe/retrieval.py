@@ -8,25 +8,25 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.run_info import RunInfo, retrieval_rng
+from pipeline.estimators.segment_choice import target_mass
+from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams, GraspResult
+from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target
 from pipeline.probe.history import HistoryPrior, history_prior
-from pipeline.probe.planning import PlanParams
-from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.params import ProbeParams
+from pipeline.probe.planning import PlanParams
 from pipeline.probe.set_grasp import SetGrasp, grasp_for_set
-from pipeline.estimators.estimate import Segment
-from pipeline.estimators.target_model import pose_error
-from pipeline.estimators.segment_choice import target_mass
-from pipeline.estimators.run_info import RunInfo, retrieval_rng
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 

@@ -3,24 +3,32 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
+
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none
 from pipeline.constraints import Params
-from pipeline.grasp import GraspParams, grasp_at
-from pipeline.parallel import run_calls
-from pipeline.estimators.estimate import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
-                                          retrieval_metadata)
-from pipeline.estimators.target_model import pose_error
+from pipeline.estimators.estimate import (
+    DEFAULT_ESTIMATOR,
+    History,
+    Segment,
+    estimate,
+    needs_every_step,
+    retrieval_metadata,
+)
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
-from pipeline.schema.retrieval import candidates_table, retrieval_table
+from pipeline.estimators.target_model import pose_error
+from pipeline.grasp import GraspParams, grasp_at
+from pipeline.parallel import run_calls
 from pipeline.robot import load_robot
+from pipeline.schema.retrieval import candidates_table, retrieval_table
 from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
 

@@ -11,8 +11,16 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, Effects, ObjectSpec, Plane, Scene, SceneError, WalkSpec,
-                                   WallSpec)
+from pipeline.scenes.types import (
+    DEFAULT_ACTION_SCALE,
+    Effects,
+    ObjectSpec,
+    Plane,
+    Scene,
+    SceneError,
+    WalkSpec,
+    WallSpec,
+)
 
 __all__ = ["parse_scene", "NAME_PATTERN", "MAX_EXTENT_M", "MAX_SIZE_M", "MAX_MASS_KG", "MAX_FRICTION",
            "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS"]
@@ -118,7 +126,7 @@ class _Reader:
             raise self.fail(k, f"expected numbers of at most {maximum:g} in magnitude, got {v!r}")
         return tuple(float(x) for x in v)
 
-    def sub(self, k: str, *, required: bool = False) -> "_Reader | None":
+    def sub(self, k: str, *, required: bool = False) -> _Reader | None:
         v = self.get(k, None, required=required)
         if v is None:
             return None
@@ -126,7 +134,7 @@ class _Reader:
             raise self.fail(k, f"expected a table, got {type(v).__name__}")
         return _Reader(self.path, v, f"{self.key(k)}.")
 
-    def subs(self, k: str) -> list["_Reader"]:
+    def subs(self, k: str) -> list[_Reader]:
         v = self.get(k, [])
         if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
             raise self.fail(k, "expected an array of tables ([[" + k + "]])")

@@ -103,7 +103,7 @@ class TableSpec:
     name: str
     columns: tuple[Column, ...]
     rules: tuple[str, ...]
-    check: Callable[["ColumnViews"], None] | None = dataclasses.field(default=None, repr=False, compare=False)
+    check: Callable[[ColumnViews], None] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def column(self, name: str) -> Column:
         for c in self.columns:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, ColumnViews
+from pipeline.schema.columns import Column, ColumnViews, TableSpec
 from pipeline.schema.rules import MAX_SECONDS
 
 __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS", "RETRIEVAL", "CANDIDATES",

@@ -87,8 +87,8 @@ def check_contacts(cols: ColumnViews) -> None:
             r = int(order[bad].min())
             head = int(order[first_sorted[np.flatnonzero(order == r)[0]]])
             cols.fail(name, r, f"is {format_value(v[name][r])} but row {head} of the same step {v['step'][r]} "
-                               f"(run {cols.run_names[cols.run_codes[r]]!r}) has {format_value(v[name][head])}; all rows "
-                               f"of one step must share the end-effector position")
+                               f"(run {cols.run_names[cols.run_codes[r]]!r}) has {format_value(v[name][head])}; "
+                               f"all rows of one step must share the end-effector position")
 
 
 def check_tracks(cols: ColumnViews) -> None:

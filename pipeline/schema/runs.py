@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, ColumnViews
+from pipeline.schema.columns import Column, ColumnViews, TableSpec
 from pipeline.schema.rules import MAX_POSITION_M, MAX_STEP_DISPLACEMENT_M
 from pipeline.schema.validate import check_steps_nondecreasing, first_row
 

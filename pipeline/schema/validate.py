@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, ColumnViews, format_bound
+from pipeline.schema.columns import Column, ColumnViews, TableSpec, format_bound
 from pipeline.schema.errors import SchemaError
 
 __all__ = ["validate_spec", "encode_runs", "format_value", "first_row", "check_steps_nondecreasing"]

@@ -12,8 +12,9 @@ the growing k-means and the GM-PHD filter of :mod:`pipeline.track.gmphd`. Build 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans

@@ -20,7 +20,6 @@ stored points move.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -100,7 +99,7 @@ class GMPHDParams(Params):
         super().__post_init__()
 
     @classmethod
-    def training_set(cls) -> "GMPHDParams":
+    def training_set(cls) -> GMPHDParams:
         """The authors' tuning on the training set, paper §V-B (birth 0.001, detection 0.3, q = r = 0.1, bias 1)."""
         return cls(q=0.1, r=0.1, bias=1.0)
 

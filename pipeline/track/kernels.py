@@ -27,9 +27,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from pipeline.track.ordering import (below_exp, first_above, first_at_least, groups_by_first_coordinate,
-                                     merge_order, same_config)
 from pipeline.pairwise_sum import pairwise_sum
+from pipeline.track.ordering import (
+    below_exp,
+    first_above,
+    first_at_least,
+    groups_by_first_coordinate,
+    merge_order,
+    same_config,
+)
 
 #: A term counts as penetrating only when sdf + tol is below -PEN_EPS (metres): grid cells that sit exactly at
 #: -tol give sdf + tol = -1e-17 in float64 (0 in float32), and such a tie must not mark a point inconsistent.

@@ -8,9 +8,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -22,7 +23,6 @@ from pipeline.parallel import in_process, run_calls
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.base import ContactTracker, StepResult
-
 
 # Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
 _CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}

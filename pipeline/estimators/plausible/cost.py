@@ -9,7 +9,7 @@ import numpy as np
 
 from pipeline.estimators.plausible.kernel import CONTACT, FREE, piece_terms, piece_terms_each
 from pipeline.estimators.plausible.params import PlausibleParams
-from pipeline.geometry import (Primitive, outline_point, primitive_sdf, rotate, wrap_angle)
+from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
 from pipeline.spd import solve_spd
 
 __all__ = ["Terms", "to_local", "evaluate_terms", "compiled_terms", "refine", "initial_poses"]

@@ -25,14 +25,14 @@ hypothesis at once: arrays (hypotheses, points, 2), no loop over points or hypot
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
 from pipeline.estimators.plausible.cost import Terms, evaluate_terms, initial_poses, refine, to_local
 from pipeline.estimators.plausible.params import PlausibleParams
-from pipeline.geometry import (Primitive, com_pose, primitive_pose, primitive_sdf, wrap_symmetric)
+from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf, wrap_symmetric
 from pipeline.portable import argmin_tolerant, exp, tie_key
 
 __all__ = ["PlausibleParams", "Terms", "evaluate_terms", "refine", "initial_poses", "SegmentFit",

@@ -1,5 +1,5 @@
-"""The parameters of the pushtrack estimator (:mod:`pipeline.estimators.pushtrack.filter` is its filter; docs/retrieval.md,
-"The pushtrack estimator")."""
+"""The parameters of the pushtrack estimator (:mod:`pipeline.estimators.pushtrack.filter` is its filter;
+docs/retrieval.md, "The pushtrack estimator")."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -41,13 +41,13 @@ class PushTrackParams(Params):
         centre of rotation").
     motion : {"push", "sweep", "tip", "translate", "static"}
         "push": the quasi-static pushing model from a point pusher at the contact minus the in-contact displacement;
-        "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to
-        its end position), the contact found where the slice meets each particle (:mod:`pipeline.estimators.pushtrack.slice_pusher`;
-        needs ``Actions.gripper``); "tip" (default): the slice, and a box pushed on a long face turns about a point
-        of its leading long edge, as a box tipped onto that edge does (docs/retrieval.md, "The gripper's slice
-        pushes"); "translate": the target moves by the pusher's displacement projected on the contact normal, never
-        turns (the tracker's assumption, §VI-A); "static": never moves
-        (only the noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
+        "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to its
+        end position), the contact found where the slice meets each particle
+        (:mod:`pipeline.estimators.pushtrack.slice_pusher`; needs ``Actions.gripper``); "tip" (default): the slice, and
+        a box pushed on a long face turns about a point of its leading long edge, as a box tipped onto that edge does
+        (docs/retrieval.md, "The gripper's slice pushes"); "translate": the target moves by the pusher's displacement
+        projected on the contact normal, never turns (the tracker's assumption, §VI-A); "static": never moves (only the
+        noise). The last two isolate what the pushing model adds (``stucco bench retrieval``).
     friction : float
         Pusher-target friction coefficient of the pushing model (0.5).
     limit_scale : float
@@ -99,7 +99,8 @@ class PushTrackParams(Params):
     n_refine : int
         Highest-weight particles refined at the end (128; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
-        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.estimators.pushtrack.estimator.final_pose`).
+        push, by the plausible estimator's Levenberg-Marquardt
+        (:func:`pipeline.estimators.pushtrack.estimator.final_pose`).
     refine_growth : float
         The refinement's factor on a carried contact's sigma per later touching action (1.0: none; the plausible
         estimator's recency growth; it discounted contacts followed only by touches that do not push).
@@ -126,8 +127,8 @@ class PushTrackParams(Params):
     islands : int
         Independent filters run over the same actions from the kept start (4; 1: one filter), pooled before the
         refinement, each island's particles weighted by its share of the islands' summed evidence
-        (:func:`pipeline.estimators.pushtrack.estimator.pool_islands`): one filter's resampling often keeps only one of the
-        modes the contacts allow, and which one is a coin toss of its draws (docs/retrieval.md, "Islands").
+        (:func:`pipeline.estimators.pushtrack.estimator.pool_islands`): one filter's resampling often keeps only one of
+        the modes the contacts allow, and which one is a coin toss of its draws (docs/retrieval.md, "Islands").
     select : {"cost", "posterior", "grasp", "mode", "held_mean"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
         minus the particle's log-weight ("posterior": the trajectory's evidence counts too); ("grasp")

@@ -1,6 +1,6 @@
 """The quasi-static model of planar pushing with an ellipsoidal limit surface (Lynch, Mason), the motion model of
-the pushtrack estimator (docs/retrieval.md, "The pushtrack estimator"; :mod:`pipeline.estimators.pushtrack.filter` is its
-filter).
+the pushtrack estimator (docs/retrieval.md, "The pushtrack estimator"; :mod:`pipeline.estimators.pushtrack.filter` is
+its filter).
 
 A pusher at a point of the target's surface moves by d. The target's twist is proportional to (f, m / c^2) for
 the applied force f and moment m about the COM, c the limit surface's characteristic length: the contact sticks
