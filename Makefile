@@ -102,4 +102,4 @@ bench: setup
 	$(BIN)/stucco bench sim --scene FB
 
 clean:
-	rm -rf out .pytest_cache .pytest-tmp
+	rm -rf out .pytest_cache .pytest-tmp .ruff_cache
