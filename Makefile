@@ -84,13 +84,15 @@ reproduce-active: setup
 	$(BIN)/stucco --seed 0 -j 2 bench probe --scenes FB,BC,IB,TC --seeds 0-19 --runs out/reproduce-active/runs \
 	  --out out/bench/probe --png docs/img/probe_budget.png
 
-# The test files run in PYTEST_WORKERS processes (pytest-xdist); each file stays in one process, so its module
-# fixtures are built once. PYTEST_WORKERS=0 runs everything in this process.
+# ruff lints first (pyproject.toml, [tool.ruff]; about a second). The test files run in PYTEST_WORKERS processes
+# (pytest-xdist); each file stays in one process, so its module fixtures are built once. PYTEST_WORKERS=0 runs
+# everything in this process.
 # --basetemp: the tests' temporary files go to this checkout's .pytest-tmp (emptied when the next run starts)
 # instead of a numbered folder of the machine's /tmp/pytest-of-USER, where pytest, after the last test, deletes
 # the folders beyond the newest three: often a whole earlier run's files, at the end of every run.
 PYTEST_WORKERS ?= 2
 test: setup
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --basetemp .pytest-tmp
 
 # REFERENCE_PYTHON=/path/to/venv/bin/python (a venv with the authors' stucco 1.2.1 and their benchmark harness)
@@ -101,4 +103,4 @@ bench: setup
 	$(BIN)/stucco bench sim --scene FB
 
 clean:
-	rm -rf out .pytest_cache .pytest-tmp
+	rm -rf out .pytest_cache .pytest-tmp .ruff_cache

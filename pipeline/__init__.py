@@ -3,7 +3,8 @@
 Each stage reads and writes Parquet tables described in :mod:`pipeline.schema`; the click CLI in
 :mod:`stucco_cli` only parses options, calls these functions and reports.
 """
-from importlib.metadata import PackageNotFoundError, version as _version
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 try:
     __version__ = _version("stucco")

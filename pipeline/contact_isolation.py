@@ -9,10 +9,16 @@ import math
 
 import numpy as np
 
-from pipeline.detection import (DetectionParams, IsolationParams, contact_window, fixed_column, isolate_point,
-                                step_in_contact)
+from pipeline.detection import (
+    DetectionParams,
+    IsolationParams,
+    contact_window,
+    fixed_column,
+    isolate_point,
+    step_in_contact,
+)
 from pipeline.geometry import gripper_yaw, rotate
-from pipeline.robot import load_robot, surface_points
+from pipeline.robot import surface_points
 
 _SURFACES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -28,10 +34,6 @@ def isolation_surface(sdf, params: IsolationParams = IsolationParams()) -> tuple
         points.flags.writeable = normals.flags.writeable = False  # shared by every caller of this process
         _SURFACES[key] = (points, normals)
     return _SURFACES[key]
-
-
-def _surface(params: IsolationParams) -> tuple[np.ndarray, np.ndarray]:
-    return isolation_surface(load_robot(params.robot), params)
 
 
 def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionParams = DetectionParams(),

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.constraints import Params
 from pipeline.portable import argmin_tolerant
 
 __all__ = ["DetectionParams", "IsolationParams", "TORQUE_TIE_NM", "residual", "step_in_contact",
@@ -29,7 +30,7 @@ TORQUE_TIE_NM = 1e-9
 
 
 @dataclass(frozen=True)
-class DetectionParams:
+class DetectionParams(Params):
     """Residual detector of the simulation (docs/simulation.md, "`stucco isolate`").
 
     Attributes
@@ -48,7 +49,7 @@ class DetectionParams:
 
 
 @dataclass(frozen=True)
-class IsolationParams:
+class IsolationParams(Params):
     """Brute-force isolation over surface points (docs/simulation.md, "`stucco isolate`").
 
     Attributes

@@ -37,8 +37,8 @@ from pipeline.geometry import Primitive, primitive_of, quat_yaw, rot2
 from pipeline.grasp_judge import PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
-           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "PAD_FROM_BASE", "set_fingers", "finger_contacts",
-           "body_pose"]
+           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "PAD_FROM_BASE", "set_fingers",
+           "finger_contacts", "body_pose"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
 FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
@@ -170,8 +170,9 @@ def _pybullet():
     # On first use, not at the top: only a process that simulates a grasp pays for pybullet's import and banner
     # (ICP's last-bit differences between processes, once blamed on this import, are Open3D's own: see
     # tests/test_dask_processes.py).
-    import pipeline.sim  # noqa: F401
     import pybullet
+
+    import pipeline.sim  # noqa: F401
 
     return pybullet
 
@@ -229,7 +230,7 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
 
 
 #: Grasps already simulated in this process (:func:`grasp_with`), most recent last; at most 64.
-_MEMO: "OrderedDict[tuple, GraspResult]" = OrderedDict()
+_MEMO: OrderedDict[tuple, GraspResult] = OrderedDict()
 
 
 def _bits(a) -> bytes:

@@ -1,7 +1,7 @@
 """The grasp's success rule on the contacts pybullet reports after closing, and the grasp's parameters
-(docs/retrieval.md, "Grasp in simulation"): the cracker box held on its two long faces away from the corners, the can closed around more than
-half of it. The simulated grasp (:mod:`pipeline.grasp`) is judged by these; the geometric form a planner can
-afford per hypothesis is :mod:`pipeline.grasp_rule`.
+(docs/retrieval.md, "Grasp in simulation"): the cracker box held on its two long faces away from the corners, the
+can closed around more than half of it. The simulated grasp (:mod:`pipeline.grasp`) is judged by these; the
+geometric form a planner can afford per hypothesis is :mod:`pipeline.grasp_rule`.
 """
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.constraints import Params
 from pipeline.geometry import Primitive, dot2, rot2
 
 __all__ = ["PAD_FROM_BASE", "GraspParams", "FingerContacts", "judge_box", "judge_can", "finger_problem"]
@@ -20,7 +21,7 @@ PAD_FROM_BASE = (0.0585, 0.1122)
 
 
 @dataclass(frozen=True)
-class GraspParams:
+class GraspParams(Params):
     """Grasp script and success rule parameters.
 
     Attributes

@@ -6,16 +6,25 @@ and measures the isolation error against the recorded true contact point.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
-from pipeline.detection import (DetectionParams, IsolationParams, contact_forces, contact_window,
-                                isolate_point, residual, step_in_contact, window_in_contact)
-from pipeline.contact_isolation import _surface, isolate_run, isolation_surface
+from pipeline.contact_isolation import isolate_run, isolation_surface
+from pipeline.detection import (
+    DetectionParams,
+    IsolationParams,
+    contact_forces,
+    contact_window,
+    isolate_point,
+    residual,
+    step_in_contact,
+    window_in_contact,
+)
+from pipeline.robot import load_robot
 
 __all__ = [
     "DetectionParams",
@@ -83,7 +92,7 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
         Files written by :func:`pipeline.collect.collect` (any order; rows come out sorted by scene, seed,
         step).
     """
-    points, normals = _surface(iso)
+    points, normals = isolation_surface(load_robot(iso.robot), iso)
     allcols: dict[str, list] | None = None
     errors: list[float] = []
     unisolated = n_actions = 0
@@ -116,7 +125,7 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
 
 def params_dict(det: DetectionParams, iso: IsolationParams) -> dict:
     """Both parameter sets, JSON-friendly, for output metadata."""
-    return {"detection": asdict(det), "isolation": asdict(iso)}
+    return {"detection": det.to_dict(), "isolation": iso.to_dict()}
 
 
 def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: DetectionParams = DetectionParams(),

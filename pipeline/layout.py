@@ -31,9 +31,9 @@ This module only names paths: it imports no stage and not the evaluation driver 
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
 
 from pipeline.registry import DEFAULT_ESTIMATOR
 

@@ -1,10 +1,10 @@
 """numpy's pairwise summation as a numba kernel, for compiled code that must give numpy's bits.
 
-``np.add.reduce`` over a contiguous float64 axis sums blocks of at most 128 values with eight partial sums
-(combined as a tree, then the tail) and splits longer runs into two halves, the first a multiple of 8. The
-compiled kernels of the estimators (:mod:`pipeline.estimators.plausible.kernel`, :mod:`pipeline.estimators.paper.icp_kernel`)
-repeat that order so that they compute the same bits as the numpy forms they replace (docs/evaluation.md, "Same
-numbers on every machine"); ``NUMBA_DISABLE_JIT=1`` runs the same arithmetic in Python.
+``np.add.reduce`` over a contiguous float64 axis sums blocks of at most 128 values with eight partial sums (combined as
+a tree, then the tail) and splits longer runs into two halves, the first a multiple of 8. The compiled kernels of the
+estimators (:mod:`pipeline.estimators.plausible.kernel`, :mod:`pipeline.estimators.paper.icp_kernel`) repeat that order
+so that they compute the same bits as the numpy forms they replace (docs/evaluation.md, "Same numbers on every
+machine"); ``NUMBA_DISABLE_JIT=1`` runs the same arithmetic in Python.
 """
 from __future__ import annotations
 

@@ -25,12 +25,12 @@ the run's ``probe`` column) and returns what the run's metadata records of them.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from pipeline.constraints import Constraint, check, integer
+from pipeline.constraints import Constraint, Params, integer
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
 
@@ -129,7 +129,7 @@ class GreedyWalkPolicy:
 
 
 @dataclass(frozen=True)
-class RummageParams:
+class RummageParams(Params):
     """Parameters of the ``rummage`` policy; recorded in the run file's metadata (``policy_params``).
 
     Attributes
@@ -146,9 +146,6 @@ class RummageParams:
     # The upper bounds keep a run's arrays (8 sim steps x 13 floats per action) well within memory.
     constraints: ClassVar[dict[str, Constraint]] = {"contacts": integer(lo=1, hi=1_000_000),
                                                     "actions_per_contact": integer(lo=1, hi=1000)}
-
-    def __post_init__(self) -> None:
-        check(self)
 
 
 class RummagePolicy:
@@ -196,7 +193,7 @@ class RummagePolicy:
 
     def metadata(self) -> dict:
         """What the run's metadata records of the policy (``policy_params``)."""
-        return asdict(self.params)
+        return self.params.to_dict()
 
 
 def _sample_start_goal(world: World, rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:

@@ -14,9 +14,10 @@ registered later shows up in the CLI choices of any command run afterwards (docs
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Union
+from typing import Any
 
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
            "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
@@ -24,7 +25,7 @@ __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers"
            "side_path", "DEFAULT_ESTIMATOR"]
 
 #: An object, or ``"package.module:attribute"`` resolved on first use.
-Ref = Union[str, Callable[..., Any], type, None]
+Ref = str | Callable[..., Any] | type | None
 
 
 def resolve(ref: Ref) -> Any:
@@ -150,7 +151,7 @@ def side_path(run_file: str | Path, suffix: str) -> Path:
     return run_file.with_name(f"_{run_file.stem}{suffix}")
 
 
-Spec = Union[TrackerSpec, EstimatorSpec, PolicySpec]
+Spec = TrackerSpec | EstimatorSpec | PolicySpec
 _KIND = {TrackerSpec: "tracker", EstimatorSpec: "estimator", PolicySpec: "policy"}
 _REGISTRY: dict[str, dict[str, Spec]] = {"tracker": {}, "estimator": {}, "policy": {}}
 
@@ -280,9 +281,9 @@ def build_params(spec: Spec, values: Any = None) -> Any:
         return values
     if not isinstance(values, dict):
         raise ValueError(f"params for {spec.name!r} must be a dict or {cls.__name__}, got {type(values).__name__}")
-    from pipeline.constraints import from_dict  # imported here: it loads numpy, which importing the registry avoids
+    from pipeline.constraints import Params, from_dict  # imported here: it loads numpy, which the registry avoids
 
-    return from_dict(cls, values, spec.name)
+    return cls.from_dict(values, spec.name) if issubclass(cls, Params) else from_dict(cls, values, spec.name)
 
 
 def choices(kind: str) -> Any:
@@ -323,7 +324,7 @@ register(TrackerSpec("gmphd", "GM-PHD", "pipeline.track.gmphd:GMPHDParams", "pip
 register(EstimatorSpec("plausible", "the paper's segment choice, then the best pose of a plausible set fitted to "
                                     "the target's shape, the contacts and the gripper's free space",
                        "pipeline.estimators.estimate:plausible_estimator",
-                       params="pipeline.estimators.plausible.fit:PlausibleParams"))
+                       params="pipeline.estimators.plausible.params:PlausibleParams"))
 register(EstimatorSpec("paper", "the paper's ICP procedure (§V-C) as the authors ran it: at every in-contact step, "
                                 "warm-started, the grasp at the last in-contact step's estimate",
                        "pipeline.estimators.estimate:paper_estimator", needs=("every_step",)))

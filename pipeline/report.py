@@ -26,7 +26,6 @@ import numpy as np
 from pipeline.registry import method_title, tracker_names
 from pipeline.scenes.files import shipped_digest
 
-
 #: The paper's Table II (20 runs per task in simulation): GS %, FMI mean (std), CE cm mean (std).
 PAPER_TABLE_II = {
     "FB": {"stucco": (70, 0.69, 0.08, 0.72, 0.25), "birch": (5, 0.62, 0.07, 4.63, 0.53),

@@ -6,16 +6,18 @@ is done on squared distances, so tiny ``l`` or ``alpha`` never underflow an expo
 """
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none, save_figure
+
 # Alg. 3's graph lives in pipeline/components.py (STUCCO's tracker uses it too); re-exported here.
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, connection_radius, segment_points  # noqa: F401
+from pipeline.constraints import plain
 from pipeline.labels import canonical_labels
 from pipeline.metrics import fmi
 
@@ -73,7 +75,7 @@ def segmentation_params(method: str, overrides: dict | None = None) -> tuple[flo
     """Alg. 3's (l, alpha) for tracks of ``method`` made with parameter ``overrides``: the method's own when its
     parameters have them (STUCCO's, defaults filled in), Table I's otherwise."""
     prm = registry.build_params(registry.tracker(method), dict(overrides or {}))
-    values = dataclasses.asdict(prm) if prm is not None else {}
+    values = plain(prm) if prm is not None else {}
     return float(values.get("length", DEFAULT_LENGTH)), float(values.get("alpha", DEFAULT_ALPHA))
 
 

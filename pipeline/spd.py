@@ -1,7 +1,7 @@
 """Linear algebra on stacks of small symmetric positive-definite matrices (GM-PHD covariances, Gauss-Newton steps).
 
 Batched over leading axes with numpy (no Python loop over the stack; the loops run over the matrix dimension D,
-2 or 3 here). Used by :mod:`pipeline.track.gaussian_mixture` and :mod:`pipeline.estimators.plausible.fit`; never forms
+2 or 3 here). Used by :mod:`pipeline.track.gaussian_mixture` and :mod:`pipeline.estimators.plausible.cost`; never forms
 an explicit inverse. Everything is written out
 element-wise with sums in a fixed order, never through LAPACK/BLAS (``numpy.linalg``, ``@``), whose kernels and
 so whose last bits change with the CPU (docs/evaluation.md, "Same numbers on every machine").

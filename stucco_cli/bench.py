@@ -2,14 +2,23 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import click
 
 from pipeline import registry
-from stucco_cli.common import (JOBS, ONE_PROCESS, check_paths, global_options, parsed, pass_settings, say, user_errors,
-                               writable_dir)
+from stucco_cli.common import (
+    JOBS,
+    ONE_PROCESS,
+    check_paths,
+    global_options,
+    parsed,
+    pass_settings,
+    say,
+    user_errors,
+    writable_dir,
+)
 from stucco_cli.progress import bars_off
 
 
@@ -161,8 +170,8 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
     import pyarrow as pa
 
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
     from pipeline.estimators.pushtrack.filter import MOTIONS, SELECT_RULES
+    from pipeline.evaluate import parse_scenes
     from pipeline.studies.accuracy import accuracy_bench
     from pipeline.studies.accuracy_settings import accuracy_settings
     from pipeline.studies.pareto import pareto_figure, summarise_settings, summary_markdown

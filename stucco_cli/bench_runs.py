@@ -51,8 +51,8 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
     the true segment and with our choice, and the tracker's points with our choice, per task and estimator."""
     writable_dir("--out", out_dir)
     from pipeline.collect import parse_seeds
-    from pipeline.evaluate import parse_scenes
     from pipeline.estimators.estimate import parse_estimators
+    from pipeline.evaluate import parse_scenes
     from pipeline.studies.retrieval_ladder import ladder_rows
     from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise, summary_markdown, write_outputs
 

@@ -8,8 +8,7 @@ import click
 
 from pipeline import registry
 from stucco_cli.bench import parse_ints, parse_methods
-from stucco_cli.common import (check_paths, global_options, parsed, pass_settings, say, unique, user_errors,
-                               writable_dir)
+from stucco_cli.common import check_paths, global_options, parsed, pass_settings, say, unique, user_errors, writable_dir
 from stucco_cli.progress import bars_off, progress_lines
 
 

@@ -113,7 +113,8 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
 
 def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: int, figures: bool,
          snapshot_dir: Path | None, backend: str = "loky", scheduler: str | None = None) -> None:
-    from pipeline.evaluate import config_lines, evaluate as run_evaluate, write_snapshot
+    from pipeline.evaluate import config_lines, write_snapshot
+    from pipeline.evaluate import evaluate as run_evaluate
     from pipeline.report import claims, table_ii, to_markdown
 
     with user_errors("evaluate"):

@@ -7,7 +7,7 @@ of the stages that draw their own bar, tqdm's ``disable``) or :func:`run_bar` (a
 from __future__ import annotations
 
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 from stucco_cli.common import Settings
 

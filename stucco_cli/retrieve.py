@@ -6,8 +6,16 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import (FORCE_OVERWRITE, Settings, check_paths, global_options, pass_settings, refuse_overwrite,
-                               say, user_errors)
+from stucco_cli.common import (
+    FORCE_OVERWRITE,
+    Settings,
+    check_paths,
+    global_options,
+    pass_settings,
+    refuse_overwrite,
+    say,
+    user_errors,
+)
 from stucco_cli.progress import run_bar
 
 

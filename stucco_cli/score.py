@@ -5,8 +5,17 @@ from pathlib import Path
 
 import click
 
-from stucco_cli.common import (FORCE_OVERWRITE, ONE_PROCESS, Settings, check_paths, global_options, pass_settings,
-                               refuse_overwrite, say, user_errors)
+from stucco_cli.common import (
+    FORCE_OVERWRITE,
+    ONE_PROCESS,
+    Settings,
+    check_paths,
+    global_options,
+    pass_settings,
+    refuse_overwrite,
+    say,
+    user_errors,
+)
 
 
 @click.command()

@@ -7,8 +7,21 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import (FORCE_OVERWRITE, NON_NEGATIVE, NOT_RANDOM, ONE_PROCESS, Settings, check_paths,
-                               global_options, parsed, pass_settings, refuse_overwrite, say, user_errors, writable_dir)
+from stucco_cli.common import (
+    FORCE_OVERWRITE,
+    NON_NEGATIVE,
+    NOT_RANDOM,
+    ONE_PROCESS,
+    Settings,
+    check_paths,
+    global_options,
+    parsed,
+    pass_settings,
+    refuse_overwrite,
+    say,
+    user_errors,
+    writable_dir,
+)
 from stucco_cli.generate import generate_scenes_command
 from stucco_cli.progress import bars_off
 
@@ -69,7 +82,8 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
             noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
     """Simulate runs of a scene and record one Parquet file per seed (table `sim_run`, docs/simulation.md)."""
     writable_dir("--out", out_dir)
-    from pipeline.collect import collect as run_collect, output_path, parse_seeds
+    from pipeline.collect import collect as run_collect
+    from pipeline.collect import output_path, parse_seeds
 
     sc = _load(scene)
     _not_shadowing(sc)

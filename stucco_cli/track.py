@@ -6,8 +6,21 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import (ALPHA, FORCE_OVERWRITE, NON_NEGATIVE, ONE_PROCESS, POSITIVE, FiniteFloat, Settings,
-                               check_paths, global_options, pass_settings, refuse_overwrite, say, user_errors)
+from stucco_cli.common import (
+    ALPHA,
+    FORCE_OVERWRITE,
+    NON_NEGATIVE,
+    ONE_PROCESS,
+    POSITIVE,
+    FiniteFloat,
+    Settings,
+    check_paths,
+    global_options,
+    pass_settings,
+    refuse_overwrite,
+    say,
+    user_errors,
+)
 from stucco_cli.progress import run_bar
 
 #: Particles beyond this are refused where they enter: the filter holds (particles, points, 2) float64 arrays, so

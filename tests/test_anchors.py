@@ -1,11 +1,18 @@
-"""The authors' benchmark streams (pipeline/studies/anchors.py): a contact count without its own file is cut from a longer
-stream, which is the same trajectory (the streams are prefixes of one another)."""
+"""The authors' benchmark streams (pipeline/studies/anchors.py): a contact count without its own file is cut from a
+longer stream, which is the same trajectory (the streams are prefixes of one another)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline.studies.anchors import ANCHOR_DIR, check_streams, load_contacts_stream, load_stream, source_path, stream_path
+from pipeline.studies.anchors import (
+    ANCHOR_DIR,
+    check_streams,
+    load_contacts_stream,
+    load_stream,
+    source_path,
+    stream_path,
+)
 
 
 def test_a_stream_cut_from_a_longer_one_is_the_shorter_file(tmp_path):

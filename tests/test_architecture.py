@@ -15,7 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Cycles that remain (each a sorted group of modules that import one another), to be removed.
 KNOWN_CYCLES: list[list[str]] = []
-#: Modules over 450 lines, to be split.
+#: Most lines of a module.
+MAX_LINES = 400
+#: Modules over MAX_LINES lines, to be split.
 KNOWN_LARGE: set[str] = set()
 
 
@@ -105,9 +107,10 @@ def test_no_import_cycle_beyond_the_known_ones():
 
 def test_no_new_oversized_module():
     sizes = {str(f.relative_to(ROOT)): len(f.read_text().splitlines()) for f in _modules().values()}
-    large = {f for f, n in sizes.items() if n > 450}
-    assert large <= KNOWN_LARGE, f"over 450 lines: {sorted(large - KNOWN_LARGE)}"
-    assert not KNOWN_LARGE - large, f"now under 450 lines, delete from KNOWN_LARGE: {sorted(KNOWN_LARGE - large)}"
+    large = {f for f, n in sizes.items() if n > MAX_LINES}
+    assert large <= KNOWN_LARGE, f"over {MAX_LINES} lines: {sorted(large - KNOWN_LARGE)}"
+    assert not KNOWN_LARGE - large, \
+        f"now at most {MAX_LINES} lines, delete from KNOWN_LARGE: {sorted(KNOWN_LARGE - large)}"
 
 
 #: Stage tables written outside their stage's ``<stage>_file`` function: the training study's cache of the
@@ -159,7 +162,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("algorithms", ("pipeline.track", "pipeline.estimators", "pipeline.grasp", "pipeline.grasp_rule", "pipeline.sim",
                     "pipeline.robot", "pipeline.policies", "pipeline.components", "pipeline.metrics",
                     "pipeline.labels", "pipeline.detection", "pipeline.contact_isolation",
-                    "pipeline.grasp_judge")),
+                    "pipeline.grasp_judge", "pipeline.action_summary")),
     ("schema/geometry/io", ("pipeline", "pipeline.schema", "pipeline.geometry", "pipeline.atomic",
                             "pipeline.registry", "pipeline.constraints", "pipeline.layout", "pipeline.scenes",
                             "pipeline.seeds", "pipeline.parallel", "pipeline.portable", "pipeline.pairwise_sum",

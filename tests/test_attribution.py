@@ -1,4 +1,4 @@
-"""Attributing a probe contact to the target or to another object (pipeline/probe/policy.current_set;
+"""Attributing a probe contact to the target or to another object (pipeline/probe/attribution.current_set;
 docs/active.md, "Whose contact (attribution)"): none of the set's hypotheses explains it ->
 another object's; all of them -> the target's; some -> the target's only if fitting it as the target's costs less
 than ``clutter_cost`` more than fitting it as another object's."""
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import Primitive
-from pipeline.probe import policy as policy_mod
+from pipeline.probe import attribution as attribution_mod
 from pipeline.probe.belief import PoseSet, TargetChoice, explaining
 from pipeline.probe.params import ProbeLog, ProbeParams
 
@@ -40,7 +40,7 @@ def fits(monkeypatch):
         cost = state["with"] if 40 in target_steps else state["without"]
         return PoseSet(poses=np.zeros((1, 3)), weights=np.ones(1), best=0, segment=choice.segment, cost=cost)
 
-    monkeypatch.setattr(policy_mod, "set_from_steps", fake_set)
+    monkeypatch.setattr(attribution_mod, "set_from_steps", fake_set)
     return state
 
 
@@ -51,7 +51,7 @@ def _previous(*poses):
 
 def _attribute(point, previous, params):
     log = ProbeLog()
-    policy_mod.current_set(CHOICE, BOX, _Sensing(point), 0, "FB/100", log, previous, params)
+    attribution_mod.current_set(CHOICE, BOX, _Sensing(point), 0, "FB/100", log, previous, params)
     return log
 
 
@@ -91,7 +91,7 @@ def test_a_contact_once_given_to_another_object_is_tried_again_against_the_later
     # hypothesis: with reattribute it becomes the target's (no second fit needed), without it stays elsewhere.
     log = ProbeLog(other_steps=[40])
     previous = _previous([0.469, 0.5, 0.0], [0.469, 0.501, 0.0])  # both put their +x face at (0.5, 0.5)
-    policy_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, previous,
+    attribution_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, previous,
                            ProbeParams(reattribute=mode))
     assert (log.target_steps, log.other_steps) == (([40], []) if mine else ([], [40]))
 
@@ -102,7 +102,7 @@ def test_a_contact_no_hypothesis_explains_is_tried_by_its_cost_only_with_fit(fit
     # because it counted as another object's); "explained" leaves it where it is.
     fits["with"], fits["without"] = with_cost, 0.0
     log = ProbeLog(other_steps=[40])
-    policy_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, _previous(UPRIGHT),
+    attribution_mod.current_set(CHOICE, BOX, _Sensing(np.array([0.5, 0.5])), 0, "FB/100", log, _previous(UPRIGHT),
                            ProbeParams(reattribute=mode, clutter_cost=0.3))
     assert (log.target_steps, log.other_steps) == (([40], []) if mine else ([], [40]))
 
@@ -121,7 +121,8 @@ def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(f
     # other waits for a later decision: one fit beyond the set's own.
     log = ProbeLog(other_steps=[40, 41])
     sensing = _Contacts({40: [0.5, 0.5], 41: [0.1, 0.0]})
-    policy_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT), ProbeParams(reattribute="fit"))
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT),
+                                ProbeParams(reattribute="fit"))
     assert log.target_steps == [41] and log.other_steps == [40]
     assert sorted(fits["calls"]) == [(), (41,)]
 
@@ -129,7 +130,7 @@ def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(f
 def test_no_contact_is_tried_again_by_a_fit_when_a_new_contact_needed_one(fits):
     log = ProbeLog(other_steps=[40])
     sensing = _Contacts({40: [0.5, 0.5], 42: ON_LONG_FACE})  # 42 is new, and some hypotheses explain it
-    policy_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT, TURNED),
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT, TURNED),
                            ProbeParams(reattribute="fit", clutter_cost=2.0))
     assert log.target_steps == [42] and log.other_steps == [40]
     assert sorted(fits["calls"]) == [(), (42,)]

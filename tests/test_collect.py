@@ -6,10 +6,18 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.collect import (RUN_KIND, action_label, collect, collect_run, discard_reason,
-                              output_path, parse_seeds, representative_force)
-from pipeline.scenes import load_scene
 from pipeline import schema
+from pipeline.collect import (
+    RUN_KIND,
+    action_label,
+    collect,
+    collect_run,
+    discard_reason,
+    output_path,
+    parse_seeds,
+    representative_force,
+)
+from pipeline.scenes import load_scene
 from pipeline.schema import read_metadata
 
 N = 3  # actions per short run: ~0.1 s each
@@ -205,7 +213,7 @@ def test_effect_off_friction_keeps_defaults():
     from pipeline.sim import World
 
     scene = load_scene("FB").with_effects(settle_steps=0)
-    for friction, plane, finger, box in ((True, 0.6, 2.0, 0.5), (False, 1.0, 1.0, 0.5)):
+    for friction, plane, finger, _box in ((True, 0.6, 2.0, 0.5), (False, 1.0, 1.0, 0.5)):
         with World(scene.with_effects(friction=friction)) as w:
             c = w.client
             assert p.getDynamicsInfo(w.plane, -1, physicsClientId=c)[1] == pytest.approx(plane)
@@ -270,8 +278,8 @@ def test_scripted_policy_needs_a_sequence():
 
 
 def _cli():
-    from stucco_cli.main import cli
     import stucco_cli.sim  # noqa: F401
+    from stucco_cli.main import cli
 
     return cli
 

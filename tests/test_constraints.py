@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from pipeline import registry
-from pipeline.constraints import Constraint, check, from_dict, integer, number, one_of, rule
+from pipeline.constraints import Constraint, Params, check, from_dict, integer, number, one_of, rule
 from pipeline.estimators.params import RetrievalParams
 
 
 @dataclass(frozen=True)
-class Knobs:
+class Knobs(Params):
     size: float = 1.0
     count: int = 2
     share: float = 0.5
@@ -29,8 +29,12 @@ class Knobs:
         "mode": one_of("a", "b"), "gate": number(0, nullable=True),
         "pair": rule("an increasing pair", lambda p: len(p) == 2 and p[0] < p[1])}
 
-    def __post_init__(self) -> None:
-        check(self)
+
+@dataclass(frozen=True)
+class Outer(Params):
+    knobs: Knobs = Knobs()
+    steps: tuple[float, ...] = (0.1, 0.2)
+    constraints: ClassVar[dict[str, Constraint]] = {"steps": rule("increasing", lambda s: list(s) == sorted(s))}
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -87,3 +91,39 @@ def test_every_parameter_class_declares_a_constraint_for_each_non_flag_field_and
     assert not missing, f"{cls.__name__}: no declared constraint for {missing}"
     assert set(cls.constraints) <= {f.name for f in dataclasses.fields(cls)}
     check(cls())  # the defaults satisfy their own constraints
+
+
+def test_params_checks_its_constraints_on_construction_and_serialises_recursively():
+    with pytest.raises(ValueError, match=r"Outer.steps must be increasing, got \(0.2, 0.1\)"):
+        Outer(steps=(0.2, 0.1))
+    d = Outer(knobs=Knobs(count=np.int64(3))).to_dict()
+    assert d == {"knobs": {"size": 1.0, "count": 3, "share": 0.5, "floor": 0.0, "mode": "a", "gate": None,
+                           "pair": [0, 1]}, "steps": [0.1, 0.2]}
+    assert type(d["knobs"]["count"]) is int  # numpy scalars become Python numbers: JSON-ready
+
+
+def test_params_from_dict_round_trips_and_names_an_unknown_key_in_one_line():
+    o = Outer(knobs=Knobs(size=2.0, pair=(1, 3)), steps=(0.5,))
+    assert Outer.from_dict(o.to_dict()) == o
+    assert Outer.from_dict({"knobs": {"count": 4}}).knobs == Knobs(count=4)
+    with pytest.raises(ValueError, match=r"^unknown parameter\(s\) 'sise' for Knobs; accepted: size, count, .*"):
+        Outer.from_dict({"knobs": {"sise": 1.0}})
+    with pytest.raises(ValueError, match=r"^unknown parameter\(s\) 'knob' for method 'outer'; accepted: knobs, steps$"):
+        Outer.from_dict({"knob": {}}, "outer")
+
+
+@pytest.mark.parametrize("cls", _registered_param_classes(), ids=lambda c: c.__name__)
+def test_every_parameter_class_is_a_params_whose_dict_builds_it_again(cls):
+    assert issubclass(cls, Params)
+    assert cls.from_dict(cls().to_dict()) == cls()
+
+
+def test_the_other_parameter_classes_are_params_too():
+    from pipeline.detection import DetectionParams, IsolationParams
+    from pipeline.grasp import GraspParams
+    from pipeline.probe.params import ProbeParams
+    from pipeline.probe.planning import PlanParams
+
+    for cls in (DetectionParams, IsolationParams, GraspParams, PlanParams, ProbeParams):
+        assert issubclass(cls, Params) and cls.from_dict(cls().to_dict()) == cls(), cls.__name__
+    assert ProbeParams.from_dict({"plan": {"max_starts": 5}}).plan == PlanParams(max_starts=5)

@@ -19,8 +19,21 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import registry, schema
-from pipeline.evaluate import (KINDS, STAGE_COLUMNS, STAGE_SPECS, STAGES, EvalConfig, Job, evaluate, job_paths,
-                               parse_methods, parse_scenes, partition, read_kind, stale_stages)
+from pipeline.evaluate import (
+    KINDS,
+    STAGE_COLUMNS,
+    STAGE_SPECS,
+    STAGES,
+    EvalConfig,
+    Job,
+    evaluate,
+    job_paths,
+    parse_methods,
+    parse_scenes,
+    partition,
+    read_kind,
+    stale_stages,
+)
 from pipeline.figures import figure_path
 
 CFG = EvalConfig(root_seed=0, max_actions=12, restarts=5)

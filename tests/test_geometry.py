@@ -1,6 +1,7 @@
 """Angle wrapping (pipeline.geometry): one implementation for every yaw difference of a symmetric shape."""
 import numpy as np
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pipeline.geometry import Primitive, wrap_angle, wrap_symmetric
 

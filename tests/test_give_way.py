@@ -1,5 +1,5 @@
-"""The probing policy's segment giving way at the end of the budget (pipeline/probe/policy.give_way_at_budget;
-docs/active.md): a set that never agreed on contacts bunched on a short stretch gives way
+"""The probing policy's segment giving way at the end of the budget (pipeline/probe/attribution.give_way_at_budget;
+docs/retrieval.md, "Active retrieval"): a set that never agreed on contacts bunched on a short stretch gives way
 to the next-ranked segment, whose set re-attributes every probe contact."""
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from pipeline import schema
+from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
+from pipeline.probe import attribution as attribution_mod
 from pipeline.probe import policy as policy_mod
 from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
 from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
-from pipeline.estimators.target_model import target_primitive
 from pipeline.scenes import load_scene
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
@@ -42,14 +43,14 @@ def sets(monkeypatch):
         poses = np.array([[0.3, 0.1, 0.0], [0.3, 0.1, 0.5]]) if choice.segment == 1 else np.zeros((1, 3))
         return PoseSet(poses=poses, weights=np.full(len(poses), 1.0 / len(poses)), best=0, segment=choice.segment)
 
-    monkeypatch.setattr(policy_mod, "set_from_steps", fake_set)
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: state["share"])
+    monkeypatch.setattr(attribution_mod, "set_from_steps", fake_set)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: state["share"])
     return state
 
 
 def _set(choice):
     """The current set of ``choice`` (the stubbed set_from_steps of the ``sets`` fixture)."""
-    return policy_mod.set_from_steps(choice, BOX, _Sensing(), 0, "FB/100", [])
+    return attribution_mod.set_from_steps(choice, BOX, _Sensing(), 0, "FB/100", [])
 
 
 def test_a_wide_set_on_bunched_contacts_gives_way_and_the_contacts_are_attributed_afresh(sets):
@@ -110,7 +111,7 @@ def test_a_segment_taken_at_the_budgets_end_gets_probes_of_its_own(monkeypatch, 
         calls["plan"] += 1
         return None
 
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: 0.2)
     monkeypatch.setattr(policy_mod, "give_way_at_budget", give_way)
     monkeypatch.setattr(policy_mod, "choose_probe", plan)
 
@@ -155,7 +156,7 @@ def test_an_agreeing_set_on_bunched_contacts_at_the_budgets_end_is_flagged_not_s
     table = schema.read_run(Path(__file__).resolve().parents[1] / "data" / "regression" / "TC-000.parquet")
     start = np.array([table.column("ee_start_x_m")[0].as_py(), table.column("ee_start_y_m")[0].as_py()])
     prim = target_primitive(load_scene("TC"))[1]
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 1.0)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: 1.0)
     monkeypatch.setattr(policy_mod, "bunched", lambda *a, **k: True)
 
     def no_act(dx, dy):

@@ -8,8 +8,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.grasp import (PAD_FROM_BASE, PLANS, FingerContacts, GraspParams, grasp_at, judge_box, judge_can,
-                            plan_for, pregrasp, restore_world)
+from pipeline.grasp import (
+    PAD_FROM_BASE,
+    PLANS,
+    FingerContacts,
+    GraspParams,
+    grasp_at,
+    judge_box,
+    judge_can,
+    plan_for,
+    pregrasp,
+    restore_world,
+)
 from pipeline.retrieve import load_run, target_primitive
 from pipeline.scenes import load_scene
 

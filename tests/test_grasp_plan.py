@@ -1,6 +1,6 @@
 """The planned grasp (pipeline/probe/grasp_plan.py) and its attempts (pipeline/probe/grasp_attempts.py): every
 approach the shape allows, a way in through sensed free space, re-planning after a felt miss; never ground truth
-(docs/retrieval.md, "The planned grasp")."""
+(docs/active.md, "The planned grasp")."""
 from __future__ import annotations
 
 import dataclasses

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline.estimators.target_model import target_primitive
 from pipeline.grasp import grasp_yaw, plan_for, pregrasp
 from pipeline.grasp_rule import own_grasp_shares
-from pipeline.estimators.target_model import target_primitive
 from pipeline.scenes import load_scene
 
 

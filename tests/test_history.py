@@ -14,14 +14,14 @@ import pyarrow as pa
 import pytest
 
 from pipeline import schema
+from pipeline.estimators.run_info import load_run
+from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive, com_pose
 from pipeline.probe.belief import Sensing, TargetChoice, pose_set
 from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.params import ProbeParams
 from pipeline.probe.report import run_stats, save_times, times_path
 from pipeline.probe.retrieval import recorded_prior
-from pipeline.estimators.target_model import target_primitive
-from pipeline.estimators.run_info import load_run
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 

@@ -1,5 +1,5 @@
-"""pipeline.estimators.paper.icp_kernel: the compiled ICP iterations give the bits of the batched numpy form they replaced
-(kept here as the reference), jitted and with NUMBA_DISABLE_JIT=1."""
+"""pipeline.estimators.paper.icp_kernel: the compiled ICP iterations give the bits of the batched numpy form they
+replaced (kept here as the reference), jitted and with NUMBA_DISABLE_JIT=1."""
 from __future__ import annotations
 
 import os
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import apply_pose, rotate
-from pipeline.portable import atan2
-from pipeline.retrieve import RetrievalParams, model_points, retrieval_rng, target_primitive
+from pipeline.estimators.paper.choice import min_clearance
 from pipeline.estimators.paper.icp import _icp, icp_error, icp_restarts, initial_transforms
 from pipeline.estimators.paper.icp_kernel import _npsum, nearest_model
 from pipeline.estimators.target_model import model_normals
-from pipeline.estimators.paper.choice import min_clearance
+from pipeline.geometry import apply_pose, rotate
+from pipeline.portable import atan2
+from pipeline.retrieve import RetrievalParams, model_points, retrieval_rng, target_primitive
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
 from pipeline.spd import solve_spd

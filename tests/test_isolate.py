@@ -10,8 +10,15 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.geometry import gripper_yaw
-from pipeline.isolate import (DetectionParams, contact_window, isolate_point, isolate_runs, residual, step_in_contact,
-                              window_in_contact)
+from pipeline.isolate import (
+    DetectionParams,
+    contact_window,
+    isolate_point,
+    isolate_runs,
+    residual,
+    step_in_contact,
+    window_in_contact,
+)
 from pipeline.schema import read_contacts, read_metadata, validate_contacts
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression" / "FB-000.parquet"
@@ -138,8 +145,8 @@ def test_isolated_contacts_pass_the_contacts_schema(stored):
 
 
 def _cli():
-    from stucco_cli.main import cli
     import stucco_cli.sim  # noqa: F401
+    from stucco_cli.main import cli
 
     return cli
 

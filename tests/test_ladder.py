@@ -9,12 +9,19 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.geometry import primitive_of
-from pipeline.studies.retrieval_ladder import (MOTION_RUNGS, PERTURBATIONS, RUNGS, LadderRow, ideal_segments, loss_reason,
-                                      perturbed)
-from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise
-from pipeline.estimators.target_model import pose_error
 from pipeline.estimators.run_info import load_run
+from pipeline.estimators.target_model import pose_error
+from pipeline.geometry import primitive_of
+from pipeline.studies.retrieval_ladder import (
+    MOTION_RUNGS,
+    PERTURBATIONS,
+    RUNGS,
+    LadderRow,
+    ideal_segments,
+    loss_reason,
+    perturbed,
+)
+from pipeline.studies.retrieval_ladder_report import ladder_tables, summarise
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 

@@ -18,8 +18,8 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.isolate import isolate_runs
 from pipeline import registry
+from pipeline.isolate import isolate_runs
 from pipeline.retrieve import RetrievalParams
 from pipeline.retrieve.stage import RetrieveConfig, retrieve
 from pipeline.segment import segment_table

@@ -12,11 +12,21 @@ import pytest
 from click.testing import CliRunner
 
 import pipeline.estimators.paper.online as online
-from pipeline.geometry import apply_pose
-from pipeline.retrieve import (RetrievalParams, Segment, estimate_run, load_run, min_clearance, model_points,
-                               pose_error, read_retrieval, retrieval_rng, target_primitive)
 from pipeline.estimators.estimate import history_from_final, needs_every_step
 from pipeline.estimators.paper.online import online_protocol, visited_until
+from pipeline.geometry import apply_pose
+from pipeline.retrieve import (
+    RetrievalParams,
+    Segment,
+    estimate_run,
+    load_run,
+    min_clearance,
+    model_points,
+    pose_error,
+    read_retrieval,
+    retrieval_rng,
+    target_primitive,
+)
 from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene

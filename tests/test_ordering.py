@@ -21,7 +21,7 @@ def test_exp_table_decides_every_draw_as_exp_does():
     e = np.array([math.exp(x) for x in edge_t])
     t = np.concatenate([t, edge_t, edge_t, edge_t])
     u = np.concatenate([u, e, np.nextafter(e, 0.0), np.nextafter(e, 1.0)])
-    got = [ordering._below_exp(a, b) for a, b in zip(u, t)]
+    got = [ordering.below_exp(a, b) for a, b in zip(u, t)]
     assert got == [a < math.exp(b) for a, b in zip(u, t)]
 
 
@@ -32,8 +32,8 @@ def test_bisections_equal_searchsorted(n):
     for v in np.concatenate([xs, xs + 0.5, [-1.0, 25.0]]):
         for start, stop in ((0, n), (n // 3, n - n // 4)):
             want = start + np.searchsorted(xs[start:stop], v)
-            assert ordering._first_at_least(xs, start, stop, v) == want
-            assert ordering._first_above(xs, start, stop, v) == start + np.searchsorted(xs[start:stop], v,
+            assert ordering.first_at_least(xs, start, stop, v) == want
+            assert ordering.first_above(xs, start, stop, v) == start + np.searchsorted(xs[start:stop], v,
                                                                                           side="right")
 
 
@@ -65,7 +65,7 @@ def test_groups_visit_configs_in_the_order_of_the_argsort_they_replace(seed):
     group = rng.integers(0, K + 1, m)
     # the kept order: sorted by x, ties in an arbitrary order (not argsort's)
     order = np.lexsort((rng.random(m), P[0, :, 0])).astype(np.int32)[None]
-    counts, gorder, xs, ys, dup = ordering._groups_by_first_coordinate(P, C, 0, group, order, m, K)
+    counts, gorder, xs, ys, dup = ordering.groups_by_first_coordinate(P, C, 0, group, order, m, K)
     for a in range(K + 1):
         seg = np.flatnonzero(group == a)
         want = seg[_numba_argsort(P[0, seg, 0])]  # what the kernels did before (numba's quicksort, its own ties)

@@ -13,8 +13,8 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.atomic import exclusive
 from pipeline import registry
+from pipeline.atomic import exclusive
 from pipeline.layout import CONFIG, FLAT, KINDS, LOCK, PER_ESTIMATOR, SHARED
 from stucco_cli.main import cli
 

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.retrieve import RetrievalParams
 from pipeline.estimators.estimate import plausible_notes
-from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf
-from pipeline.estimators.target_model import pose_error
 from pipeline.estimators.plausible.evidence import free_space_points, gripper_lattice, recency_sigma
 from pipeline.estimators.plausible.fit import PlausibleParams, consensus, evaluate_terms, fit_segment
+from pipeline.estimators.target_model import pose_error
+from pipeline.geometry import Primitive, com_pose, primitive_pose, primitive_sdf
+from pipeline.retrieve import RetrievalParams
 from pipeline.robot import disc_sdf
 
 BOX = Primitive("box", (0.03, 0.079), np.array([0.002, -0.001]), 0.1, "box")

@@ -1,17 +1,20 @@
 """The plausible estimator's compiled cost terms (pipeline/estimators/plausible/kernel.py) give the numpy form's bits.
 
-``refine`` runs on :func:`~pipeline.estimators.plausible.fit.compiled_terms`; :func:`~pipeline.estimators.plausible.fit.
-evaluate_terms` is the numpy reference. Equality is exact (``assert_array_equal``), not approximate: a last-bit
-difference in a cost could flip which hypothesis wins a near-tie and so change a reported pose.
+``refine`` runs on :func:`~pipeline.estimators.plausible.cost.compiled_terms`;
+:func:`~pipeline.estimators.plausible.cost.evaluate_terms` is the numpy reference. Equality is exact
+(``assert_array_equal``), not approximate: a last-bit difference in a cost could flip which hypothesis wins a near-tie
+and so change a reported pose.
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from pipeline.estimators.plausible import cost as plausible
+from pipeline.estimators.plausible import kernel as plausible_kernel
+from pipeline.estimators.plausible.cost import compiled_terms, evaluate_terms
+from pipeline.estimators.plausible.params import PlausibleParams
 from pipeline.geometry import Primitive
-from pipeline.estimators.plausible import fit as plausible, kernel as plausible_kernel
-from pipeline.estimators.plausible.fit import PlausibleParams, compiled_terms, evaluate_terms
 
 BOX = Primitive(kind="box", half=(0.08, 0.11), centre=np.array([0.004, -0.002]), yaw=0.0, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")

@@ -10,19 +10,18 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from pipeline import schema
+from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive, com_pose, primitive_pose
 from pipeline.grasp import plan_for
-from pipeline.probe import policy as policy_mod
-from pipeline.probe.belief import NO_TARGET, explaining, pose_set
-from pipeline.probe.planning import (PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy,
-                                     ray_travel)
-from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
 from pipeline.grasp_rule import box_success, can_success
+from pipeline.probe import attribution as attribution_mod
+from pipeline.probe.belief import NO_TARGET, explaining, pose_set
+from pipeline.probe.planning import PlanParams, agreement, choose_probe, obstacle_travel, outcome_entropy, ray_travel
+from pipeline.probe.policy import ProbeParams, guarded_move, probe_run, retrace
 from pipeline.probe.set_grasp import choose_grasp
-from pipeline.estimators.target_model import target_primitive
 from pipeline.robot import load_robot
 from pipeline.scenes import load_scene
-from pipeline import schema
 
 REG = Path(__file__).resolve().parents[1] / "data" / "regression"
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
@@ -130,7 +129,7 @@ def _no_act(dx, dy):
 
 def test_set_of_one_pose_from_the_start_makes_no_probe(stored_run, monkeypatch):
     table, start, prim = stored_run
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 1.0)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: 1.0)
     params = ProbeParams(min_target_contacts=0)
     log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, params, scene=load_scene("TC"))
     assert log.probes == 0 and log.actions == 0 and log.agreed and log.flagged == ""
@@ -139,7 +138,7 @@ def test_set_of_one_pose_from_the_start_makes_no_probe(stored_run, monkeypatch):
 
 def test_budget_spent_with_the_set_still_wide_grasps_anyway_flagged(stored_run, monkeypatch):
     table, start, prim = stored_run
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: 0.2)
     log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start, ProbeParams(budget=0), scene=load_scene("TC"))
     assert log.probes == 0 and not log.agreed and log.flagged == "budget_spent"
     # the grasp goes ahead on the wide set
@@ -386,7 +385,7 @@ def test_a_wide_set_that_one_grasp_holds_stops_the_probing(stored_run, monkeypat
     """The poses disagree (agreement 0.2), but the grasp chosen for the set holds ``held`` of it: at 1.0 the
     policy stops at once, unflagged; at 0.5 it goes on (here the budget is 0, so it stops flagged)."""
     table, start, prim = stored_run
-    monkeypatch.setattr(policy_mod, "agreement", lambda *a, **k: 0.2)
+    monkeypatch.setattr(attribution_mod, "agreement", lambda *a, **k: 0.2)
     log = probe_run(_no_act, lambda: table, "TC/0", 0, prim, start,
                     ProbeParams(min_target_contacts=0, budget=0 if probes_expected is None else 8),
                     grasp_share=lambda belief: held, scene=load_scene("TC"))

@@ -8,11 +8,11 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.collect import collect_file
-from pipeline.layout import partition
-from pipeline.studies.pushes import MIN_PUSH, push_cases, push_rows, summarise, summary_markdown
 from pipeline.estimators.pushtrack.params import MOTIONS
 from pipeline.estimators.run_info import load_run
+from pipeline.layout import partition
 from pipeline.scenes import load_scene
+from pipeline.studies.pushes import MIN_PUSH, push_cases, push_rows, summarise, summary_markdown
 from stucco_cli.main import cli
 
 

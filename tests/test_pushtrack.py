@@ -10,18 +10,32 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from pipeline.estimators.estimate import Segment, estimate
+from pipeline.estimators.plausible.evidence import cached_gripper_lattice, target_reach
+from pipeline.estimators.pushtrack.estimator import (
+    filter_from_best_start,
+    final_pose,
+    free_space_of,
+    held_mean,
+    observed_actions,
+)
+from pipeline.estimators.pushtrack.filter import (
+    Actions,
+    FilterResult,
+    PushTrackParams,
+    contact_loglik,
+    free_loglik,
+    initial_particles,
+    push,
+    run_filter,
+)
+from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
+from pipeline.estimators.pushtrack.slice_pusher import gripper_slice, sweep_push, target_outline
+from pipeline.estimators.run_info import load_run, retrieval_rng
+from pipeline.estimators.target_model import pose_error
 from pipeline.geometry import Primitive, apply_pose
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.retrieve import RetrievalParams
-from pipeline.estimators.estimate import Segment, estimate
-from pipeline.estimators.target_model import pose_error
-from pipeline.estimators.pushtrack.filter import (Actions, FilterResult, PushTrackParams, contact_loglik, free_loglik,
-                                         initial_particles, push, run_filter)
-from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
-from pipeline.estimators.pushtrack.slice_pusher import gripper_slice, sweep_push, target_outline
-from pipeline.estimators.plausible.evidence import cached_gripper_lattice, target_reach
-from pipeline.estimators.pushtrack.estimator import filter_from_best_start, final_pose, free_space_of, held_mean, observed_actions
-from pipeline.estimators.run_info import load_run, retrieval_rng
 from pipeline.robot import disc_sdf, load_robot
 from pipeline.scenes import load_scene
 

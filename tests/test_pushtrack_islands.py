@@ -7,9 +7,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.geometry import Primitive
-from pipeline.estimators.pushtrack.filter import Actions, FilterResult, PushTrackParams, run_filter
 from pipeline.estimators.pushtrack.estimator import filter_islands, final_pose, pool_islands
+from pipeline.estimators.pushtrack.filter import Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.geometry import Primitive
 from pipeline.scenes import load_scene
 
 BOX = Primitive("box", (0.03, 0.08), np.array([0.0, 0.0]), 0.0, "box")

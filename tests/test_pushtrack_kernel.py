@@ -1,7 +1,7 @@
 """The pushtrack estimator's compiled loops (pipeline/estimators/pushtrack/kernel.py) give the numpy forms' bits.
 
 The free-space likelihood of the filter against the numpy form it replaced (:func:`free_loglik_numpy`), and the
-batched refinement (:func:`~pipeline.estimators.plausible.fit.refine` with (B, P, 2) points, each particle with its own
+batched refinement (:func:`~pipeline.estimators.plausible.cost.refine` with (B, P, 2) points, each particle with its own
 contacts) against the one-particle refinement it replaced. Equality is exact
 (``assert_array_equal``): a last-bit difference in a weight or a cost could flip a resampling draw or a near-tie
 and so change a reported pose.
@@ -11,11 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.geometry import Primitive, primitive_sdf, rotate
-from pipeline.estimators.plausible import fit as plausible, kernel as plausible_kernel
-from pipeline.estimators.pushtrack import filter as pushmodel, kernel as pushtrack_kernel
-from pipeline.estimators.plausible.fit import PlausibleParams, compiled_terms, refine
+from pipeline.estimators.plausible import cost as plausible
+from pipeline.estimators.plausible import kernel as plausible_kernel
+from pipeline.estimators.plausible.cost import compiled_terms, refine
+from pipeline.estimators.plausible.params import PlausibleParams
+from pipeline.estimators.pushtrack import filter as pushmodel
+from pipeline.estimators.pushtrack import kernel as pushtrack_kernel
 from pipeline.estimators.pushtrack.filter import PushTrackParams, free_loglik
+from pipeline.geometry import Primitive, primitive_sdf, rotate
 
 BOX = Primitive(kind="box", half=(0.05, 0.08), centre=np.array([0.004, -0.002]), yaw=0.3, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")

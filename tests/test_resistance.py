@@ -10,12 +10,17 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.detection import contact_forces
-from pipeline.retrieve import RetrievalParams
 from pipeline.estimators.estimate import Segment, estimate, paper_choice, paper_segment
 from pipeline.estimators.pushtrack.estimator import observed_actions
-from pipeline.estimators.segment_choice import (resisting_choice, resisting_segment, segment_fits,
-                                          segment_resistance, target_mass)
 from pipeline.estimators.run_info import load_run, retrieval_rng
+from pipeline.estimators.segment_choice import (
+    resisting_choice,
+    resisting_segment,
+    segment_fits,
+    segment_resistance,
+    target_mass,
+)
+from pipeline.retrieve import RetrievalParams
 from pipeline.robot import load_robot
 
 STEPS = np.arange(6)

@@ -11,10 +11,25 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.retrieve import (CANDIDATES_COLUMNS, RETRIEVAL_COLUMNS, Primitive, RetrievalParams, choose_segment,
-                               estimate_run, icp_restarts, initial_transforms, load_run, min_clearance, model_normals,
-                               model_points, pose_error, primitive_of, read_retrieval, retrieval_rng,
-                               target_primitive)
+from pipeline.retrieve import (
+    CANDIDATES_COLUMNS,
+    RETRIEVAL_COLUMNS,
+    Primitive,
+    RetrievalParams,
+    choose_segment,
+    estimate_run,
+    icp_restarts,
+    initial_transforms,
+    load_run,
+    min_clearance,
+    model_normals,
+    model_points,
+    pose_error,
+    primitive_of,
+    read_retrieval,
+    retrieval_rng,
+    target_primitive,
+)
 from pipeline.robot import disc_sdf, load_robot
 from pipeline.scenes import load_scene
 from pipeline.schema import SchemaError, read_metadata, write_table

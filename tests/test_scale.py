@@ -3,7 +3,6 @@ resume is refused (its time would not be a measurement)."""
 import csv
 
 import numpy as np
-
 from click.testing import CliRunner
 
 from stucco_cli.main import cli
@@ -47,8 +46,8 @@ def test_rummage_stops_at_the_requested_contacts_past_the_script_and_gives_the_s
     import pyarrow.parquet as pq
 
     from pipeline.collect import collect_file
-    from pipeline.schema import read_metadata
     from pipeline.scenes import load_scene
+    from pipeline.schema import read_metadata
 
     sc = load_scene("TC")
     a, b = tmp_path / "a.parquet", tmp_path / "b.parquet"

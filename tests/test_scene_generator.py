@@ -20,7 +20,7 @@ from pipeline.scenes import WORKSPACE_M, SceneError, load_scene, scene_from_text
 from pipeline.scenes.catalogue import MODEL_BY_KEY, MODELS, TASK_WALLS
 from pipeline.scenes.coverage import coverage_passes, coverage_waypoints
 from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, hidden_fraction, object_outline, separation
-from pipeline.scenes.generate import (GAP_MIN_M, DrawRejected, GeneratorSpec, GeneratorSpecError, sample_layout)
+from pipeline.scenes.generate import GAP_MIN_M, DrawRejected, GeneratorSpec, GeneratorSpecError, sample_layout
 from pipeline.scenes.generated_toml import layout_actions
 from pipeline.sim import World
 from pipeline.sim.generate import generate_scenes, iter_generated, settle_problem

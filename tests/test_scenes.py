@@ -130,8 +130,8 @@ def test_good_minimal_scene_parses_with_default_effects(tmp_path):
 
 
 def _cli():
-    from stucco_cli.main import cli
     import stucco_cli.sim  # noqa: F401  (registered by main's _register once wired)
+    from stucco_cli.main import cli
 
     return cli
 

@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pipeline
-from pipeline.environment import environment
 from pipeline import schema as S
+from pipeline.environment import environment
 from pipeline.schema import SchemaError
 
 N = None

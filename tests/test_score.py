@@ -11,10 +11,17 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.retrieve import primitive_of, retrieval_table
-from pipeline.schema import SchemaError, read_metadata, write_table
 from pipeline.scenes import load_scene, scene_digest
-from pipeline.score import (SCORES_COLUMNS, contact_error_cm, fmi, read_scores, scene_signed_distance, score,
-                            validate_scores)
+from pipeline.schema import SchemaError, read_metadata, write_table
+from pipeline.score import (
+    SCORES_COLUMNS,
+    contact_error_cm,
+    fmi,
+    read_scores,
+    scene_signed_distance,
+    score,
+    validate_scores,
+)
 
 SCENE = load_scene("FB")
 BOX = primitive_of(SCENE.objects[0])

@@ -6,9 +6,8 @@ import pytest
 from scipy.special import logsumexp
 from sklearn.metrics import fowlkes_mallows_score
 
-from pipeline.track.base import ContactTracker
+from pipeline.track.base import ContactTracker, StepResult
 from pipeline.track.kernels import free_space_penetration, penetration_bruteforce
-from pipeline.track.base import StepResult
 from pipeline.track.soft import SoftTracker, SoftTrackingParams
 
 RADIUS = 0.05  # disc robot, m

@@ -210,7 +210,8 @@ def test_study_rejects_retrieval_scene(tmp_path):
 
 def test_evaluate_dask_backend_on_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
-    from pipeline.evaluate import evaluate as run_evaluate, EvalConfig
+    from pipeline.evaluate import EvalConfig
+    from pipeline.evaluate import evaluate as run_evaluate
 
     cfg = EvalConfig(max_actions=4, grasp=False, restarts=2)
     local = run_evaluate(tmp_path / "loky", ["FB"], [0], ["stucco", "dbscan"], cfg, jobs=1, progress=True,

@@ -1,13 +1,14 @@
-"""The gripper's slice as the pusher (pipeline/estimators/pushtrack/slice_pusher.py) and the pushtrack filter's "sweep" motion."""
+"""The gripper's slice as the pusher (pipeline/estimators/pushtrack/slice_pusher.py) and the pushtrack filter's
+"sweep" motion."""
 import math
 
 import numpy as np
 import pytest
 
-from pipeline.geometry import Primitive
 from pipeline.estimators.pushtrack.filter import Actions, PushTrackParams, run_filter
 from pipeline.estimators.pushtrack.quasistatic import limit_surface_length
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice, gripper_slice, sweep_push, target_outline
+from pipeline.geometry import Primitive
 from pipeline.robot import disc_sdf, panda_sdf
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0, name="box")

@@ -7,8 +7,8 @@ import pyarrow.compute as pc
 import pytest
 
 from pipeline import schema
-from pipeline.track.soft import SoftTracker, SoftTrackingParams
 from pipeline.seeds import run_key, run_rng
+from pipeline.track.soft import SoftTracker, SoftTrackingParams
 from pipeline.track.stage import TrackConfig, track_table
 
 DISC = "disc:0.05"

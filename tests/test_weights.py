@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from pipeline.pairwise_sum import pairwise_sum
-from pipeline.track import weights
 from pipeline.portable import logsumexp
+from pipeline.track import weights
 from pipeline.track.resampling import effective_sample_size, normalise, systematic
 
 SIZES = list(range(1, 300)) + [487, 488, 489, 511, 512, 968, 969, 1000, 1023, 4097, 7688, 7689, 8192, 8193, 20000]

@@ -17,21 +17,27 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass
-from typing import Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline import registry
-from pipeline.geometry import Primitive
-from pipeline.estimators.paper.online import estimate_online
+from pipeline.constraints import plain
 from pipeline.estimators.paper.choice import Estimate, confidence_notes, estimate_run
+from pipeline.estimators.paper.online import estimate_online
 from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.plausible.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
-from pipeline.portable import tie_key
+from pipeline.estimators.plausible.evidence import (
+    cached_gripper_lattice,
+    free_space_points,
+    recency_sigma,
+    target_reach,
+)
 from pipeline.estimators.plausible.fit import COST_TIE, PlausibleParams, SegmentFit, fit_segment
-from pipeline.estimators.segment_choice import resisting_choice, target_mass
 from pipeline.estimators.run_info import RunInfo
+from pipeline.estimators.segment_choice import resisting_choice, target_mass
+from pipeline.geometry import Primitive
+from pipeline.portable import tie_key
 from pipeline.schema.retrieval import run_candidates
 
 __all__ = ["DEFAULT_ESTIMATOR", "Segment", "History", "estimate", "estimate_plausible", "paper_estimator",
@@ -106,9 +112,9 @@ def retrieval_metadata(estimator: str, params: RetrievalParams, own=None, **extr
     meta = dict(params.to_dict(), estimator=estimator)
     own = registry.build_params(spec, own)
     if own is not None:
-        meta[spec.meta_key or spec.name] = asdict(own)
+        meta[spec.meta_key or spec.name] = plain(own)
     for k, v in extra.items():
-        meta[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
+        meta[k] = plain(v) if hasattr(v, "__dataclass_fields__") else v
     return meta
 
 
@@ -140,8 +146,8 @@ def estimate(name: str, segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
 def paper_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequence[np.random.Generator],
                     params: RetrievalParams, own: None = None, *, history: History) -> Estimate:
     """The paper's procedure as the authors ran it, at every in-contact step of ``history``
-    (:func:`pipeline.estimators.paper.online.estimate_online`), the registry's factory; ``segments`` (the final ones) are
-    not used: the grasp goes to the last in-contact step's estimate."""
+    (:func:`pipeline.estimators.paper.online.estimate_online`), the registry's factory; ``segments`` (the final ones)
+    are not used: the grasp goes to the last in-contact step's estimate."""
     return estimate_online([(k, [(s.id, s.points) for s in segs]) for k, segs in history], info.target, info.ee,
                            info.steps, sdf, params, rngs[0], rngs[1])
 
@@ -152,9 +158,9 @@ _LAST_PAPER: list = []
 
 def paper_choice(segments: Sequence[Segment], info: RunInfo, sdf, params: RetrievalParams,
                 rngs: Sequence[np.random.Generator]) -> Estimate:
-    """:func:`~pipeline.estimators.paper.choice.estimate_run` of a run (the paper's choice of segment on the final points),
-    computed once for the estimators of a job that start from it, with the same inputs and generators (a copy is
-    returned; the generators are not advanced on a repeat, and no estimator draws from them afterwards)."""
+    """:func:`~pipeline.estimators.paper.choice.estimate_run` of a run (the paper's choice of segment on the final
+    points), computed once for the estimators of a job that start from it, with the same inputs and generators (a copy
+    is returned; the generators are not advanced on a repeat, and no estimator draws from them afterwards)."""
     key = (info.run, str(info.path), repr(info.target), np.asarray(info.ee).tobytes(), params, sdf.digest,
            tuple((s.id, np.asarray(s.points, dtype=np.float64).tobytes()) for s in segments),
            repr(rngs[0].bit_generator.state), repr(rngs[1].bit_generator.state))

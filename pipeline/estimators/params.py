@@ -4,10 +4,10 @@ docs/estimators.md gives the measurements behind the defaults.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import ClassVar
 
-from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.constraints import Constraint, Params, integer, number, one_of
 
 __all__ = ["RetrievalParams", "MAX_COUNT"]
 
@@ -16,7 +16,7 @@ MAX_COUNT = 1000
 
 
 @dataclass(frozen=True)
-class RetrievalParams:
+class RetrievalParams(Params):
     """Parameters of pose estimation (paper §V-C, docs/estimators.md); serialised into the metadata.
 
     Attributes
@@ -107,9 +107,3 @@ class RetrievalParams:
                                                       "segment_fit_gate", "max_point_distance")},
         "agreement_tolerance": number(0, nullable=True), "heavy_target_kg": number(0, nullable=True),
         **{name: number(0) for name in ("min_separation", "penetration_tolerance", "collinear_tolerance")}}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)

@@ -12,11 +12,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import schema
-from pipeline.geometry import Primitive
 from pipeline.detection import contact_forces
 from pipeline.estimators.target_model import target_primitive
-from pipeline.seeds import check_stream, run_key
+from pipeline.geometry import Primitive
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
+from pipeline.seeds import check_stream, run_key
 
 __all__ = ["RunInfo", "load_run", "info_from_table", "run_files_by_name", "retrieval_rng", "run_scene", "check_runs"]
 

@@ -16,7 +16,7 @@ uses it (it is the authors' procedure); ``plausible``, ``pushtrack`` and the pro
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from pipeline.geometry import Primitive, outline_point, primitive_of, rotate
 from pipeline.estimators.params import RetrievalParams
+from pipeline.geometry import Primitive, outline_point, primitive_of, rotate
 
 __all__ = ["target_primitive", "model_points", "model_normals", "project_to_outline", "pose_error"]
 

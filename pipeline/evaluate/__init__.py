@@ -25,8 +25,18 @@ last bits of Open3D's ICP, which vary from run to run anyway), and a stage rerun
 <stage>`` reproduces its file (byte for byte for isolate, track and segment). Outputs are written atomically
 (:func:`pipeline.schema.write_table`).
 """
-from pipeline.evaluate.config import (METHODS, QUICK_SCENES, QUICK_SEEDS, SCENES, EvalConfig, Job, config_lines,
-                                      parse_methods, parse_scenes, scene_files)
+from pipeline.evaluate.config import (
+    METHODS,
+    QUICK_SCENES,
+    QUICK_SEEDS,
+    SCENES,
+    EvalConfig,
+    Job,
+    config_lines,
+    parse_methods,
+    parse_scenes,
+    scene_files,
+)
 from pipeline.evaluate.freshness import stale_stages
 from pipeline.evaluate.jobs import JobResult, PreparedRun, prepare_run, run_job
 from pipeline.evaluate.parallel import BACKENDS, parallel_backend, single_threaded

@@ -6,15 +6,16 @@ resumed with the same one (docs/evaluation.md, "Resuming and skipping").
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline import registry
 from pipeline.atomic import write_text
+from pipeline.constraints import Params
+from pipeline.estimators.params import MAX_COUNT
 from pipeline.evaluate.migrate import MIGRATES_FROM, migrate
 from pipeline.layout import CONFIG, LAYOUT_VERSION
-from pipeline import registry
-from pipeline.estimators.params import MAX_COUNT
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 from pipeline.seeds import check_stream
 
@@ -32,7 +33,7 @@ QUICK_SEEDS = (0, 1)
 
 
 @dataclass(frozen=True)
-class EvalConfig:
+class EvalConfig(Params):
     """What an evaluation directory is made with; stored in ``DIR/evaluation.json``, checked on resume.
 
     Attributes
@@ -94,10 +95,11 @@ class EvalConfig:
             raise ValueError(f"max_actions must be a positive integer, got {self.max_actions!r}")
         if not 2 <= self.restarts <= MAX_COUNT:
             raise ValueError(f"restarts must be in [2, {MAX_COUNT}], got {self.restarts!r}")
+        super().__post_init__()
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form kept in ``DIR/evaluation.json`` (estimators as a list)."""
-        out = dict(asdict(self), estimators=list(self.estimators), scene_files=[list(f) for f in self.scene_files])
+        out = super().to_dict()
         if not self.scene_files:
             del out["scene_files"]
         if self.policy is None:

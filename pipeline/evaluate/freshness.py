@@ -12,14 +12,14 @@ for all its methods), and hands the stale stages on to the job (:func:`pipeline.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from pipeline import schema
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGE_SPECS, STAGES, JobPaths, job_paths, run_paths, stage_spec
 from pipeline.registry import DEFAULT_ESTIMATOR
-from pipeline.estimators.estimate import needs_every_step
 
 __all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
            "figure_stale"]

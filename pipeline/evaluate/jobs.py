@@ -8,15 +8,23 @@ they return what they ran and every stage's wall time, in memory.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 from pipeline.evaluate.config import EvalConfig, Job
 from pipeline.evaluate.freshness import Digests, job_stale_stages, shared_stale_stages
 from pipeline.evaluate.parallel import single_threaded
-from pipeline.evaluate.stages import (StageTimes, run_collect, run_isolate, run_retrieve, run_score, run_segment,
-                                      run_track, stored_stage_s)
+from pipeline.evaluate.stages import (
+    StageTimes,
+    run_collect,
+    run_isolate,
+    run_retrieve,
+    run_score,
+    run_segment,
+    run_track,
+    stored_stage_s,
+)
 from pipeline.layout import JobPaths, job_paths, run_paths, stage_spec
 
 __all__ = ["JobResult", "PreparedRun", "prepare_run", "prepare_one", "run_job"]

@@ -4,8 +4,8 @@ docs/evaluation.md, "CI regression on stored runs", says what is compared exactl
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import pyarrow as pa
 

@@ -6,19 +6,18 @@ like the flat kinds' (docs/evaluation.md, "The output directory").
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import pyarrow as pa
 
 from pipeline.atomic import write_text
-
+from pipeline.environment import environment_line
 from pipeline.evaluate.config import Job
 from pipeline.evaluate.stages import STAGE_COLUMNS
 from pipeline.layout import FLAT, KINDS, PER_ESTIMATOR, SHARED, partition
-from pipeline.environment import environment_line
-from pipeline.report import claims, table_ii, to_csv, to_markdown
 from pipeline.registry import DEFAULT_ESTIMATOR
+from pipeline.report import claims, table_ii, to_csv, to_markdown
 from pipeline.score import SCORES_COLUMNS, read_scores
 
 __all__ = ["read_kind", "gather_scores", "write_report"]

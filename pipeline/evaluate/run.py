@@ -7,13 +7,14 @@ spread over the workers of :func:`pipeline.evaluate.parallel_backend` (docs/eval
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import pyarrow as pa
 from tqdm import tqdm
 
+from pipeline import schema
 from pipeline.atomic import exclusive
 from pipeline.evaluate.config import EvalConfig, Job, check_config, config_lines
 from pipeline.evaluate.freshness import Digests, figure_stale, job_stale_stages, shared_stale_stages
@@ -25,7 +26,6 @@ from pipeline.figures import figure_path, run_figure, summary_figure
 from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths
 from pipeline.parallel import map_jobs
 from pipeline.report import table_ii
-from pipeline import schema
 from pipeline.retrieve import load_run, run_files_by_name
 
 __all__ = ["Evaluation", "evaluate"]

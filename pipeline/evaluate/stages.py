@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 import shutil
 import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Iterable, Mapping, Optional
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -25,12 +25,12 @@ import pyarrow.parquet as pq
 from pipeline import registry
 from pipeline.atomic import atomic_path
 from pipeline.collect import collect_file, output_path
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import EvalConfig
 from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGES, JobPaths, stage_spec
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
-from pipeline.estimators.estimate import needs_every_step
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
@@ -40,7 +40,7 @@ __all__ = ["STAGE_COLUMNS", "StageTimes", "run_collect", "run_isolate", "run_tra
 #: Columns the evaluation adds to the scores table (seconds of wall time per stage; null if unknown).
 STAGE_COLUMNS = tuple(f"stage_{s}_s" for s in STAGES)
 #: Stage name -> its wall time in seconds (None: unknown, e.g. a run copied by ``--from-runs``).
-StageTimes = dict[str, Optional[float]]
+StageTimes = dict[str, float | None]
 
 _COLLECT, _ISOLATE, _TRACK, _SEGMENT, _RETRIEVE, _SCORE = (stage_spec(s) for s in STAGES)
 

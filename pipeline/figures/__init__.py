@@ -15,15 +15,25 @@ Drawing blocks are in :mod:`pipeline.figures.draw`. Files are written to a tempo
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from pipeline import schema
 from pipeline.atomic import save_figure
-from pipeline.figures.draw import (draw_estimate, draw_grasp, draw_points, draw_scene, draw_trail, outline, pyplot,
-                                   scene_shapes, window, wrap)
+from pipeline.figures.draw import (
+    draw_estimate,
+    draw_grasp,
+    draw_points,
+    draw_scene,
+    draw_trail,
+    outline,
+    pyplot,
+    scene_shapes,
+    window,
+    wrap,
+)
 from pipeline.figures.tables import PLOTTABLE, plot_table, probe_actions, segments_with_plot
 from pipeline.layout import partition
 from pipeline.registry import method_title, tracker_names

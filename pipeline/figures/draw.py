@@ -7,9 +7,8 @@ Nothing here reads a file: :mod:`pipeline.figures` (the evaluation's figures) an
 """
 from __future__ import annotations
 
-import math
 import textwrap
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -14,6 +14,7 @@ object (named as in the scene); retrieval the estimated target and the grasp att
 from __future__ import annotations
 
 from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -21,8 +22,18 @@ import pyarrow.parquet as pq
 
 from pipeline import schema
 from pipeline.atomic import all_or_none, save_figure
-from pipeline.figures.draw import (draw_estimate, draw_grasp, draw_points, draw_scene, draw_trail, legend_outside,
-                                   pyplot, scene_shapes, window, wrap)
+from pipeline.figures.draw import (
+    draw_estimate,
+    draw_grasp,
+    draw_points,
+    draw_scene,
+    draw_trail,
+    legend_outside,
+    pyplot,
+    scene_shapes,
+    window,
+    wrap,
+)
 from pipeline.retrieve import load_run, run_files_by_name
 from pipeline.segment import final_estimates, segment_file
 

@@ -17,22 +17,28 @@ positions and the target's known shape.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-from pipeline.portable import exp
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.paper.choice import estimate_run
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.plausible.evidence import (
+    cached_gripper_lattice,
+    free_space_points,
+    recency_sigma,
+    target_reach,
+)
+from pipeline.estimators.plausible.fit import PlausibleParams, fit_segment
+from pipeline.estimators.segment_choice import resisting_choice, segment_fits
 from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
-from pipeline.estimators.estimate import Segment
-from pipeline.estimators.plausible.evidence import cached_gripper_lattice, free_space_points, recency_sigma, target_reach
-from pipeline.estimators.paper.choice import estimate_run
-from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.plausible.fit import PlausibleParams, fit_segment
-from pipeline.estimators.segment_choice import resisting_choice, segment_fits
+from pipeline.portable import exp
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
@@ -67,7 +73,7 @@ class Sensing:
     prior : pipeline.probe.history.HistoryPrior or None
         The prior the scripted part's pushes put on the target's pose, set once the scripted part is observed: its
         ``segment`` (the one it tracked) and ``cost(target, poses)``; the sets fitted to that segment from this
-        sensing add it (:func:`pipeline.probe.policy.set_from_steps`). None: no prior.
+        sensing add it (:func:`pipeline.probe.attribution.set_from_steps`). None: no prior.
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",

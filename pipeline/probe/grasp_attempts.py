@@ -1,4 +1,4 @@
-"""Grasp attempts that re-plan with what they sense (docs/retrieval.md, "The planned grasp").
+"""Grasp attempts that re-plan with what they sense (docs/active.md, "The planned grasp").
 
 In the run's restored final state (:func:`pipeline.grasp.restore_world`) the robot plans a grasp
 (:func:`pipeline.probe.grasp_plan.plan_grasp`), follows its way in with guarded moves, turns the hand, advances,
@@ -19,8 +19,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of
-from pipeline.grasp import OPEN, GraspParams, body_pose, finger_contacts, judge_box, judge_can, restore_world, \
-    set_fingers
+from pipeline.grasp import (
+    OPEN,
+    GraspParams,
+    body_pose,
+    finger_contacts,
+    judge_box,
+    judge_can,
+    restore_world,
+    set_fingers,
+)
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, held_by, plan_grasp
 
 __all__ = ["Attempt", "Attempts", "attempt_grasps", "felt_width", "NO_REACHABLE_GRASP"]

@@ -1,5 +1,5 @@
 """A grasp planned for the scene as sensed: every approach the target's shape allows, scored by the share of the
-plausible set it holds and by whether the gripper can get there (docs/retrieval.md, "The planned grasp").
+plausible set it holds and by whether the gripper can get there (docs/active.md, "The planned grasp").
 
 No per-task script: the candidates are the approaches the target's symmetry allows (a box's two ends, since the
 open hand spans only its short side; a can from any side), centred on the set's hypotheses. Each is scored by
@@ -107,16 +107,16 @@ class Surroundings:
     outline: np.ndarray
     tried: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
-    def moved(self, here: np.ndarray, trail: list | None = None) -> "Surroundings":
+    def moved(self, here: np.ndarray, trail: list | None = None) -> Surroundings:
         """A copy with the gripper at ``here`` (2,), having passed the positions ``trail`` (each (2,))."""
         visited = np.vstack([self.visited, *(trail or []), np.reshape(here, (1, 2))])
         return dataclasses.replace(self, here=np.asarray(here, dtype=np.float64).copy(), visited=visited)
 
-    def with_obstacle(self, point: np.ndarray) -> "Surroundings":
+    def with_obstacle(self, point: np.ndarray) -> Surroundings:
         """A copy with one more sensed obstacle contact (2,)."""
         return dataclasses.replace(self, obstacles=np.vstack([self.obstacles, np.reshape(point, (1, 2))]))
 
-    def with_miss(self, yaw: float, centre: np.ndarray) -> "Surroundings":
+    def with_miss(self, yaw: float, centre: np.ndarray) -> Surroundings:
         """A copy that remembers a grasp (yaw, centre (2,)) felt to miss."""
         return dataclasses.replace(self, tried=np.vstack([self.tried, np.r_[yaw, centre][None, :]]))
 

@@ -1,7 +1,8 @@
 """What the pushes said: a prior over the target's pose after the scripted part, for the probing policy's sets.
 
 The policy's plausible set fits one pose to the points and probe contacts sensed so far (:mod:`.belief`); it has
-no memory of how the target was pushed. The ``pushtrack`` estimator (:mod:`pipeline.estimators.pushtrack.estimator`) tracks
+no memory of how the target was pushed. The ``pushtrack`` estimator
+(:mod:`pipeline.estimators.pushtrack.estimator`) tracks
 the pose through the scripted part's pushes and rarely mistakes a box for one turned a quarter turn, the pose
 the policy's set most often settles on wrongly (docs/active.md, "What the pushes said: a prior from pushtrack"). Run
 once on the scripted part's rows, its refined set becomes a prior cost on every hypothesis of the
@@ -11,20 +12,20 @@ probes alone decide between nearby yaws) and within ``history_reach`` of their c
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pyarrow as pa
 
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.pushtrack.estimator import pushtrack_set
+from pipeline.estimators.pushtrack.filter import PushTrackParams
+from pipeline.estimators.run_info import info_from_table, retrieval_rng
 from pipeline.geometry import Primitive, primitive_pose, wrap_symmetric
 from pipeline.portable import exp, log
 from pipeline.probe.params import ProbeParams
-from pipeline.estimators.estimate import Segment
-from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.pushtrack.filter import PushTrackParams
-from pipeline.estimators.pushtrack.estimator import pushtrack_set
-from pipeline.estimators.run_info import info_from_table, retrieval_rng
 
 __all__ = ["HistoryPrior", "history_prior", "PRIOR_PUSHTRACK"]
 

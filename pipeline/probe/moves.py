@@ -4,8 +4,7 @@ part ended. Every action goes through the collect stage's ``act`` callback, whic
 from __future__ import annotations
 
 import math
-
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

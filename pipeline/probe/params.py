@@ -5,14 +5,14 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import ClassVar
 
-from pipeline.constraints import Constraint, check, integer, number, rule
+from pipeline.constraints import Constraint, Params, integer, number, rule
 from pipeline.probe.planning import PlanParams
 
 __all__ = ["ProbeParams", "ProbeLog"]
 
 
 @dataclass(frozen=True)
-class ProbeParams:
+class ProbeParams(Params):
     """Parameters of the probing policy; serialised into the run file's metadata.
 
     Attributes
@@ -128,12 +128,6 @@ class ProbeParams:
         "history_floor": number(0, 1, lo_open=True),
         "method": rule("a tracking method's name", lambda m: isinstance(m, str) and bool(m)),
         "plan": rule("a PlanParams", lambda v: isinstance(v, PlanParams))}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass

@@ -12,14 +12,14 @@ Everything is vectorised over (lines, hypotheses, outline points); nothing here 
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.portable import log
-from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate, wrap_symmetric
+from pipeline.constraints import Params
 from pipeline.estimators.plausible.evidence import gripper_lattice
+from pipeline.geometry import Primitive, com_pose, primitive_pose, rotate, wrap_symmetric
+from pipeline.portable import log
 from pipeline.probe.transit import Keepout, path_to, transit_graph
 
 __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreement", "outcome_entropy",
@@ -27,7 +27,7 @@ __all__ = ["PlanParams", "ProbePlan", "gripper_outline", "ray_travel", "agreemen
 
 
 @dataclass(frozen=True)
-class PlanParams:
+class PlanParams(Params):
     """Parameters of probe planning; serialised into the run's metadata.
 
     Attributes

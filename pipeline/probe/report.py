@@ -3,9 +3,8 @@ target (the run's recorded poses; ground truth, read for reporting only), for ``
 scripted+probe`` and ``stucco bench probe``."""
 from __future__ import annotations
 
-import math
-
 import json
+import math
 from pathlib import Path
 
 import numpy as np

@@ -8,25 +8,26 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.estimators.estimate import Segment
+from pipeline.estimators.run_info import RunInfo, retrieval_rng
+from pipeline.estimators.segment_choice import target_mass
+from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
+from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
+from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
+from pipeline.probe.params import ProbeParams
 from pipeline.probe.planning import PlanParams, gripper_outline
-from pipeline.probe.policy import ProbeParams, give_way_at_budget, set_from_steps, set_share
-from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
-from pipeline.estimators.estimate import Segment
-from pipeline.estimators.target_model import pose_error
-from pipeline.estimators.segment_choice import target_mass
-from pipeline.estimators.run_info import RunInfo, retrieval_rng
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 

@@ -12,7 +12,6 @@ Everything is vectorised over (links, samples along a link, outline points); not
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import numpy as np

@@ -5,18 +5,46 @@ The pose estimators it runs live in :mod:`pipeline.estimators` (docs/estimators.
 :mod:`pipeline.schema.results` and their building in :mod:`pipeline.schema.retrieval`. This package re-exports the
 names that the stages after it (score, evaluate, figures) use, so they need not know where each one lives.
 """
-from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, wrap_angle
-from pipeline.estimators.estimate import (DEFAULT_ESTIMATOR, Segment, estimate, estimate_plausible, plausible_notes,
-                                          retrieval_metadata)
+from pipeline.estimators.estimate import (
+    DEFAULT_ESTIMATOR,
+    Segment,
+    estimate,
+    estimate_plausible,
+    plausible_notes,
+    retrieval_metadata,
+)
+from pipeline.estimators.paper.choice import (
+    Choice,
+    Estimate,
+    choose_segment,
+    confidence_notes,
+    estimate_run,
+    min_clearance,
+)
 from pipeline.estimators.paper.icp import IcpResult, icp_error, icp_restarts, initial_transforms
-from pipeline.estimators.target_model import model_normals, model_points, pose_error, project_to_outline, target_primitive
-from pipeline.estimators.paper.choice import Choice, Estimate, choose_segment, confidence_notes, estimate_run, min_clearance
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.plausible.fit import PlausibleParams, SegmentFit, fit_segment
 from pipeline.estimators.run_info import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
+from pipeline.estimators.target_model import (
+    model_normals,
+    model_points,
+    pose_error,
+    project_to_outline,
+    target_primitive,
+)
+from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, wrap_angle
 from pipeline.retrieve.stage import RetrieveConfig, final_segments_by_run, retrieve, retrieve_file
-from pipeline.schema.retrieval import (CANDIDATES, CANDIDATES_COLUMNS, RETRIEVAL, RETRIEVAL_COLUMNS, candidates_table,
-                                      read_retrieval, retrieval_table, validate_candidates, validate_retrieval)
+from pipeline.schema.retrieval import (
+    CANDIDATES,
+    CANDIDATES_COLUMNS,
+    RETRIEVAL,
+    RETRIEVAL_COLUMNS,
+    candidates_table,
+    read_retrieval,
+    retrieval_table,
+    validate_candidates,
+    validate_retrieval,
+)
 
 __all__ = [
     "DEFAULT_ESTIMATOR", "Segment", "estimate", "estimate_plausible", "plausible_notes",

@@ -3,23 +3,32 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
+
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none
-from pipeline.grasp import GraspParams, grasp_at
-from pipeline.parallel import run_calls
-from pipeline.estimators.estimate import (DEFAULT_ESTIMATOR, History, Segment, estimate, needs_every_step,
-                                          retrieval_metadata)
-from pipeline.estimators.target_model import pose_error
+from pipeline.constraints import Params
+from pipeline.estimators.estimate import (
+    DEFAULT_ESTIMATOR,
+    History,
+    Segment,
+    estimate,
+    needs_every_step,
+    retrieval_metadata,
+)
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import RunInfo, check_runs, load_run, retrieval_rng, run_files_by_name
-from pipeline.schema.retrieval import candidates_table, retrieval_table
+from pipeline.estimators.target_model import pose_error
+from pipeline.grasp import GraspParams, grasp_at
+from pipeline.parallel import run_calls
 from pipeline.robot import load_robot
+from pipeline.schema.retrieval import candidates_table, retrieval_table
 from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
 
@@ -27,7 +36,7 @@ __all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "
 
 
 @dataclass(frozen=True)
-class RetrieveConfig:
+class RetrieveConfig(Params):
     """What `stucco retrieve` was asked to do; recorded in the output metadata (:meth:`metadata`).
 
     Attributes
@@ -40,7 +49,7 @@ class RetrieveConfig:
     params : RetrievalParams
         The paper's estimation parameters, shared by every estimator.
     estimator_params : dataclass instance, dict or None
-        The estimator's own parameters (e.g. :class:`~pipeline.estimators.plausible.fit.PlausibleParams`), a dict of
+        The estimator's own parameters (e.g. :class:`~pipeline.estimators.plausible.params.PlausibleParams`), a dict of
         overrides, or None for its defaults; held as the built instance (None for an estimator without any).
     grasp : bool
         Simulate the grasp at the estimate (:func:`pipeline.grasp.grasp_at`).
@@ -64,6 +73,7 @@ class RetrieveConfig:
             registry.tracker(self.method)  # ValueError naming the registered methods
         spec = registry.estimator(self.estimator)
         object.__setattr__(self, "estimator_params", registry.build_params(spec, self.estimator_params))
+        super().__post_init__()
 
     def metadata(self) -> dict:
         """The provenance ``params`` of the retrieval and candidates tables."""

@@ -16,11 +16,28 @@ code. One role per module:
 
 Every problem is a :class:`SceneError` whose one-line message names the file and the offending key.
 """
-from pipeline.scenes.files import (SCENE_DIR, load_all, load_scene, scene_digest, scene_from_text, scene_hash,
-                                   scene_names, scene_path)
+from pipeline.scenes.files import (
+    SCENE_DIR,
+    load_all,
+    load_scene,
+    scene_digest,
+    scene_from_text,
+    scene_hash,
+    scene_names,
+    scene_path,
+)
 from pipeline.scenes.parse import parse_scene
-from pipeline.scenes.types import (DEFAULT_ACTION_SCALE, WORKSPACE_M, Effects, ObjectSpec, Plane, Scene, SceneError,
-                                   WalkSpec, WallSpec)
+from pipeline.scenes.types import (
+    DEFAULT_ACTION_SCALE,
+    WORKSPACE_M,
+    Effects,
+    ObjectSpec,
+    Plane,
+    Scene,
+    SceneError,
+    WalkSpec,
+    WallSpec,
+)
 
 __all__ = [
     "SCENE_DIR",

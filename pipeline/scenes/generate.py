@@ -14,11 +14,26 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pipeline.scenes.catalogue import (DISTRACTOR_MASS_KG, LATERAL_FRICTION, MODELS, TARGET_KEYS, TARGET_MASS_KG,
-                                       TASK_WALLS, Model, MODEL_BY_KEY)
+from pipeline.scenes.catalogue import (
+    DISTRACTOR_MASS_KG,
+    LATERAL_FRICTION,
+    MODEL_BY_KEY,
+    MODELS,
+    TARGET_KEYS,
+    TARGET_MASS_KG,
+    TASK_WALLS,
+    Model,
+)
 from pipeline.scenes.coverage import DEFAULT_LANE_SPACING_M
-from pipeline.scenes.footprint import (GRIPPER_OUTLINE_M, bounding_box, gripper_outline, hidden_fraction,
-                                       object_outline, separation, wall_outline)
+from pipeline.scenes.footprint import (
+    GRIPPER_OUTLINE_M,
+    bounding_box,
+    gripper_outline,
+    hidden_fraction,
+    object_outline,
+    separation,
+    wall_outline,
+)
 from pipeline.scenes.types import WORKSPACE_M, ObjectSpec, WallSpec
 
 __all__ = ["GeneratorSpec", "GeneratorSpecError", "Layout", "DrawRejected", "sample_layout", "draw_rng",

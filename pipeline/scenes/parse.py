@@ -127,7 +127,7 @@ class _Reader:
             raise self.fail(k, f"expected numbers of at most {maximum:g} in magnitude, got {v!r}")
         return tuple(float(x) for x in v)
 
-    def sub(self, k: str, *, required: bool = False) -> "_Reader | None":
+    def sub(self, k: str, *, required: bool = False) -> _Reader | None:
         v = self.get(k, None, required=required)
         if v is None:
             return None
@@ -135,7 +135,7 @@ class _Reader:
             raise self.fail(k, f"expected a table, got {type(v).__name__}")
         return _Reader(self.path, v, f"{self.key(k)}.")
 
-    def subs(self, k: str) -> list["_Reader"]:
+    def subs(self, k: str) -> list[_Reader]:
         v = self.get(k, [])
         if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
             raise self.fail(k, "expected an array of tables ([[" + k + "]])")

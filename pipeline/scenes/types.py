@@ -251,7 +251,7 @@ class Scene:
         """The object to retrieve, if any."""
         return next((o for o in self.objects if o.target), None)
 
-    def with_effects(self, **changes: Any) -> "Scene":
+    def with_effects(self, **changes: Any) -> Scene:
         """A copy with some effects changed, e.g. ``scene.with_effects(noise_mm=0.0, walls=False)``."""
         try:
             return replace(self, effects=replace(self.effects, **changes))

@@ -15,7 +15,7 @@ import pyarrow as pa
 
 from pipeline.schema.errors import SchemaError
 
-__all__ = ["Column", "TableSpec"]
+__all__ = ["Column", "TableSpec", "ColumnViews", "format_bound"]
 
 
 @dataclass(frozen=True)
@@ -84,11 +84,11 @@ class Column:
             parts.append("finite or NaN (missing)" if self.nan_means_missing else "finite")
         lo, hi = self.minimum, self.maximum
         if lo is not None and hi is not None:
-            parts.append(f"{'(' if self.exclusive_minimum else '['}{_num(lo)}, {_num(hi)}]")
+            parts.append(f"{'(' if self.exclusive_minimum else '['}{format_bound(lo)}, {format_bound(hi)}]")
         elif lo is not None:
-            parts.append(f"{'>' if self.exclusive_minimum else '≥'} {_num(lo)}")
+            parts.append(f"{'>' if self.exclusive_minimum else '≥'} {format_bound(lo)}")
         elif hi is not None:
-            parts.append(f"≤ {_num(hi)}")
+            parts.append(f"≤ {format_bound(hi)}")
         return ", ".join(parts)
 
 
@@ -103,7 +103,7 @@ class TableSpec:
     name: str
     columns: tuple[Column, ...]
     rules: tuple[str, ...]
-    check: Callable[["_Columns"], None] | None = dataclasses.field(default=None, repr=False, compare=False)
+    check: Callable[[ColumnViews], None] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def column(self, name: str) -> Column:
         for c in self.columns:
@@ -122,7 +122,7 @@ class TableSpec:
 
 
 @dataclass
-class _Columns:
+class ColumnViews:
     """Numpy views of the canonical columns of a table under validation (passed to table rules)."""
 
     path: str
@@ -137,7 +137,7 @@ class _Columns:
         raise SchemaError(self.path, column, row, what)
 
 
-def _num(x: float) -> str:
+def format_bound(x: float) -> str:
     """A bound as messages and docs print it: ``1`` rather than ``1.0``, ``0.5`` as is."""
     return str(int(x)) if float(x).is_integer() else repr(float(x))
 

@@ -10,7 +10,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.schema.specs import validate_contacts
-from pipeline.schema.validate import _run_codes
+from pipeline.schema.validate import encode_runs
 
 __all__ = ["RunContacts", "contacts_by_run"]
 
@@ -92,7 +92,7 @@ def contacts_by_run(table: pa.Table) -> list[tuple[str, RunContacts]]:
     n = table.num_rows
     if n == 0:
         return []
-    codes, names = _run_codes(table.column("run"))
+    codes, names = encode_runs(table.column("run"))
 
     def f64(name):
         return np.asarray(table.column(name).to_numpy(zero_copy_only=False), dtype=np.float64)

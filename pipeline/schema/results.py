@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, _Columns
+from pipeline.schema.columns import Column, ColumnViews, TableSpec
 from pipeline.schema.rules import MAX_SECONDS
 
 __all__ = ["NOTES", "RETRIEVAL_COLUMNS", "CANDIDATES_COLUMNS", "SCORES_COLUMNS", "RETRIEVAL", "CANDIDATES",
@@ -150,7 +150,7 @@ SCORES_COLUMNS: tuple[Column, ...] = (
 )
 
 
-def _check_one_per_key(cols: _Columns) -> None:
+def _check_one_per_key(cols: ColumnViews) -> None:
     keys = list(zip(*(cols.arrays[c].to_pylist() for c in ("scene", "seed", "method", "estimator"))))
     seen: dict[tuple, int] = {}
     for i, k in enumerate(keys):

@@ -41,9 +41,10 @@ def retrieval_table(rows: list[dict[str, Any]]) -> pa.Table:
 
 
 def run_candidates(**columns) -> dict[str, np.ndarray]:
-    """One run's candidates, as an estimator returns them (:attr:`pipeline.estimators.paper.choice.Estimate.candidates`):
-    every column of :data:`CANDIDATES_COLUMNS` but ``run`` (the stage adds it), each an array of one length.
-    ValueError naming a missing or unknown column, or a length that differs."""
+    """One run's candidates, as an estimator returns them
+    (:attr:`pipeline.estimators.paper.choice.Estimate.candidates`): every column of :data:`CANDIDATES_COLUMNS` but
+    ``run`` (the stage adds it), each an array of one length. ValueError naming a missing or unknown column, or a length
+    that differs."""
     names = CANDIDATE_FIELDS
     missing = [n for n in names if n not in columns]
     extra = sorted(set(columns) - set(names))

@@ -1,6 +1,6 @@
 """Table rules: the checks of the stage tables that involve several columns or rows (``TableSpec.check``).
 
-Each rule receives the :class:`~pipeline.schema.columns._Columns` views built by the validation engine and
+Each rule receives the :class:`~pipeline.schema.columns.ColumnViews` views built by the validation engine and
 raises a one-line :class:`~pipeline.schema.errors.SchemaError` at the first bad row. Their human-readable
 statements are the ``rules`` of the specs in :mod:`pipeline.schema.specs` (listed in ``docs/tables.md``).
 """
@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.schema.columns import _Columns, _num
-from pipeline.schema.validate import _check_steps_nondecreasing, _first, _fmt
+from pipeline.schema.columns import ColumnViews, format_bound
+from pipeline.schema.validate import check_steps_nondecreasing, first_row, format_value
 
-__all__ = ["MAX_POSITION_M", "MAX_SECONDS", "MAX_STEP_DISPLACEMENT_M"]
+__all__ = ["MAX_POSITION_M", "MAX_SECONDS", "MAX_STEP_DISPLACEMENT_M", "check_contacts", "check_tracks",
+           "check_diagnostics"]
 
 # Values beyond these are almost certainly millimetres (or centimetres) passed as metres: the paper's
 # workspace is well under a metre across and a control step moves the gripper by millimetres.
@@ -25,7 +26,7 @@ MAX_STEP_DISPLACEMENT_M = 1.0
 _CONDITIONAL = ("contact_x_m", "contact_y_m", "dx_m", "dy_m")
 
 
-def _check_contacts(cols: _Columns) -> None:
+def check_contacts(cols: ColumnViews) -> None:
     v, null = cols.values, cols.null
     inc = v["in_contact"].astype(bool)
     for name in _CONDITIONAL:
@@ -35,7 +36,7 @@ def _check_contacts(cols: _Columns) -> None:
         nonfinite = inc & ~isnull & ~np.isfinite(x)
         nan_free = ~inc & nan
         value_free = ~inc & ~isnull & ~nan
-        r = _first(need | nonfinite | nan_free | value_free)
+        r = first_row(need | nonfinite | nan_free | value_free)
         if r is None:
             continue
         if need[r]:
@@ -43,11 +44,11 @@ def _check_contacts(cols: _Columns) -> None:
                     "displacement during the step in metres" if name in ("dx_m", "dy_m") else
                     "is null while in_contact is true; expected the contact point in metres")
         elif nonfinite[r]:
-            what = f"is {_fmt(x[r])} while in_contact is true; expected a finite value"
+            what = f"is {format_value(x[r])} while in_contact is true; expected a finite value"
         elif nan_free[r]:
             what = "is NaN while in_contact is false; use null (not NaN) when there is no contact"
         else:
-            what = f"is {_fmt(x[r])} while in_contact is false; expected null when there is no contact"
+            what = f"is {format_value(x[r])} while in_contact is false; expected null when there is no contact"
         cols.fail(name, r, what)
 
     for name, limit, what in (
@@ -58,12 +59,12 @@ def _check_contacts(cols: _Columns) -> None:
     ):
         x = v[name]
         with np.errstate(invalid="ignore"):
-            r = _first(np.abs(np.nan_to_num(x)) > limit)
+            r = first_row(np.abs(np.nan_to_num(x)) > limit)
         if r is not None:
-            cols.fail(name, r, f"is {_fmt(x[r])}, which looks like the wrong unit ({what} beyond "
-                               f"{_num(limit)} m); metres are expected")
+            cols.fail(name, r, f"is {format_value(x[r])}, which looks like the wrong unit ({what} beyond "
+                               f"{format_bound(limit)} m); metres are expected")
 
-    order, same = _check_steps_nondecreasing(
+    order, same = check_steps_nondecreasing(
         cols, strict=False, why="steps must be non-decreasing within a run")
     if cols.n == 0:
         return
@@ -85,15 +86,15 @@ def _check_contacts(cols: _Columns) -> None:
         if bad.any():
             r = int(order[bad].min())
             head = int(order[first_sorted[np.flatnonzero(order == r)[0]]])
-            cols.fail(name, r, f"is {_fmt(v[name][r])} but row {head} of the same step {v['step'][r]} "
-                               f"(run {cols.run_names[cols.run_codes[r]]!r}) has {_fmt(v[name][head])}; all rows "
-                               f"of one step must share the end-effector position")
+            cols.fail(name, r, f"is {format_value(v[name][r])} but row {head} of the same step {v['step'][r]} "
+                               f"(run {cols.run_names[cols.run_codes[r]]!r}) has {format_value(v[name][head])}; "
+                               f"all rows of one step must share the end-effector position")
 
 
-def _check_tracks(cols: _Columns) -> None:
+def check_tracks(cols: ColumnViews) -> None:
     v = cols.values
     step, est, ci = v["step"], v["estimate_step"], v["contact_index"]
-    if (r := _first(est < step)) is not None:
+    if (r := first_row(est < step)) is not None:
         cols.fail("estimate_step", r, f"is {est[r]}, before the contact was observed (step {step[r]}); "
                                       f"expected estimate_step ≥ step")
     if cols.n == 0:
@@ -112,12 +113,12 @@ def _check_tracks(cols: _Columns) -> None:
                   f"numbered 0..K-1 without gaps or repeats")
 
 
-def _check_diagnostics(cols: _Columns) -> None:
+def check_diagnostics(cols: ColumnViews) -> None:
     v = cols.values
     inc, k = v["in_contact"].astype(bool), v["n_contacts"]
-    if (r := _first(inc & (k < 1))) is not None:
+    if (r := first_row(inc & (k < 1))) is not None:
         cols.fail("n_contacts", r, f"is {k[r]} while in_contact is true; expected at least 1")
-    if (r := _first(~inc & (k != 0))) is not None:
+    if (r := first_row(~inc & (k != 0))) is not None:
         cols.fail("n_contacts", r, f"is {k[r]} while in_contact is false; expected 0")
-    _check_steps_nondecreasing(cols, strict=True,
+    check_steps_nondecreasing(cols, strict=True,
                                why="diagnostics have one row per step, with steps increasing within a run")

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, _Columns
+from pipeline.schema.columns import Column, ColumnViews, TableSpec
 from pipeline.schema.rules import MAX_POSITION_M, MAX_STEP_DISPLACEMENT_M
-from pipeline.schema.validate import _check_steps_nondecreasing, _first
+from pipeline.schema.validate import check_steps_nondecreasing, first_row
 
 __all__ = ["SIM_RUN_COLUMNS", "SIM_RUN", "MAX_WRENCH"]
 
@@ -84,23 +84,23 @@ SIM_RUN_COLUMNS: tuple[Column, ...] = (
 )
 
 
-def _check_sim_run(cols: _Columns) -> None:
+def _check_sim_run(cols: ColumnViews) -> None:
     if cols.n == 0:
         cols.fail(None, None, "has no actions; expected at least one row (a run file written by stucco collect)")
     if len(cols.run_names) > 1:
-        r = _first(cols.run_codes != 0)
+        r = first_row(cols.run_codes != 0)
         cols.fail("run", r, f"is {cols.run_names[cols.run_codes[r]]!r} after {cols.run_names[0]!r}; expected one "
                             "run per file")
     seed = cols.values["seed"]
-    if (r := _first(seed != seed[0])) is not None:
+    if (r := first_row(seed != seed[0])) is not None:
         cols.fail("seed", r, f"is {int(seed[r])} after {int(seed[0])}; expected one seed per file")
-    _check_steps_nondecreasing(cols, strict=True, why="expected strictly increasing action indices")
+    check_steps_nondecreasing(cols, strict=True, why="expected strictly increasing action indices")
     inc = cols.values["in_contact"].astype(bool)
     for name in ("contact_dx_m", "contact_dy_m"):
-        if (r := _first(~inc & ~cols.null[name])) is not None:
+        if (r := first_row(~inc & ~cols.null[name])) is not None:
             cols.fail(name, r, f"is {float(cols.values[name][r])!r} while in_contact is false; expected null")
     wrench = cols.values["win_wrench"]
-    if (r := _first(np.isnan(wrench).any(axis=(1, 2)) & inc)) is not None:
+    if (r := first_row(np.isnan(wrench).any(axis=(1, 2)) & inc)) is not None:
         cols.fail("win_wrench", r, "has NaN while in_contact is true; the detector needs the wrench")
 
 

@@ -13,9 +13,9 @@ import pyarrow as pa
 
 from pipeline.schema.columns import Column, TableSpec
 from pipeline.schema.results import CANDIDATES, RETRIEVAL, SCORES
-from pipeline.schema.rules import MAX_POSITION_M, MAX_SECONDS, _check_contacts, _check_diagnostics, _check_tracks
+from pipeline.schema.rules import MAX_POSITION_M, MAX_SECONDS, check_contacts, check_diagnostics, check_tracks
 from pipeline.schema.runs import SIM_RUN
-from pipeline.schema.validate import _validate
+from pipeline.schema.validate import validate_spec
 
 __all__ = [
     "CONTACTS_COLUMNS",
@@ -111,7 +111,7 @@ CONTACTS = TableSpec(
         "`object_id` is optional; if present it has no nulls.",
         "Any other column is allowed and carried through unchanged, after the columns above.",
     ),
-    check=_check_contacts,
+    check=check_contacts,
 )
 
 TRACKS = TableSpec(
@@ -126,10 +126,10 @@ TRACKS = TableSpec(
         "`estimate_step`). Without it, only the final estimate; readers of the final points take the rows with "
         "the run's largest `estimate_step`.",
     ),
-    check=_check_tracks,
+    check=check_tracks,
 )
 
-SEGMENTS = TableSpec("segments", SEGMENTS_COLUMNS, rules=TRACKS.rules, check=_check_tracks)
+SEGMENTS = TableSpec("segments", SEGMENTS_COLUMNS, rules=TRACKS.rules, check=check_tracks)
 
 DIAGNOSTICS = TableSpec(
     "diagnostics", DIAGNOSTICS_COLUMNS,
@@ -137,7 +137,7 @@ DIAGNOSTICS = TableSpec(
         "One row per control step: `step` strictly increasing within a run.",
         "`n_contacts` ≥ 1 when `in_contact`, 0 otherwise.",
     ),
-    check=_check_diagnostics,
+    check=check_diagnostics,
 )
 
 #: Every table kind a stage writes, in pipeline order (``sim_run`` is the runs table).
@@ -158,24 +158,24 @@ def validate_table(table: pa.Table, kind: str, path: str | os.PathLike = "<table
     ------
     SchemaError
     """
-    return _validate(table, TABLES[kind], path)
+    return validate_spec(table, TABLES[kind], path)
 
 
 def validate_contacts(table: pa.Table, path: str | os.PathLike = "<table>") -> pa.Table:
     """Validate a contacts table; see :func:`validate_table` and :data:`CONTACTS`."""
-    return _validate(table, CONTACTS, path)
+    return validate_spec(table, CONTACTS, path)
 
 
 def validate_tracks(table: pa.Table, path: str | os.PathLike = "<table>") -> pa.Table:
     """Validate a tracks table; see :func:`validate_table` and :data:`TRACKS`."""
-    return _validate(table, TRACKS, path)
+    return validate_spec(table, TRACKS, path)
 
 
 def validate_segments(table: pa.Table, path: str | os.PathLike = "<table>") -> pa.Table:
     """Validate a segments table; see :func:`validate_table` and :data:`SEGMENTS`."""
-    return _validate(table, SEGMENTS, path)
+    return validate_spec(table, SEGMENTS, path)
 
 
 def validate_diagnostics(table: pa.Table, path: str | os.PathLike = "<table>") -> pa.Table:
     """Validate a diagnostics table; see :func:`validate_table` and :data:`DIAGNOSTICS`."""
-    return _validate(table, DIAGNOSTICS, path)
+    return validate_spec(table, DIAGNOSTICS, path)

@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.schema.columns import Column, TableSpec, _Columns, _num
+from pipeline.schema.columns import Column, ColumnViews, TableSpec, format_bound
 from pipeline.schema.errors import SchemaError
 
-__all__ = ["validate_spec"]
+__all__ = ["validate_spec", "encode_runs", "format_value", "first_row", "check_steps_nondecreasing"]
 
 
 def _accepts(target: pa.DataType, t: pa.DataType) -> bool:
@@ -59,7 +59,7 @@ def _list_values(col: pa.ChunkedArray, c: Column, path: str) -> np.ndarray:
         else:
             lengths = np.asarray(arr.value_lengths().fill_null(0).to_numpy(zero_copy_only=False))
             rows = int(np.prod(sizes)) if sizes else 1
-            if lengths.size and (r := _first(lengths != lengths[0])) is not None:
+            if lengths.size and (r := first_row(lengths != lengths[0])) is not None:
                 raise SchemaError(path, c.name, r // rows, f"has {int(lengths[r])} elements where the first row has "
                                                            f"{int(lengths[0])}; expected one length in a file")
             sizes.append(int(lengths[0]) if lengths.size else 0)
@@ -76,13 +76,13 @@ _ACCEPTED = {
 }
 
 
-def _run_codes(col: pa.ChunkedArray) -> tuple[np.ndarray, list[str]]:
+def encode_runs(col: pa.ChunkedArray) -> tuple[np.ndarray, list[str]]:
     # dictionary_encode numbers values by first appearance, which is the run order we promise.
     enc = col.combine_chunks().dictionary_encode()
     return enc.indices.to_numpy(zero_copy_only=False).astype(np.int64), enc.dictionary.to_pylist()
 
 
-def _fmt(v: Any) -> str:
+def format_value(v: Any) -> str:
     if isinstance(v, (float, np.floating)):
         return repr(float(v))
     if isinstance(v, (np.integer,)):
@@ -100,23 +100,19 @@ def _rows(mask: np.ndarray) -> np.ndarray:
 def _what(value: Any, bad: Any, shape: tuple[int, ...]) -> str:
     """'is X' for a scalar value; 'has X at [i, j]' for a list column's row (flattened `value`, `bad`)."""
     if not shape:
-        return f"is {_fmt(value)}"
+        return f"is {format_value(value)}"
     i = int(np.flatnonzero(bad)[0])
     index = ", ".join(str(int(k)) for k in np.unravel_index(i, shape))
-    return f"has {_fmt(value[i])} at [{index}]"
+    return f"has {format_value(value[i])} at [{index}]"
 
 
-def _first(mask: np.ndarray) -> int | None:
+def first_row(mask: np.ndarray) -> int | None:
     idx = np.flatnonzero(mask)
     return int(idx[0]) if idx.size else None
 
 
 def validate_spec(table: pa.Table, spec: TableSpec, path: str | os.PathLike = "<table>") -> pa.Table:
     """Validate a table against any :class:`TableSpec` (stages that own their tables use this)."""
-    return _validate(table, spec, path)
-
-
-def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.Table:
     path = str(path)
     if not isinstance(table, pa.Table):
         raise TypeError(f"expected a pyarrow.Table, got {type(table).__name__}")
@@ -144,14 +140,14 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
         col = table.column(c.name)
         if pa.types.is_uint64(col.type) and c.type == pa.int64():
             big = np.asarray(col.to_numpy(zero_copy_only=False)) > np.iinfo(np.int64).max
-            if (r := _first(big)) is not None:
+            if (r := first_row(big)) is not None:
                 raise SchemaError(path, c.name, r, f"{col[r].as_py()} does not fit in int64")
         if col.type != c.type and not c.shape:
             col = col.cast(c.type)
         arrays[c.name] = col
         isnull = col.is_null().to_numpy(zero_copy_only=False) if col.null_count else np.zeros(n, bool)
         null[c.name] = np.asarray(isnull, dtype=bool)
-        if not c.nullable and (r := _first(null[c.name])) is not None:
+        if not c.nullable and (r := first_row(null[c.name])) is not None:
             raise SchemaError(path, c.name, r, "is null; expected a value (this column is never null)")
         if c.shape:
             v = _list_values(col, c, path)
@@ -170,21 +166,21 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
                 ok = ok[:, None]
             if c.nan_means_missing:
                 ok = ok & ~np.isnan(v)
-            if c.finite and (r := _first(_rows(ok & ~np.isfinite(v)))) is not None:
+            if c.finite and (r := first_row(_rows(ok & ~np.isfinite(v)))) is not None:
                 raise SchemaError(path, c.name, r, f"{_what(v[r], ok[r] & ~np.isfinite(v[r]), shape)}; "
                                                    "expected a finite value")
             with np.errstate(invalid="ignore"):
                 if c.minimum is not None:
                     below = ok & ((v <= c.minimum) if c.exclusive_minimum else (v < c.minimum))
-                    if (r := _first(_rows(below))) is not None:
-                        bound = ("greater than " if c.exclusive_minimum else "at least ") + _num(c.minimum)
+                    if (r := first_row(_rows(below))) is not None:
+                        bound = ("greater than " if c.exclusive_minimum else "at least ") + format_bound(c.minimum)
                         raise SchemaError(path, c.name, r, f"{_what(v[r], below[r], shape)}; expected {bound}")
-                if c.maximum is not None and (r := _first(_rows(above := ok & (v > c.maximum)))) is not None:
+                if c.maximum is not None and (r := first_row(_rows(above := ok & (v > c.maximum)))) is not None:
                     raise SchemaError(path, c.name, r,
-                                      f"{_what(v[r], above[r], shape)}; expected at most {_num(c.maximum)}")
+                                      f"{_what(v[r], above[r], shape)}; expected at most {format_bound(c.maximum)}")
 
-    codes, run_names = _run_codes(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
-    cols = _Columns(path, n, values, null, codes, run_names, arrays)
+    codes, run_names = encode_runs(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
+    cols = ColumnViews(path, n, values, null, codes, run_names, arrays)
     if spec.check is not None:
         spec.check(cols)
 
@@ -195,7 +191,7 @@ def _validate(table: pa.Table, spec: TableSpec, path: str | os.PathLike) -> pa.T
                                 schema=pa.schema(out_fields))
 
 
-def _sorted_by_run(cols: _Columns) -> tuple[np.ndarray, np.ndarray]:
+def _sorted_by_run(cols: ColumnViews) -> tuple[np.ndarray, np.ndarray]:
     """(order, same): rows grouped by run in first-appearance order, file order kept within a run; `same[i]`
     says sorted rows i and i+1 belong to the same run."""
     order = np.argsort(cols.run_codes, kind="stable")
@@ -203,7 +199,7 @@ def _sorted_by_run(cols: _Columns) -> tuple[np.ndarray, np.ndarray]:
     return order, rc[1:] == rc[:-1]
 
 
-def _check_steps_nondecreasing(cols: _Columns, strict: bool, why: str) -> tuple[np.ndarray, np.ndarray]:
+def check_steps_nondecreasing(cols: ColumnViews, strict: bool, why: str) -> tuple[np.ndarray, np.ndarray]:
     step = cols.values["step"]
     order, same = _sorted_by_run(cols)
     s = step[order]

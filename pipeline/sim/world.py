@@ -327,7 +327,7 @@ class World:
             _release(self.client)
             self.client = -1
 
-    def __enter__(self) -> "World":
+    def __enter__(self) -> World:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -14,18 +14,19 @@ streams, each setting's segments are estimated once per stream and its grasp suc
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import pyarrow as pa
 from tqdm import tqdm
 
 from pipeline import registry, schema
+from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate import EvalConfig, map_jobs, prepare_run, single_threaded
 from pipeline.grasp import GraspParams
 from pipeline.layout import partition
 from pipeline.retrieve import PlausibleParams, RetrievalParams, RetrieveConfig, retrieve
-from pipeline.estimators.estimate import needs_every_step
 from pipeline.robot import load_robot
 from pipeline.score import score
 from pipeline.seeds import check_stream

@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 from pipeline import registry
 
@@ -40,14 +41,14 @@ def accuracy_settings(n_list: Sequence[int] = (10, 30, 100, 300, 1000), restarts
                           ("n_particles", (128, 256, 512, 1024)), ("n_refine", (0, 32, 128)),
                           ("substeps", (1, 4, 8)), ("starts", (1, 6)), ("islands", (1, 4)),
                           ("motion", ("tip", "push", "sweep")), ("select", ("held_mean", "grasp")))) -> list[Setting]:
-    """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table
-    I), the plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's),
-    the pushtrack estimator's knobs ``pushtrack`` ((parameter, values) pairs of
-    :class:`~pipeline.estimators.pushtrack.filter.PushTrackParams`: particles, refined particles, push integration steps,
-    the contacts its filter may start from, the independent filters it pools, the pushing model, the choice of the
-    estimate among the refined particles;
-    the default values run as "stucco pushtrack estimator"), then the baselines at their defaults (None:
-    :func:`pipeline.registry.baseline_names`). The default STUCCO setting appears once."""
+    """The sweep: STUCCO's N (other knobs at their defaults), then restarts and SDF resolution (N = 100, Table I), the
+    plausible estimator's hypotheses and free-space lattice spacing, the other estimators (the paper's), the pushtrack
+    estimator's knobs ``pushtrack`` ((parameter, values) pairs of
+    :class:`~pipeline.estimators.pushtrack.params.PushTrackParams`: particles, refined particles, push integration
+    steps, the contacts its filter may start from, the independent filters it pools, the pushing model, the choice of
+    the estimate among the refined particles; the default values run as "stucco pushtrack estimator"), then the
+    baselines at their defaults (None: :func:`pipeline.registry.baseline_names`). The default STUCCO setting appears
+    once."""
     out: list[Setting] = []
     seen: set[tuple] = set()
 

@@ -4,8 +4,9 @@ Input is the per-run table of :func:`pipeline.studies.accuracy_bench`; docs/stud
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa

@@ -9,21 +9,21 @@ and the grasp is simulated in the state after those probes, the gripper back at 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from pipeline import schema
 from pipeline.atomic import atomic_path, write_csv_rows
 from pipeline.collect import collect_file, output_path
+from pipeline.estimators.run_info import load_run
+from pipeline.estimators.target_model import pose_error
 from pipeline.parallel import run_calls
 from pipeline.probe.policy import ProbeParams, required_contacts
 from pipeline.probe.report import run_stats, save_times
 from pipeline.probe.retrieval import active_set
 from pipeline.probe.set_grasp import grasp_for_set
-from pipeline.estimators.target_model import pose_error
-from pipeline.estimators.run_info import load_run
 from pipeline.scenes import load_scene
 
 __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]

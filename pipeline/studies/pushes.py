@@ -14,20 +14,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.estimators.pushtrack.filter import model_length, model_push
+from pipeline.estimators.pushtrack.params import MOTIONS, SLICE_MOTIONS, PushTrackParams
+from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice, target_outline
+from pipeline.estimators.run_info import load_run
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.estimators.pushtrack.filter import model_length, model_push
-from pipeline.estimators.pushtrack.params import MOTIONS, SLICE_MOTIONS, PushTrackParams
-from pipeline.estimators.run_info import load_run
-from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice, target_outline
 
 __all__ = ["MIN_PUSH", "REPLAYS", "PushCase", "push_cases", "model_pose", "replay_pose", "push_rows", "summarise",
            "summary_markdown", "write_outputs"]

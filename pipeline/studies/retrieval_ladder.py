@@ -40,20 +40,21 @@ points), ``yaw`` (more than ``YAW_TOL``), ``position`` (more than ``POSITION_TOL
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow.parquet as pq
+
 from pipeline import registry, schema
+from pipeline.estimators.estimate import Segment, estimate, history_from_final, needs_every_step
+from pipeline.estimators.run_info import RunInfo, load_run, retrieval_rng
+from pipeline.estimators.target_model import pose_error
 from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.estimators.estimate import Segment, estimate, history_from_final, needs_every_step
-from pipeline.estimators.target_model import pose_error
-from pipeline.estimators.run_info import RunInfo, load_run, retrieval_rng
 from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
 from pipeline.segment import final_estimates

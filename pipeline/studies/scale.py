@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from pipeline.atomic import save_figure, write_csv_rows
 from pipeline.evaluate import EvalConfig, evaluate

@@ -1,7 +1,7 @@
 """Speed and accuracy of the trackers on the authors' benchmark streams, side by side with their implementation.
 
-Each (T, N) combination runs in a fresh process (``python -m pipeline.studies.trackers worker ...``) so that peak memory is
-that process's own, as in the reference harness; compiled kernels are loaded and warmed up before the clock
+Each (T, N) combination runs in a fresh process (``python -m pipeline.studies.trackers worker ...``) so that peak
+memory is that process's own, as in the reference harness; compiled kernels are loaded and warmed up before the clock
 starts, as the reference's torch import and set-up are excluded from its figures. The reference figures come
 from ``data/anchors/reference.json`` (the authors' recorded timings, with their source in the file) or, with
 ``reference_python``, from rerunning the authors' harness on this machine.
@@ -65,7 +65,8 @@ def score(stream: dict, points: np.ndarray, labels: np.ndarray) -> dict:
 
 def stream_tracker(method: str, n_particles: int, seed: int, robot_spec: str, weighting: str = "reference"):
     from pipeline.robot import load_robot
-    from pipeline.track.stage import TrackConfig, make_tracker as build
+    from pipeline.track.stage import TrackConfig
+    from pipeline.track.stage import make_tracker as build
 
     params = dict(n_particles=n_particles, weighting=weighting) if method == "stucco" else {}
     return build(TrackConfig(method=method, robot=robot_spec, params=params), load_robot(robot_spec),
@@ -258,7 +259,8 @@ def track_bench(T_list=(50, 100, 200, 400), N_list=(100, 500), *, repeats: int =
     return results
 
 
-if __name__ == "__main__":  # worker entry point: python -m pipeline.studies.trackers worker T N method seed weighting dir
+# worker entry point: python -m pipeline.studies.trackers worker T N method seed weighting dir
+if __name__ == "__main__":
     if len(sys.argv) >= 7 and sys.argv[1] == "worker":
         os.environ.setdefault("PYTHONHASHSEED", "0")
         _, _, T, N, method, seed, weighting, streams = sys.argv[:8]

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -19,11 +20,12 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from pipeline import registry, schema
-from pipeline.collect import MIN_REP_FORCE_N, collect, output_path
+from pipeline.action_summary import MIN_REP_FORCE_N
+from pipeline.collect import collect, output_path
+from pipeline.estimators.run_info import run_scene
 from pipeline.evaluate import map_jobs, single_threaded
 from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict
 from pipeline.retrieve import Primitive, primitive_of
-from pipeline.estimators.run_info import run_scene
 from pipeline.scenes import load_scene
 from pipeline.score import contact_error_cm, fmi
 from pipeline.segment import final_estimates, segment_table, segmentation_params

@@ -4,17 +4,18 @@ docs/studies.md, ``stucco study tune``; the defaults (Table I, §V-B) are not ch
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import registry
+from pipeline.constraints import plain
 from pipeline.studies.tables import median_of, write_csv
 from pipeline.studies.training import TRAINING_SCENES, TRAINING_SEEDS, load_training, score_methods
 
@@ -68,5 +69,5 @@ def tune(out: str | Path, grid: dict[str, tuple[str, Sequence[float]]] | None = 
 
 
 def dataclass_dict(obj) -> dict[str, Any]:
-    """``dataclasses.asdict`` (a baseline's parameters as a dict)."""
-    return dataclasses.asdict(obj)
+    """A baseline's parameters as a dict (:func:`pipeline.constraints.plain`)."""
+    return plain(obj)

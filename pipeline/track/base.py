@@ -15,9 +15,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from pipeline.constraints import from_dict as params_from_dict
-
-__all__ = ["ContactTracker", "StepResult", "params_from_dict"]
+__all__ = ["ContactTracker", "StepResult"]
 
 
 @dataclass(frozen=True)

@@ -12,14 +12,15 @@ the growing k-means and the GM-PHD filter of :mod:`pipeline.track.gmphd`. Build 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from sklearn.cluster import DBSCAN, Birch, KMeans
 from sklearn.exceptions import ConvergenceWarning
 
-from pipeline.constraints import Constraint, check, integer, number
+from pipeline.constraints import Constraint, Params, integer, number
 from pipeline.labels import canonical_labels
 from pipeline.track.base import StepResult
 from pipeline.track.gmphd import GMPHDLabeller, GMPHDParams
@@ -45,7 +46,7 @@ __all__ = [
 # parameters
 # ---------------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class BirchParams:
+class BirchParams(Params):
     """``sklearn.cluster.Birch(threshold, branching_factor, n_clusters=None)``; threshold in metres (tuned 0.08)."""
 
     threshold: float = 0.08
@@ -53,12 +54,9 @@ class BirchParams:
     constraints: ClassVar[dict[str, Constraint]] = {"threshold": number(0, lo_open=True),
                                                     "branching_factor": integer(2, whole=True)}
 
-    def __post_init__(self) -> None:
-        check(self)
-
 
 @dataclass(frozen=True)
-class DBSCANParams:
+class DBSCANParams(Params):
     """``sklearn.cluster.DBSCAN(eps, min_samples)``; eps in metres (tuned 0.05; 0.1 on the real robot)."""
 
     eps: float = 0.05
@@ -66,12 +64,9 @@ class DBSCANParams:
     constraints: ClassVar[dict[str, Constraint]] = {"eps": number(0, lo_open=True),
                                                     "min_samples": integer(1, whole=True)}
 
-    def __post_init__(self) -> None:
-        check(self)
-
 
 @dataclass(frozen=True)
-class KMeansParams:
+class KMeansParams(Params):
     """k-means starting at k = 1 and growing k by one when inertia(k+1) < inertia_ratio · inertia(k).
 
     Attributes
@@ -96,9 +91,6 @@ class KMeansParams:
         "inertia_ratio": number(0, 1, lo_open=True), "min_points_to_grow": integer(2, whole=True),
         # n_init: k-means restarts per fit and per step; beyond 1000 a run never ends.
         "n_init": integer(1, 1000, whole=True), "min_inertia": number(0)}
-
-    def __post_init__(self) -> None:
-        check(self)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -197,7 +189,7 @@ class HardTrackingWrapper:
         The clustering method; stateful labellers (k-means, GM-PHD) belong to this tracker alone.
     params : dataclass instance or None
         The method's full parameter set, kept only to be recorded in output metadata
-        (``dataclasses.asdict(tracker.params)``).
+        (``tracker.params.to_dict()``).
 
     Attributes
     ----------

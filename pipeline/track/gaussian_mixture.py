@@ -17,8 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pipeline.portable import exp, log, logsumexp
-from pipeline.spd import (cho_solve_matrix, cholesky, largest_eigenvalue_bound, matmul, solve_lower,
-                          symmetrise)
+from pipeline.spd import cho_solve_matrix, cholesky, largest_eigenvalue_bound, matmul, solve_lower, symmetrise
 
 __all__ = ["predict", "update", "prune", "extract_targets"]
 

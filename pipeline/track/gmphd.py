@@ -20,14 +20,13 @@ stored points move.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.constraints import Constraint, check, integer, number, rule
+from pipeline.constraints import Constraint, Params, integer, number, rule
 from pipeline.track.gaussian_mixture import extract_targets, predict, prune, update
 
 __all__ = [
@@ -40,7 +39,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class GMPHDParams:
+class GMPHDParams(Params):
     """GM-PHD model and pruning parameters (defaults: the authors', tuned for BOR in simulation).
 
     Attributes
@@ -97,10 +96,10 @@ class GMPHDParams:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "bounds", tuple(float(b) for b in self.bounds))
-        check(self)
+        super().__post_init__()
 
     @classmethod
-    def training_set(cls) -> "GMPHDParams":
+    def training_set(cls) -> GMPHDParams:
         """The authors' tuning on the training set, paper §V-B (birth 0.001, detection 0.3, q = r = 0.1, bias 1)."""
         return cls(q=0.1, r=0.1, bias=1.0)
 

@@ -27,9 +27,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from pipeline.track.ordering import (_below_exp, _first_above, _first_at_least, _groups_by_first_coordinate,
-                                     _merge_order, _same_config)
 from pipeline.pairwise_sum import pairwise_sum
+from pipeline.track.ordering import (
+    below_exp,
+    first_above,
+    first_at_least,
+    groups_by_first_coordinate,
+    merge_order,
+    same_config,
+)
 
 #: A term counts as penetrating only when sdf + tol is below -PEN_EPS (metres): grid cells that sit exactly at
 #: -tol give sdf + tol = -1e-17 in float64 (0 in float32), and such a tie must not mark a point inconsistent.
@@ -58,7 +64,7 @@ def _default_threads() -> int:
 
 
 @njit(cache=True)
-def _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res, lo, hi, tol):
+def contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res, lo, hi, tol):
     """Penetration term of point j against config i of particle n, as it was before a motion.
 
     Returns min(0, sdf(P[n, j] - C[n, i] - (disp[b] - disp[a])) + tol): the point moved by ``disp[b]`` and the
@@ -133,12 +139,12 @@ def predict_and_update(P, C, order, u, prev_points, dx, x, p, m_old, length, col
             disp[k, d] = dx[k, d]
     for n in prange(N):
         group = _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length)
-        counts, gorder, xs, ys, dup = _groups_by_first_coordinate(P, C, n, group, order, m_old, K)
+        counts, gorder, xs, ys, dup = groups_by_first_coordinate(P, C, n, group, order, m_old, K)
         _update_moved_pairs(P, C, n, counts, gorder, xs, ys, dup, disp, zero, colpen, npen, values, shape, strides,
                             origin, inv_res, lo, hi, tol)
         _add_new_pairs(P, C, n, m_old, m_old + K, counts, gorder, xs, ys, zero, colpen, npen, values, shape,
                        strides, origin, inv_res, lo, hi, tol)
-        _merge_order(P, n, counts, gorder, xs, order, m_old, K)
+        merge_order(P, n, counts, gorder, xs, order, m_old, K)
         eps[n] = 0.0 + pairwise_sum(colpen[n], 0, m_old + K)  # 0.0 +: np.sum's +0 for a sum of -0s
     return eps
 
@@ -162,7 +168,7 @@ def _predict_particle(P, C, n, u, prev_points, dx, x, p, m_old, length):
             if d2 < best_d2:
                 best_d2 = d2
                 best = k
-        joined = _below_exp(u[n, j], -best_d2 / length)
+        joined = below_exp(u[n, j], -best_d2 / length)
         group[j] = best if joined else K
         for d in range(D):  # without a branch: whether a point joins is a coin flip
             v = P[n, j, d]
@@ -208,7 +214,7 @@ def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen,
             n_hit = 0
             for ii in range(counts[a], counts[a + 1]):
                 i = order[ii]
-                if ii > counts[a] and _same_config(C, n, i, order[ii - 1]):
+                if ii > counts[a] and same_config(C, n, i, order[ii - 1]):
                     # the same config as the previous one: the same window and terms, added again to each point
                     for h in range(n_hit):
                         _add_change(colpen, npen, n, hit_j[h], hit_new[h], hit_old[h])
@@ -216,8 +222,8 @@ def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen,
                 n_hit = 0
                 c0 = C[n, i, 0]
                 c1 = C[n, i, 1] if D > 1 else 0.0
-                j0 = _first_at_least(xs, counts[b], counts[b + 1], c0 + win_lo)
-                j1 = _first_above(xs, j0, counts[b + 1], c0 + win_hi)
+                j0 = first_at_least(xs, counts[b], counts[b + 1], c0 + win_lo)
+                j1 = first_above(xs, j0, counts[b + 1], c0 + win_hi)
                 new = 0.0
                 old = 0.0
                 for jj in range(j0, j1):
@@ -226,9 +232,9 @@ def _update_moved_pairs(P, C, n, counts, order, xs, ys, dup, disp, zero, colpen,
                         continue  # neither the old nor the new offset is in the box: both terms are 0
                     j = order[jj]
                     if jj == j0 or not dup[jj]:  # else the same point as the previous one: the same terms
-                        new = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
+                        new = contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res,
                                             lo, hi, tol)
-                        old = _contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
+                        old = contribution(P, C, n, j, i, disp, a, b, values, shape, strides, origin, inv_res,
                                             lo, hi, tol)
                     if new != old:
                         _add_change(colpen, npen, n, j, new, old)
@@ -259,7 +265,7 @@ def _add_new_pairs(P, C, n, m_old, m_new, counts, order, xs, ys, zero, colpen, n
         colpen[n, j] = 0.0
         npen[n, j] = 0
         for i in range(m_new):
-            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+            c = contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
             if c < 0.0:
                 colpen[n, j] += c
                 npen[n, j] += 1
@@ -267,15 +273,15 @@ def _add_new_pairs(P, C, n, m_old, m_new, counts, order, xs, ys, zero, colpen, n
         c0 = C[n, i, 0]
         c1 = C[n, i, 1] if D > 1 else 0.0
         for b in range(counts.size - 1):
-            j0 = _first_at_least(xs, counts[b], counts[b + 1], c0 + lo[0])
-            j1 = _first_above(xs, j0, counts[b + 1], c0 + hi[0])
+            j0 = first_at_least(xs, counts[b], counts[b + 1], c0 + lo[0])
+            j1 = first_above(xs, j0, counts[b + 1], c0 + hi[0])
             for jj in range(j0, j1):
                 if D > 1:
                     q1 = ys[jj] - c1
                     if q1 < lo[1] - WINDOW_MARGIN or q1 > hi[1] + WINDOW_MARGIN:
                         continue
                 j = order[jj]
-                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                c = contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
                 if c < 0.0:
                     colpen[n, j] += c
                     npen[n, j] += 1

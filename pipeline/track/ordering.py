@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-#: exp(-k / EXP_STEPS) for k = 0 .. EXP_STEPS * EXP_SPAN, bounds of exp(t) on each step of t (see _below_exp).
+#: exp(-k / EXP_STEPS) for k = 0 .. EXP_STEPS * EXP_SPAN, bounds of exp(t) on each step of t (see below_exp).
 EXP_STEPS = 64
 EXP_SPAN = 40
 EXP_TABLE = np.array([math.exp(-k / EXP_STEPS) for k in range(EXP_STEPS * EXP_SPAN + 2)])
@@ -22,7 +22,7 @@ EXP_SLACK = 1e-13
 
 
 @njit(cache=True)
-def _below_exp(u, t):
+def below_exp(u, t):
     """``u < math.exp(t)`` for t <= 0, the same decision, with exp computed only when u falls within the table's
     bounds of exp(t): t lies in [-(k + 1), -k] / EXP_STEPS, where exp is between two tabulated values (to within
     EXP_SLACK), so a u outside that band is decided by the table (about 98 % of the draws)."""
@@ -37,7 +37,7 @@ def _below_exp(u, t):
 
 
 @njit(cache=True)
-def _first_at_least(xs, start, stop, v):
+def first_at_least(xs, start, stop, v):
     """First index in [start, stop) with xs[index] >= v (stop if none), xs sorted there: ``start +
     np.searchsorted(xs[start:stop], v)``, by a branch-free bisection."""
     n = stop - start
@@ -52,7 +52,7 @@ def _first_at_least(xs, start, stop, v):
 
 
 @njit(cache=True)
-def _first_above(xs, start, stop, v):
+def first_above(xs, start, stop, v):
     """First index in [start, stop) with xs[index] > v (stop if none): ``side="right"`` of searchsorted."""
     n = stop - start
     if n <= 0:
@@ -66,7 +66,7 @@ def _first_above(xs, start, stop, v):
 
 
 @njit(cache=True)
-def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
+def groups_by_first_coordinate(P, C, n, group, order, m_old, K):
     """Particle n's old points by displacement group, each group sorted by its points' first coordinate, so that
     each config only scans the window of points that can lie inside the robot's interior box.
 
@@ -105,7 +105,7 @@ def _groups_by_first_coordinate(P, C, n, group, order, m_old, K):
             ys[f] = P[n, j, 1]
         if f > counts[a] and x0 <= xs[f - 1]:
             k = gorder[f - 1]
-            if x0 < xs[f - 1] or not _same_config(C, n, j, k):
+            if x0 < xs[f - 1] or not same_config(C, n, j, k):
                 resort[a] = True
             else:
                 dup[f] = _same_position(P, n, j, k)
@@ -128,7 +128,7 @@ def _same_position(P, n, i, j):
 
 
 @njit(cache=True)
-def _same_config(C, n, i, k):
+def same_config(C, n, i, k):
     """Configs i and k of particle n are equal: they add equal terms to any point."""
     for d in range(C.shape[2]):
         if C[n, i, d] != C[n, k, d]:
@@ -155,9 +155,9 @@ def _sort_group(P, n, group, a, counts, gorder, xs):
 
 
 @njit(cache=True)
-def _merge_order(P, n, counts, gorder, xs, order, m_old, K):
+def merge_order(P, n, counts, gorder, xs, order, m_old, K):
     """``order[n, :m_old + K]``: every point of particle n by first coordinate after the step, merged from the
-    sorted groups, the K new points inserted (ties in any order: see :func:`_groups_by_first_coordinate`)."""
+    sorted groups, the K new points inserted (ties in any order: see :func:`groups_by_first_coordinate`)."""
     pos = counts[: K + 1].copy()
     for t in range(m_old):
         best = -1
@@ -177,7 +177,7 @@ def _merge_order(P, n, counts, gorder, xs, order, m_old, K):
 
 
 @njit(cache=True)
-def _reinsert(P, n, order, m, is_bad, bad):
+def reinsert(P, n, order, m, is_bad, bad):
     """Bring ``order[n, :m]`` (points by first coordinate) up to date after the points ``bad`` moved: drop them,
     then insert each at its new place."""
     t = 0

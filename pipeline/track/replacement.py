@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from pipeline.track.kernels import _contribution
-from pipeline.track.ordering import _reinsert
+from pipeline.track.kernels import contribution
+from pipeline.track.ordering import reinsert
 
 
 @njit(cache=True)
@@ -21,7 +21,7 @@ def _config_terms(P, C, n, configs, skip, m, sign, colpen, npen, zero, values, s
         for j in range(m):
             if skip[j]:
                 continue
-            c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+            c = contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
             if c < 0.0:
                 colpen[n, j] += sign * c
                 npen[n, j] += sign
@@ -98,12 +98,12 @@ def replace_inconsistent(P, C, order, rows, m, colpen, npen, values, shape, stri
             acc = 0.0
             cnt = 0
             for i in range(m):
-                c = _contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
+                c = contribution(P, C, n, j, i, zero, 0, 0, values, shape, strides, origin, inv_res, lo, hi, tol)
                 if c < 0.0:
                     acc += c
                     cnt += 1
             colpen[n, j] = acc
             npen[n, j] = cnt
-        _reinsert(P, n, order, m, is_bad, bad)
+        reinsert(P, n, order, m, is_bad, bad)
         n_replaced[n] = n_bad
     return n_replaced

@@ -20,7 +20,6 @@ the current configuration against the points.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -28,9 +27,9 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.components import DEFAULT_ALPHA, DEFAULT_LENGTH, segment_points
-from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.constraints import Constraint, Params, integer, number, one_of
 from pipeline.track import kernels, replacement, weights
-from pipeline.track.base import StepResult, params_from_dict
+from pipeline.track.base import StepResult
 from pipeline.track.ordering import take_rows
 
 WEIGHTINGS = ("reference", "paper")
@@ -43,7 +42,7 @@ MAX_PARTICLES = 100_000
 
 
 @dataclass(frozen=True)
-class SoftTrackingParams:
+class SoftTrackingParams(Params):
     """Parameters of STUCCO soft tracking; defaults are the paper's Table I (simulation) and the authors' code.
 
     Attributes
@@ -86,20 +85,6 @@ class SoftTrackingParams:
         "n_particles": integer(1, MAX_PARTICLES), "tolerance": number(0), "ess_threshold": number(0, 1),
         "weight_floor": number(0, hi_of=lambda p: 1.0 / p.n_particles, hi_open=True, text="in [0, 1/N)"),
         "weighting": one_of(*WEIGHTINGS), "replace": one_of(*REPLACE_MODES)}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict) -> "SoftTrackingParams":
-        """Build from a mapping, refusing unknown names (the ValueError lists the accepted ones) and values of the
-        wrong kind (:func:`pipeline.track.base.params_from_dict`)."""
-        return params_from_dict(cls, values, "stucco")
-
-
 
 
 class SoftTracker:

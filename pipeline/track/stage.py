@@ -8,20 +8,21 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import registry, schema
 from pipeline.atomic import all_or_none
+from pipeline.constraints import Params, plain
 from pipeline.parallel import in_process, run_calls
 from pipeline.robot import load_robot
 from pipeline.seeds import run_rng
 from pipeline.track.base import ContactTracker, StepResult
-
 
 # Columns of the contacts table that the tracks table does not carry through (they are consumed or replaced).
 _CONSUMED = {c.name for c in schema.CONTACTS_COLUMNS} - {"object_id"}
@@ -30,7 +31,7 @@ _PRODUCED = {c.name for c in schema.TRACKS_COLUMNS} - {c.name for c in schema.CO
 
 
 @dataclass(frozen=True)
-class TrackConfig:
+class TrackConfig(Params):
     """What `stucco track` was asked to do; serialised into the output metadata."""
 
     method: str = "stucco"
@@ -40,6 +41,7 @@ class TrackConfig:
 
     def __post_init__(self) -> None:
         registry.tracker(self.method)  # ValueError naming the registered methods
+        super().__post_init__()
 
 
 def build_tracker(method: str, params: dict | Any | None, robot, rng: np.random.Generator) -> ContactTracker:
@@ -78,7 +80,7 @@ def method_params(config: TrackConfig) -> dict[str, Any]:
     Raises ValueError for an unknown or out-of-range parameter, before any run is tracked.
     """
     prm = registry.build_params(registry.tracker(config.method), config.params)
-    return {} if prm is None else dataclasses.asdict(prm)
+    return {} if prm is None else plain(prm)
 
 
 #: (method, robot) pairs whose kernels this process has loaded or compiled.

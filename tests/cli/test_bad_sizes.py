@@ -9,9 +9,9 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pipeline.studies.anchors import load_stream, stream_path, stream_to_contacts
 from pipeline.collect import MAX_SEEDS, parse_seeds
 from pipeline.retrieve import PlausibleParams, RetrievalParams
+from pipeline.studies.anchors import load_stream, stream_path, stream_to_contacts
 from pipeline.track.soft import MAX_PARTICLES, SoftTrackingParams
 from stucco_cli.main import cli
 from stucco_cli.track import MAX_PARTICLES as CLI_MAX_PARTICLES

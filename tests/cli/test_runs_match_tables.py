@@ -102,8 +102,8 @@ def test_a_run_file_that_is_not_the_tables_run_is_refused(made, tmp_path, impost
 
 
 def test_the_tables_own_run_passes(made, tmp_path):
-    r = _ok("score", "--retrieval", made / "retrieval.parquet", "--segments", made / "segments.parquet",
-            "--runs", made / "runs", "--out", tmp_path / "scores.parquet")
+    _ok("score", "--retrieval", made / "retrieval.parquet", "--segments", made / "segments.parquet",
+        "--runs", made / "runs", "--out", tmp_path / "scores.parquet")
     assert (tmp_path / "scores.parquet").is_file()
 
 

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from pipeline.geometry import Primitive, apply_pose
-from pipeline.portable import tie_key
 from pipeline.estimators.paper.icp import IcpResult, icp_restarts, initial_transforms
 from pipeline.estimators.paper.icp_kernel import clearance_kernel, warm_up
-from pipeline.estimators.target_model import model_normals, model_points
 from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.target_model import model_normals, model_points
+from pipeline.geometry import Primitive, apply_pose
+from pipeline.portable import tie_key
 from pipeline.schema.retrieval import CANDIDATE_FIELDS, run_candidates
 
 __all__ = ["min_clearance", "Choice", "choose_segment", "confidence_notes", "smallest_principal_std", "Estimate",

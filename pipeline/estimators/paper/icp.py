@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.geometry import apply_pose, rotate, wrap_angle
 from pipeline.estimators.paper.icp_kernel import icp_kernel, nearest_model
 from pipeline.estimators.params import RetrievalParams
+from pipeline.geometry import apply_pose, rotate, wrap_angle
 
 __all__ = ["IcpResult", "initial_transforms", "icp_error", "icp_restarts"]
 

@@ -7,7 +7,8 @@ penetration of the gripper positions visited *so far* then lowest ICP error pick
 ICP starts from the best estimate so far (their ``best_tsf_guess``): the previous step's choice, and within a step
 the choice among the segments already fitted in that step. The grasp goes to the estimate of the last in-contact
 step. :func:`estimate_online` is that loop on the per-step segments that ``stucco track --every-step`` and
-``stucco segment`` give, with this project's ICP, choice rule and confidence notes (:mod:`pipeline.estimators.paper.choice`).
+``stucco segment`` give, with this project's ICP, choice rule and confidence notes
+(:mod:`pipeline.estimators.paper.choice`).
 
 Cost: only the in-contact steps are fitted; the penetration, the most expensive score, is computed for a segment
 only when it is chosen at a step, and for every segment at the last step (whose candidates are kept).
@@ -15,17 +16,25 @@ only when it is chosen at a step, and for every segment at the last step (whose 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from pipeline.geometry import Primitive
+from pipeline.estimators.paper.choice import (
+    Choice,
+    Estimate,
+    assemble,
+    choose_segment,
+    icp_segment,
+    min_clearance,
+    nonempty,
+)
 from pipeline.estimators.paper.icp import IcpResult
 from pipeline.estimators.paper.icp_kernel import warm_up
-from pipeline.estimators.target_model import model_normals, model_points
-from pipeline.estimators.paper.choice import Choice, Estimate, assemble, choose_segment, icp_segment, min_clearance, nonempty
 from pipeline.estimators.params import RetrievalParams
+from pipeline.estimators.target_model import model_normals, model_points
+from pipeline.geometry import Primitive
 
 __all__ = ["StepChoice", "visited_until", "online_protocol", "estimate_online"]
 

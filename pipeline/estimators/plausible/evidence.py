@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
+from pipeline.estimators.plausible.params import PlausibleParams
 from pipeline.portable import exp
-from pipeline.estimators.plausible.fit import PlausibleParams
 
 __all__ = ["recency_sigma", "target_reach", "gripper_lattice", "cached_gripper_lattice", "free_space_points",
            "first_per_cell"]

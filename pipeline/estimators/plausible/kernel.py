@@ -1,4 +1,5 @@
-"""Compiled cost terms of the plausible estimator: :func:`pipeline.estimators.plausible.fit.evaluate_terms` in one pass.
+"""Compiled cost terms of the plausible estimator: :func:`pipeline.estimators.plausible.cost.evaluate_terms` in one
+pass.
 
 The numpy form builds (hypotheses, points, 3, 3) temporaries for every term of every Levenberg-Marquardt iteration;
 this kernel walks the points once per hypothesis and keeps only running sums. It computes the **same bits** as the

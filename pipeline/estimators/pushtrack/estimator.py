@@ -4,7 +4,8 @@ The tracker's segments say which contact steps belong to the target (the segment
 plausible estimator does); the contacts themselves are taken at their own steps, where they were observed, not
 where the tracker carried them (it moves old points by translation only, §VI-A). The run file gives each action's
 isolated contact point (the same detection and isolation as ``stucco isolate``, with its defaults) and the
-gripper's in-contact displacement; :func:`pipeline.estimators.pushtrack.filter.run_filter` tracks the pose over the actions,
+gripper's in-contact displacement; :func:`pipeline.estimators.pushtrack.filter.run_filter` tracks the pose over
+the actions,
 :func:`final_pose` refines the best particles at the end, and the final particles are the plausible set
 (docs/estimators.md, "The pushtrack estimator").
 """
@@ -13,25 +14,31 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Sequence
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.grasp_rule import own_grasp_shares
 from pipeline.contact_isolation import isolate_run, isolation_surface
-from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate, wrap_symmetric
-from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
 from pipeline.estimators.estimate import Segment, estimate_plausible, paper_segment
-from pipeline.estimators.plausible.evidence import cached_gripper_lattice, first_per_cell, free_space_points, target_reach
 from pipeline.estimators.paper.choice import Estimate, confidence_notes
 from pipeline.estimators.params import RetrievalParams
-from pipeline.estimators.plausible.fit import PlausibleParams, refine
+from pipeline.estimators.plausible.cost import refine
+from pipeline.estimators.plausible.evidence import (
+    cached_gripper_lattice,
+    first_per_cell,
+    free_space_points,
+    target_reach,
+)
+from pipeline.estimators.plausible.params import PlausibleParams
 from pipeline.estimators.pushtrack.filter import SLICE_MOTIONS, Actions, FilterResult, PushTrackParams, run_filter
-from pipeline.estimators.run_info import RunInfo
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice
+from pipeline.estimators.run_info import RunInfo
+from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate, wrap_symmetric
+from pipeline.grasp_rule import own_grasp_shares
+from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
 from pipeline.schema.retrieval import run_candidates
 
 __all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of",
@@ -55,8 +62,8 @@ def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None) -> tuple
 
 
 def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams, radius: float):
-    """``free_points(rows, centre)`` for :func:`~pipeline.estimators.pushtrack.filter.run_filter`: the world points (F, 2)
-    of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not touch
+    """``free_points(rows, centre)`` for :func:`~pipeline.estimators.pushtrack.filter.run_filter`: the world points
+    (F, 2) of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not touch
     the target (a pose every ``sweep_spacing``), within ``radius`` of ``centre``, deduplicated on a
     ``free_resolution`` grid."""
     reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)

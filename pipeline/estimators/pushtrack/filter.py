@@ -2,11 +2,12 @@
 "The pushtrack estimator").
 
 The target's COM pose x_t = (x, y, yaw) changes only during the actions in which the gripper touches the target's
-segment. Such an action pushes the target by the gripper's in-contact displacement d: by default the gripper's
-slice sweeps over d and a box pushed on a long face turns about its leading edge (:mod:`pipeline.estimators.pushtrack.slice_pusher`,
-``motion`` "tip"); the point pusher at the contact drives the quasi-static model of planar pushing with an
-ellipsoidal limit surface (:mod:`pipeline.estimators.pushtrack.quasistatic`, "push"). Walls and other objects are not modelled:
-a noise term growing with the push length lets the contacts correct the prediction.
+segment. Such an action pushes the target by the gripper's in-contact displacement d: by default the gripper's slice
+sweeps over d and a box pushed on a long face turns about its leading edge
+(:mod:`pipeline.estimators.pushtrack.slice_pusher`, ``motion`` "tip"); the point pusher at the contact drives the
+quasi-static model of planar pushing with an ellipsoidal limit surface
+(:mod:`pipeline.estimators.pushtrack.quasistatic`, "push"). Walls and other objects are not modelled: a noise term
+growing with the push length lets the contacts correct the prediction.
 
 Observations weigh the particles at their own times: the contact point of a touching action lies on the target's
 surface at the pose after that action (robust Geman-McClure term), and the gripper's slice at the end of every
@@ -23,13 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
-from pipeline.portable import atan2, logsumexp
 from pipeline.estimators.pushtrack.kernel import free_depth_sums
-from pipeline.estimators.pushtrack.params import (MAX_PARTICLES, MOTIONS, SELECT_RULES, SLICE_MOTIONS,
-                                                PushTrackParams)
+from pipeline.estimators.pushtrack.params import MAX_PARTICLES, MOTIONS, SELECT_RULES, SLICE_MOTIONS, PushTrackParams
 from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
 from pipeline.estimators.pushtrack.slice_pusher import GripperSlice, sweep_push, target_outline
+from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
+from pipeline.portable import atan2, logsumexp
 from pipeline.track.resampling import systematic
 
 # (the parameters live in pipeline.estimators.pushtrack.params; re-exported here, where the filter's callers look)
@@ -53,7 +53,8 @@ class Actions:
     push : ndarray, shape (K, 2), metres
         The gripper's displacement while in contact during the action (0 where none).
     gripper : GripperSlice or None
-        The gripper's slice (:func:`pipeline.estimators.pushtrack.slice_pusher.gripper_slice`): the pusher of ``motion`` "sweep" and "tip".
+        The gripper's slice (:func:`pipeline.estimators.pushtrack.slice_pusher.gripper_slice`): the pusher of
+        ``motion`` "sweep" and "tip".
     """
 
     ee_start: np.ndarray

@@ -4,7 +4,8 @@ the final refinement, each computing the **same bits** as the numpy form it repl
 * :func:`free_depth_sums`: :func:`pipeline.estimators.pushtrack.filter.free_loglik`'s sums of squared depths, which in
   numpy build (particles, free points) temporaries for every action of the filter;
 * the contact term with each pose's own contact points, for the refinement of
-  :func:`pipeline.estimators.pushtrack.estimator.refine_final`, is :func:`pipeline.estimators.plausible.kernel.piece_terms_each`.
+  :func:`pipeline.estimators.pushtrack.estimator.refine_final`, is
+  :func:`pipeline.estimators.plausible.kernel.piece_terms_each`.
 
 As :mod:`pipeline.estimators.plausible.kernel` does, they repeat numpy's arithmetic operation by operation (the same
 element-wise expressions, no fused multiply-add, the cosines and sines taken from numpy by the caller, numpy's
@@ -18,8 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.pairwise_sum import pairwise_sum
 from pipeline.estimators.plausible.kernel import local_sdf
+from pipeline.pairwise_sum import pairwise_sum
 
 __all__ = ["free_depth_sums", "warm_up"]
 

@@ -2,10 +2,10 @@
 docs/estimators.md, "The pushtrack estimator")."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import ClassVar
 
-from pipeline.constraints import Constraint, check, integer, number, one_of
+from pipeline.constraints import Constraint, Params, integer, number, one_of
 
 __all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "MAX_PARTICLES"]
 
@@ -20,7 +20,7 @@ SELECT_RULES = ("cost", "posterior", "grasp", "mode", "held_mean")
 
 
 @dataclass(frozen=True)
-class PushTrackParams:
+class PushTrackParams(Params):
     """Parameters of the pose-tracking estimator; serialised into the retrieval metadata.
 
     Attributes
@@ -41,7 +41,8 @@ class PushTrackParams:
     motion : {"push", "sweep", "tip", "translate", "static"}
         "push": the quasi-static pushing model from a point pusher at the contact minus the in-contact displacement;
         "sweep": the same model driven by the gripper's slice swept over the action's in-contact displacement (to
-        its end position), the contact found where the slice meets each particle (:mod:`pipeline.estimators.pushtrack.slice_pusher`;
+        its end position), the contact found where the slice meets each particle
+        (:mod:`pipeline.estimators.pushtrack.slice_pusher`;
         needs ``Actions.gripper``); "tip" (default): the slice, and a box pushed on a long face turns about a point
         of its leading long edge, as a box tipped onto that edge does (docs/estimators.md, "Pushing models");
         "translate": the target moves by the pusher's displacement projected on the contact normal, never
@@ -97,7 +98,8 @@ class PushTrackParams:
     n_refine : int
         Highest-weight particles refined at the end (128; 0: none, the best particle is the estimate): each one's
         contacts, carried along its own trajectory to its final pose, and the gripper's free space after the last
-        push, by the plausible estimator's Levenberg-Marquardt (:func:`pipeline.estimators.pushtrack.estimator.final_pose`).
+        push, by the plausible estimator's Levenberg-Marquardt
+        (:func:`pipeline.estimators.pushtrack.estimator.final_pose`).
     refine_growth : float
         The refinement's factor on a carried contact's sigma per later touching action (1.0: none; the plausible
         estimator's recency growth; it discounted contacts followed only by touches that do not push).
@@ -124,7 +126,8 @@ class PushTrackParams:
     islands : int
         Independent filters run over the same actions from the kept start (4; 1: one filter), pooled before the
         refinement, each island's particles weighted by its share of the islands' summed evidence
-        (:func:`pipeline.estimators.pushtrack.estimator.pool_islands`): one filter's resampling often keeps only one of the
+        (:func:`pipeline.estimators.pushtrack.estimator.pool_islands`): one filter's resampling often keeps only one
+        of the
         modes the contacts allow, and which one is a coin toss of its draws (docs/estimators.md, "Islands").
     select : {"cost", "posterior", "grasp", "mode", "held_mean"}
         Which refined particle is the estimate: the lowest refinement cost ("cost"); the lowest refinement cost
@@ -190,9 +193,3 @@ class PushTrackParams:
                                         "yaw_floor", "free_tolerance", "mean_yaw")},
         "ess_threshold": number(0, 1), "inject": number(0, 1), "inject_growth": number(1),
         "n_refine": integer(0, 256), "refine_growth": number(1)}
-
-    def __post_init__(self) -> None:
-        check(self)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)

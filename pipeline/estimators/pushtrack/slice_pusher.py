@@ -1,8 +1,8 @@
 """The gripper's slice as the pusher: the ``sweep`` motion of the pushtrack estimator (docs/estimators.md, "Pushing
 models").
 
-The point pusher of :func:`pipeline.estimators.pushtrack.quasistatic.push_step` starts at the contact minus the in-contact
-displacement and treats the gripper as a point. The gripper is a hand about 14 x 20 cm at contact height with
+The point pusher of :func:`pipeline.estimators.pushtrack.quasistatic.push_step` starts at the contact minus the
+in-contact displacement and treats the gripper as a point. The gripper is a hand about 14 x 20 cm at contact height with
 flat faces: a flat face pushing a box's face aligns it (a line contact), and the contact moves along the gripper
 as the box turns. Here the gripper's slice moves in ``substeps`` straight steps over its in-contact displacement
 (the filter passes the action's end position less that displacement, and the end position). At each step the
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.geometry import Primitive
 from pipeline.estimators.plausible.kernel import local_sdf
+from pipeline.geometry import Primitive
 
 __all__ = ["GripperSlice", "gripper_slice", "cached_gripper_slice", "target_outline", "sweep_push", "sweep_kernel",
            "warm_up"]
@@ -268,7 +268,8 @@ def sweep_kernel(cylinder, hx, hy, prim_yaw, pcx, pcy, poses, gpts, bpts, values
                         y = cory + sw * rx + cw * ry
                         th += w
                         continue
-            # the quasi-static twist (pipeline.estimators.pushtrack.quasistatic.push_step, with the contact and normal given)
+            # the quasi-static twist (pipeline.estimators.pushtrack.quasistatic.push_step, with the contact and normal
+            # given)
             rx = px - x
             ry = py - y
             ax = -ry
