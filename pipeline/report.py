@@ -145,7 +145,8 @@ def _num(v: float, fmt: str) -> str:
 
 
 def to_markdown(rows: list[ReportRow]) -> str:
-    """Table II layout: one line per scene and method, ours beside the paper's.
+    """Table II layout: one line per scene and method, ours beside the paper's (the paper's columns only when a
+    row is one of the paper's tasks as shipped).
 
     GS % (one column per pose estimator when there are several, the first one's estimator listed first), FMI
     mean (std), CE cm mean (std) and the paper's; median position error of the first estimator's target
@@ -154,23 +155,28 @@ def to_markdown(rows: list[ReportRow]) -> str:
     """
     estimators = list(dict.fromkeys(r.estimator for r in rows))
     gs_head = " | ".join(f"GS % {e}" for e in estimators) if len(estimators) > 1 else "GS %"
-    n_cols = 11 + max(1, len(estimators))
-    head = (f"| task | method | runs | {gs_head} | paper GS % | FMI | paper FMI | CE cm | paper CE cm "
-            f"| median pos. err. cm | track s/run | s/run |\n|" + "---|" * n_cols)
+    # The paper's columns only beside the paper's tasks: a grid of other scenes (generated ones) has none.
+    paper = any(r.paper_gs_pct is not None for r in rows)
+    cols = ["task", "method", "runs", gs_head] + (["paper GS %"] if paper else []) + ["FMI"] + \
+        (["paper FMI"] if paper else []) + ["CE cm"] + (["paper CE cm"] if paper else []) + \
+        ["median pos. err. cm", "track s/run", "s/run"]
+    n_cols = len(cols) + max(1, len(estimators)) - 1
+    head = "| " + " | ".join(cols) + " |\n|" + "---|" * n_cols
     lines = [head]
     by = {(r.scene, r.method, r.estimator): r for r in rows}
     for r in rows:
         if r.estimator != next(e for e in estimators if (r.scene, r.method, e) in by):
             continue  # one line per (scene, method): the first estimator's row carries the line
-        paper_gs = "" if r.paper_gs_pct is None else f"{r.paper_gs_pct:.0f}"
         gs = " | ".join(_num(by[(r.scene, r.method, e)].grasp_success_pct, '.0f') if (r.scene, r.method, e) in by
                         else "" for e in estimators)
-        lines.append(
-            f"| {r.scene} | {method_title(r.method)} | {r.runs} | {gs} "
-            f"| {paper_gs} | {_ms(r.fmi_mean, r.fmi_std, '.2f')} | {_ms(r.paper_fmi_mean, r.paper_fmi_std, '.2f')} "
-            f"| {_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')} | {_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')} "
-            f"| {_num(r.position_error_cm_median, '.1f')} | {_num(r.track_s_mean, '.2f')} "
-            f"| {_num(r.wall_s_mean, '.1f')} |")
+        cells = [r.scene, method_title(r.method), str(r.runs), gs]
+        cells += (["" if r.paper_gs_pct is None else f"{r.paper_gs_pct:.0f}"] if paper else [])
+        cells += [_ms(r.fmi_mean, r.fmi_std, ".2f")]
+        cells += [_ms(r.paper_fmi_mean, r.paper_fmi_std, ".2f")] if paper else []
+        cells += [_ms(r.ce_cm_mean, r.ce_cm_std, '.2f')]
+        cells += [_ms(r.paper_ce_cm_mean, r.paper_ce_cm_std, '.2f')] if paper else []
+        cells += [_num(r.position_error_cm_median, '.1f'), _num(r.track_s_mean, '.2f'), _num(r.wall_s_mean, '.1f')]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

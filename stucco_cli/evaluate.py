@@ -11,7 +11,8 @@ from stucco_cli.progress import bars_off
 
 
 @click.command()
-@click.option("--scenes", default=None, help="Comma-separated retrieval tasks, or 'all' [FB,BC,IB,TC].")
+@click.option("--scenes", default=None, help="Comma-separated retrieval tasks, scene files or folders of scene "
+              "files (`stucco scenes generate`), or 'all' [FB,BC,IB,TC].")
 @click.option("--seeds", default=None, help="Run seeds: N, N-M, or a comma-separated list [0-19].")
 @click.option("--methods", default="all", show_default=True,
               help=f"Comma-separated: {', '.join(registry.tracker_names())}; or 'all' (every registered method).")
@@ -128,9 +129,11 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
         for line in claims(rows) + config_lines(cfg):
             click.echo(line)
         from pipeline.probe.report import probe_lines  # runs of the active protocol: their probes
+        from pipeline.probe.summary import active_markdown, active_rows
 
         for line in probe_lines(out_dir, ev.jobs):
             click.echo(line)
+        click.echo(active_markdown(active_rows(out_dir, ev.scores)), nl=False)
         ran = len(ev.results) - ev.skipped
         click.echo(f"{len(ev.jobs)} job(s): {ran} run, {ev.skipped} already done; {ev.wall_s:.1f} s wall "
                    f"(-j {jobs}) -> {out_dir}/report.md, report.csv" + (", figures/, summary.png" if figures else ""),

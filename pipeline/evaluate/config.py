@@ -164,6 +164,18 @@ def _shipped(sc: Scene) -> bool:
     return sc.name in scene_names() and load_scene(sc.name).source == sc.source
 
 
+def _folder_files(given: str) -> list[str]:
+    """A folder given as a scene: its ``*.toml`` files in name order (``stucco scenes generate``'s output); anything
+    else as given."""
+    folder = Path(given)
+    if not folder.is_dir():
+        return [given]
+    found = sorted(str(f) for f in folder.glob("*.toml") if f.is_file())
+    if not found:
+        raise ValueError(f"{folder}: a folder with no scene file (*.toml) in it")
+    return found
+
+
 def _scenes(text: str, files: bool) -> list[tuple[str, str, Scene | None]]:
     """(name, as given, scene) of every distinct scene of ``text`` (no scene object for 'all')."""
     names = _split(text)
@@ -171,6 +183,7 @@ def _scenes(text: str, files: bool) -> list[tuple[str, str, Scene | None]]:
         raise ValueError("no scene given; expected a comma-separated list such as FB,BC,IB,TC or 'all'")
     if names == ["all"]:
         return [(n, n, None) for n in SCENES]
+    names = [f for n in names for f in _folder_files(n)]
     out: dict[str, tuple[str, Scene]] = {}
     for n in names:
         try:

@@ -73,15 +73,18 @@ def gather_scores(out: str | Path, job_list: Sequence[Job], estimators: Sequence
 
 
 def write_report(out: str | Path, scores: pa.Table, extra: tuple[str, ...] = (),
-                 estimator_stream: int = 0) -> tuple[Path, Path]:
+                 estimator_stream: int = 0, tail: str = "") -> tuple[Path, Path]:
     """``out/report.md`` (Table II with the paper's claims checked below it, then the ``extra`` lines, e.g. the
     active protocol's probes) and ``out/report.csv``, atomically, from a scores table made with the pose
-    estimators' random stream ``estimator_stream``."""
+    estimators' random stream ``estimator_stream``; ``tail`` (Markdown, e.g. the active protocol's summary table)
+    goes after the notes."""
     rows = table_ii(scores, estimator_stream)
     md = to_markdown(rows)
     notes = claims(rows) + list(extra)
     if notes:
         md += "\n" + "\n".join(f"- {n}" for n in notes) + "\n"
+    if tail:
+        md += "\n" + tail
     md += f"\nComputed with {environment_line()} (requirements.lock).\n"
     paths = (Path(out) / "report.md", Path(out) / "report.csv")
     for path, text in zip(paths, (md, to_csv(rows))):

@@ -138,9 +138,10 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         scores = gather_scores(out, job_list, cfg.estimators)
         # Runs of the active protocol add its probes to the report (docs/active.md).
         from pipeline.probe.report import probe_lines  # imported here: it reads the run files only when writing
+        from pipeline.probe.summary import active_markdown, active_rows
 
         write_report(out, scores, tuple(config_lines(cfg)) + tuple(probe_lines(out, job_list)),
-                     estimator_stream=cfg.estimator_stream)
+                     estimator_stream=cfg.estimator_stream, tail=active_markdown(active_rows(out, scores)))
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
             first = cfg.estimators[0]

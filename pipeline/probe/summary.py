@@ -1,0 +1,92 @@
+"""The active protocol's summary table for an evaluation: grasp success at the first attempt and within the
+planned grasp's attempts, attempts, probes and actions per run, decision time and how far the target was pushed,
+per paper task and, for other scenes (generated ones), per target shape (docs/active.md, "The planned grasp").
+
+Ground truth (the recorded poses) is read for reporting only.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import schema
+from pipeline.layout import partition
+from pipeline.probe.report import run_stats
+
+__all__ = ["active_rows", "active_markdown"]
+
+#: The paper's tasks, reported one row each; every other scene is grouped by its target's shape.
+PAPER_TASKS = ("FB", "BC", "IB", "TC")
+
+
+def _group(scene: str, run_path: Path) -> str:
+    return scene if scene in PAPER_TASKS else f"other scenes, {_target_shape(run_path)} target"
+
+
+def _target_shape(run_path: Path) -> str:
+    from pipeline.estimators.run_info import load_run  # the scene recorded in the run file
+
+    return "can" if load_run(run_path).target.kind == "cylinder" else "box"
+
+
+def _pushed_m(run_path: Path) -> float:
+    """How far the target's centre moved from after the first action to the end of the run (m)."""
+    t = schema.read_run(run_path)
+    params = schema.read_metadata(run_path).get("params") or {}
+    tid = params.get("bodies", []).index(params.get("target"))
+    poses = t.column("obj_pose")
+    first = np.asarray(poses[0].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
+    last = np.asarray(poses[t.num_rows - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
+    return math.hypot(*(last[:2] - first[:2]))
+
+
+def active_rows(out: str | Path, scores: pa.Table, method: str = "stucco") -> list[dict]:
+    """One dict per group (paper task, or other scenes by target shape) of an evaluation made with ``--policy
+    scripted+probe``: ``group``, ``runs``, ``gs_first_pct``, ``gs_any_pct``, ``attempts``, ``probes``,
+    ``actions`` (median), ``decision_s`` (median), ``decision_max_s``, ``pushed_cm`` (median).
+    ``scores`` is the evaluation's scores table; the first estimator of each run is read (the active protocol's
+    grasp is the same for every estimator). Empty when no run of ``method`` was probed."""
+    rows = [r for r in scores.to_pylist() if r["method"] == method]
+    first: dict[tuple[str, int], dict] = {}
+    for r in rows:
+        first.setdefault((r["scene"], r["seed"]), r)
+    groups: dict[str, list[tuple[dict, dict, int, float]]] = {}
+    for (scene, seed), r in first.items():
+        path = partition(out, "runs", scene, seed)
+        if r.get("grasp_attempts") is None or not path.is_file():
+            continue
+        stats = run_stats(path)
+        actions = schema.read_run(path).num_rows
+        groups.setdefault(_group(scene, path), []).append((r, stats, actions, _pushed_m(path)))
+    out_rows = []
+    order = {name: i for i, name in enumerate(PAPER_TASKS)}
+    for name in sorted(groups, key=lambda g: (order.get(g, len(order)), g)):
+        items = groups[name]
+        dec = np.concatenate([np.asarray(s["decision_s"], dtype=np.float64) for _, s, _, _ in items])
+        out_rows.append(dict(
+            group=name, runs=len(items),
+            gs_first_pct=100.0 * np.mean([bool(r["grasp_success"]) for r, _, _, _ in items]),
+            gs_any_pct=100.0 * np.mean([bool(r["grasp_success_any"]) for r, _, _, _ in items]),
+            attempts=float(np.mean([r["grasp_attempts"] for r, _, _, _ in items])),
+            probes=float(np.mean([s["probes"] for _, s, _, _ in items])),
+            actions=float(np.median([a for _, _, a, _ in items])),
+            decision_s=float(np.median(dec)) if dec.size else math.nan,
+            decision_max_s=float(np.max(dec)) if dec.size else math.nan,
+            pushed_cm=100.0 * float(np.median([p for _, _, _, p in items]))))
+    return out_rows
+
+
+def active_markdown(rows: list[dict]) -> str:
+    """The rows of :func:`active_rows` as a Markdown table ("" without rows)."""
+    if not rows:
+        return ""
+    head = ("| active protocol | runs | GS % first attempt | GS % within the attempts | attempts per run | "
+            "probes per run | actions per run (median) | decision s median (max) | target pushed cm (median) |\n"
+            "|---|---|---|---|---|---|---|---|---|\n")
+    return head + "".join(
+        f"| {r['group']} | {r['runs']} | {r['gs_first_pct']:.0f} | {r['gs_any_pct']:.0f} | {r['attempts']:.2f} | "
+        f"{r['probes']:.2f} | {r['actions']:.0f} | {r['decision_s']:.3f} ({r['decision_max_s']:.3f}) | "
+        f"{r['pushed_cm']:.1f} |\n" for r in rows)
