@@ -12,6 +12,7 @@ import numpy as np
 from pipeline.detection import (
     DetectionParams,
     IsolationParams,
+    contact_forces,
     contact_window,
     fixed_column,
     isolate_point,
@@ -60,8 +61,12 @@ def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionPa
     pose = fixed_column(table, "win_pose", (n, -1, 7))
     truth = fixed_column(table, "win_true_contact_m", (n, -1, 2))
     flags_all = step_in_contact(win, det)
+    start_x = table.column("ee_start_x_m").to_numpy()
+    start_y = table.column("ee_start_y_m").to_numpy()
+    force = contact_forces(table, det, iso)
     cols: dict[str, list] = {k: [] for k in ("run", "step", "ee_x_m", "ee_y_m", "in_contact", "contact_x_m",
-                                             "contact_y_m", "dx_m", "dy_m", "object_id")}
+                                             "contact_y_m", "dx_m", "dy_m", "object_id", "ee_start_x_m",
+                                             "ee_start_y_m", "force_n")}
     errors: list[float] = []
     unisolated = 0
     for i in range(n):
@@ -95,4 +100,7 @@ def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionPa
         cols["dx_m"].append(dxi if inc else None)
         cols["dy_m"].append(dyi if inc else None)
         cols["object_id"].append(int(oid[i]))
+        cols["ee_start_x_m"].append(float(start_x[i]))
+        cols["ee_start_y_m"].append(float(start_y[i]))
+        cols["force_n"].append(float(force[i]) if math.isfinite(force[i]) else None)
     return cols, errors, unisolated

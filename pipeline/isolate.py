@@ -111,12 +111,9 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
         else:
             for k in allcols:
                 allcols[k] += cols[k]
-    allcols = allcols or {k: [] for k in ("run", "step", "ee_x_m", "ee_y_m", "in_contact", "contact_x_m",
-                                          "contact_y_m", "dx_m", "dy_m", "object_id")}
-    contacts_schema = pa.schema([("run", pa.string()), ("step", pa.int64()), ("ee_x_m", pa.float64()),
-                        ("ee_y_m", pa.float64()), ("in_contact", pa.bool_()), ("contact_x_m", pa.float64()),
-                        ("contact_y_m", pa.float64()), ("dx_m", pa.float64()), ("dy_m", pa.float64()),
-                        ("object_id", pa.int64())])
+    # every column of the contacts table's spec, in its order (schema.CONTACTS_COLUMNS: one list of them)
+    contacts_schema = pa.schema([(c.name, c.type) for c in schema.CONTACTS_COLUMNS])
+    allcols = allcols or {name: [] for name in contacts_schema.names}
     table = pa.Table.from_pydict(allcols, schema=contacts_schema)
     n_contact = int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False)))
     return IsolationResult(table=table, errors=np.asarray(errors), n_runs=len(files), n_actions=n_actions,

@@ -1,4 +1,5 @@
-"""`stucco retrieve`: pose estimation of the target and the simulated grasp."""
+"""`stucco retrieve`: pose estimation of the target and the simulated grasp, or the pose alone from a robot's
+log."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -26,8 +27,14 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.command()
 @click.option("--segments", "segments_path", required=True, type=click.Path(path_type=Path),
               help="Segments table (Parquet) from `stucco segment`.")
-@click.option("--runs", "run_dir", required=True, type=click.Path(path_type=Path),
+@click.option("--runs", "run_dir", default=None, type=click.Path(path_type=Path),
               help="Directory of the collected run files (`stucco collect --out`), or one run file.")
+@click.option("--contacts", "contacts_path", default=None, type=click.Path(path_type=Path),
+              help="A robot's log instead of simulated runs: the contacts table (Parquet or CSV) the segments were "
+                   "tracked from; needs --target. No grasp is simulated.")
+@click.option("--target", default=None,
+              help="The target of a log: box:WxL (short side W, long side L, m), cylinder:R (radius, m), "
+                   "either with @MASS_KG, or SCENE:OBJECT.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path),
               help="Retrieval table to write (one row per run).")
 @click.option("--candidates", "cand_path", type=click.Path(path_type=Path), default=None,
@@ -50,10 +57,19 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @FORCE_OVERWRITE
 @global_options()
 @pass_settings
-def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: Path, cand_path: Path | None,
+def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, contacts_path: Path | None,
+             target: str | None, out_path: Path, cand_path: Path | None,
              estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
              stream: int, print_table: bool, force_overwrite: bool) -> None:
-    """Estimate the target pose of every run from its segments and grasp it in simulation."""
+    """Estimate the target pose of every run from its segments and grasp it in simulation (--runs), or estimate
+    it from a robot's log (--contacts with --target)."""
+    if (run_dir is None) == (contacts_path is None):
+        raise click.UsageError("give --runs (simulated runs) or --contacts with --target (a robot's log), not both")
+    if contacts_path is not None and target is None:
+        raise click.UsageError("--contacts (a robot's log) needs --target, the target's shape: e.g. "
+                               "--target box:0.0616x0.1575 or --target cylinder:0.039")
+    if run_dir is not None and target is not None:
+        raise click.UsageError("--target is for a robot's log (--contacts); simulated runs carry their scene")
     from pipeline.grasp import GraspParams
     from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
 
@@ -67,7 +83,9 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
     if method is not None:
         known(method)
     cand_path = cand_path or _side_path(out_path, ".candidates.parquet")
-    check_paths({"--segments": segments_path, "--runs": run_dir}, {"--out": out_path, "--candidates": cand_path})
+    inputs = {"--segments": segments_path, **({"--runs": run_dir} if run_dir is not None else
+                                              {"--contacts": contacts_path})}
+    check_paths(inputs, {"--out": out_path, "--candidates": cand_path})
     refuse_overwrite({"--out": out_path, "--candidates": cand_path}, force_overwrite)
     with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
         params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
@@ -76,15 +94,23 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path, out_path: P
         own = {"n_hypotheses": hypotheses} if hypotheses is not None and "n_hypotheses" in fields else None
         config = RetrieveConfig(method=method, estimator=estimator, params=params, estimator_params=own,
                                 grasp=grasp, grasp_params=GraspParams(), stream=stream)
-        table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, config, seed=settings.seed,
-                                 jobs=settings.jobs, progress=run_bar(settings, "retrieve"))
+        if contacts_path is not None:
+            from pipeline.retrieve.log_route import retrieve_log_file
+
+            table, _ = retrieve_log_file(segments_path, contacts_path, target, out_path, cand_path, config,
+                                         seed=settings.seed, jobs=settings.jobs, progress=run_bar(settings, "retrieve"))
+        else:
+            table, _ = retrieve_file(segments_path, run_dir, out_path, cand_path, config, seed=settings.seed,
+                                     jobs=settings.jobs, progress=run_bar(settings, "retrieve"))
     if print_table:
         click.echo(f"{'run':<10} {'x_m':>7} {'y_m':>7} {'yaw':>6} {'seg':>4} {'pts':>4} {'pos_err_cm':>10} "
                    f"{'yaw_err':>7} {'grasp':>6}  notes / outcome")
         for r in table.to_pylist():
             g = "-" if r["grasp_success"] is None else ("yes" if r["grasp_success"] else "no")
+            pos = "-" if r["position_error_m"] is None else f"{r['position_error_m'] * 100:.2f}"
+            yaw = "-" if r["yaw_error_rad"] is None else f"{r['yaw_error_rad']:.3f}"
             click.echo(f"{r['run']:<10} {r['x_m']:7.3f} {r['y_m']:7.3f} {r['yaw_rad']:6.2f} {r['segment']:>4} "
-                       f"{r['n_points']:>4} {r['position_error_m'] * 100:10.2f} {r['yaw_error_rad']:7.3f} {g:>6}  "
+                       f"{r['n_points']:>4} {pos:>10} {yaw:>7} {g:>6}  "
                        f"{r['notes'] or '-'} / {r['grasp_outcome'] or '-'}")
     icp = sum(table.column("icp_s").to_pylist())
     gs = [v for v in table.column("grasp_s").to_pylist() if v is not None]

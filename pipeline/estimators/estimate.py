@@ -35,7 +35,7 @@ from pipeline.estimators.plausible.evidence import (
 )
 from pipeline.estimators.plausible.fit import COST_TIE, PlausibleParams, SegmentFit, fit_segment
 from pipeline.estimators.run_info import RunInfo
-from pipeline.estimators.segment_choice import resisting_choice, target_mass
+from pipeline.estimators.segment_choice import resisting_choice
 from pipeline.geometry import Primitive
 from pipeline.portable import tie_key
 from pipeline.schema.retrieval import run_candidates
@@ -182,7 +182,7 @@ def paper_segment(segments: Sequence[Segment], info: RunInfo, sdf, params: Retri
         paper.icp_s = time.perf_counter() - t0
         return paper, None
     chosen, _ = resisting_choice(segments, paper.segment, paper.candidates, info.steps, info.contact_force,
-                                 target_mass(info.scene), params)
+                                 info.target_mass_kg, params)
     return paper, next(s for s in segments if s.id == chosen)
 
 

@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 
 from pipeline import schema
 from pipeline.detection import contact_forces
+from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
@@ -45,6 +46,16 @@ class RunInfo:
         the active protocol has its own retrieval (:attr:`pipeline.registry.PolicySpec.retrieval`).
     contact_force : ndarray, shape (K,), N, or None
         The contact force each action met (:func:`pipeline.detection.contact_forces`; NaN without contact).
+    target_mass_kg : float
+        The target's known mass (NaN: unknown), for the segment choice by resistance.
+    observed : (ndarray (K, 2), ndarray (K, 2)) or None
+        Each action's contact point (NaN without) and the gripper's in-contact displacement (0 without), metres,
+        as a robot's log gives them (:mod:`pipeline.estimators.log_run`); None: re-isolated from the run file.
+    grasp_scene : pipeline.scenes.Scene or None
+        For a log: the scene whose grasp plan and action scale an estimator that weighs the paper's grasp uses (the
+        scene of a ``SCENE:OBJECT`` target, else the paper's task of the target's shape); None: ``scene``'s own.
+
+    A run from a robot's log has no scene (``scene`` None), no recorded poses (``final_poses`` None) and no path.
     """
 
     run: str
@@ -58,15 +69,18 @@ class RunInfo:
     target: Primitive
     policy: str = "scripted"
     contact_force: np.ndarray | None = None
+    target_mass_kg: float = float("nan")
+    observed: tuple[np.ndarray, np.ndarray] | None = None
+    grasp_scene: Any = None
 
     @property
     def final_ee(self) -> np.ndarray:
         return self.ee[-1]
 
     @property
-    def true_pose(self) -> np.ndarray:
-        """The target's pose after the last action (3,)."""
-        return self.final_poses[self.target_id]
+    def true_pose(self) -> np.ndarray | None:
+        """The target's pose after the last action (3,); None for a robot's log (no ground truth)."""
+        return None if self.final_poses is None else self.final_poses[self.target_id]
 
 
 def load_run(path: str | Path) -> RunInfo:
@@ -98,7 +112,8 @@ def info_from_table(t: pa.Table, scene: Scene, path: Path | None = None, final: 
     tid, prim = target_primitive(scene)
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=final, target_id=tid, target=prim, policy=policy, contact_force=contact_forces(t))
+                   final_poses=final, target_id=tid, target=prim, policy=policy, contact_force=contact_forces(t),
+                   target_mass_kg=target_mass(scene))
 
 
 def run_scene(path: Path, params: dict) -> Scene:

@@ -32,7 +32,11 @@ from pipeline.schema.retrieval import candidates_table, retrieval_table
 from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
 
-__all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file"]
+__all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file",
+           "retrieve_one", "LOG_SCENE"]
+
+#: The ``scene`` of a retrieval row made from a robot's log (no scene).
+LOG_SCENE = "log"
 
 
 @dataclass(frozen=True)
@@ -132,22 +136,25 @@ class RunOutput:
     candidates: dict[str, np.ndarray]
 
 
-def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int,
+def retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, root_seed: int,
                   history: History | None = None) -> RunOutput:
     method, estimator = config.method, config.estimator
     est = estimate(estimator, segs, info, load_robot(config.params.robot),
                    retrieval_rng(root_seed, info.run, config.stream), config.params, config.estimator_params,
                    history=history)
-    truth = info.true_pose
-    pos_err, yaw_err = pose_error(info.target, est.pose, truth)
-    row = dict(run=info.run, scene=info.scene.name, seed=info.seed, method=method, estimator=estimator,
+    truth = info.true_pose  # None for a robot's log: no ground truth, nothing to grasp
+    pos_err, yaw_err = pose_error(info.target, est.pose, truth) if truth is not None else (None, None)
+    row = dict(run=info.run, scene=info.scene.name if info.scene is not None else LOG_SCENE, seed=info.seed,
+               method=method, estimator=estimator,
                target=info.target.name,
                x_m=float(est.pose[0]), y_m=float(est.pose[1]), yaw_rad=float(est.pose[2]), segment=est.segment,
                n_points=est.n_points, n_segments=est.n_segments,
                position_var_m2=est.position_var if math.isfinite(est.position_var) else None,
                icp_rmse_m=est.rmse if math.isfinite(est.rmse) else None, penetration_m=est.penetration,
                low_confidence=est.low_confidence, notes=",".join(est.notes),
-               true_x_m=float(truth[0]), true_y_m=float(truth[1]), true_yaw_rad=float(truth[2]),
+               true_x_m=None if truth is None else float(truth[0]),
+               true_y_m=None if truth is None else float(truth[1]),
+               true_yaw_rad=None if truth is None else float(truth[2]),
                position_error_m=pos_err, yaw_error_rad=yaw_err, grasp_success=None, grasp_outcome="",
                grasp_attempts=None, grasp_success_any=None, icp_s=est.icp_s, grasp_s=None)
     own = registry.policy(info.policy).retrieval if info.policy in registry.policy_names() else None
@@ -155,7 +162,7 @@ def _retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, ro
         # A run of the active protocol ends with its own pose and its grasp for the whole plausible set, whatever
         # the estimator (docs/active.md); the estimator's candidates are kept.
         row.update(registry.resolve(own)(info, method, root_seed, config.grasp, config.grasp_params))
-    elif config.grasp:
+    elif config.grasp and info.scene is not None:
         g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params)
         row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
     cand = dict(est.candidates)
@@ -206,7 +213,7 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
     steps = contact_step_segments(segments) if needs_every_step([config.estimator]) else None
     args = [(info, by_run.get(info.run, []), config, root_seed, None if steps is None else steps.get(info.run, []))
             for info in infos]
-    results = run_calls(_retrieve_one, args, jobs)
+    results = run_calls(retrieve_one, args, jobs)
     if progress is not None:
         results = progress(results, total=len(args))
     outs = list(results)

@@ -23,8 +23,9 @@ import pyarrow.parquet as pq
 from pipeline import __version__
 from pipeline.atomic import atomic_path
 from pipeline.environment import environment
+from pipeline.schema.csv_tables import is_csv, read_csv
 from pipeline.schema.errors import SchemaError
-from pipeline.schema.specs import TABLES, validate_table
+from pipeline.schema.specs import CONTACTS_COLUMNS, TABLES, validate_table
 
 __all__ = [
     "METADATA_KEYS",
@@ -116,7 +117,10 @@ def read_table(path: str | os.PathLike, kind: str) -> pa.Table:
 
 
 def read_contacts(path: str | os.PathLike) -> pa.Table:
-    """Read and validate a contacts file (the input of ``stucco track``)."""
+    """Read and validate a contacts file (the input of ``stucco track``): Parquet, or CSV with the same columns
+    (by the ``.csv`` extension: a robot's log written by other tools)."""
+    if is_csv(path):
+        return validate_table(read_csv(path, CONTACTS_COLUMNS), "contacts", path)
     return read_table(path, "contacts")
 
 

@@ -51,12 +51,17 @@ RETRIEVAL_COLUMNS: tuple[Column, ...] = (
     _C("notes", pa.string(), "", False, f"Comma-separated low-confidence reasons ({', '.join(NOTES)}; "
        "docs/retrieval.md); empty when confident. Runs of the active protocol start with probes=N, the probes "
        "made."),
-    _C("true_x_m", pa.float64(), "m", False, "True target COM x after the last action.", finite=True),
-    _C("true_y_m", pa.float64(), "m", False, "True target COM y after the last action.", finite=True),
-    _C("true_yaw_rad", pa.float64(), "rad", False, "True target yaw after the last action.", finite=True),
-    _C("position_error_m", pa.float64(), "m", False, "Distance between estimated and true primitive centres.",
+    _C("true_x_m", pa.float64(), "m", True, "True target COM x after the last action (null: a robot's log).",
+       finite=True),
+    _C("true_y_m", pa.float64(), "m", True, "True target COM y after the last action (null: a robot's log).",
+       finite=True),
+    _C("true_yaw_rad", pa.float64(), "rad", True, "True target yaw after the last action (null: a robot's log).",
+       finite=True),
+    _C("position_error_m", pa.float64(), "m", True, "Distance between estimated and true primitive centres "
+       "(null: a robot's log, no truth).",
        finite=True, minimum=0.0),
-    _C("yaw_error_rad", pa.float64(), "rad", False, "Yaw error modulo the target's symmetry (pi box, any can).",
+    _C("yaw_error_rad", pa.float64(), "rad", True, "Yaw error modulo the target's symmetry (pi box, any can; "
+       "null: a robot's log).",
        finite=True, minimum=0.0),
     _C("grasp_success", pa.bool_(), "", True, "Simulated grasp at the estimate succeeded (null: not simulated)."),
     _C("grasp_outcome", pa.string(), "", False, "Why the grasp succeeded or failed ('' if not simulated); the "

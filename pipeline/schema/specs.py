@@ -56,6 +56,15 @@ CONTACTS_COLUMNS: tuple[Column, ...] = (
            values="finite, |dy| ≤ 1 when in contact; null otherwise"),
     Column("object_id", pa.int64(), "", False, "Ground-truth object touched (-1 unknown).", required=False,
            minimum=-1),
+    Column("ee_start_x_m", pa.float64(), "m", True, "End-effector x position before the step (a log's start; "
+           "null: the previous step's end).", required=False, finite=True, minimum=-MAX_POSITION_M,
+           maximum=MAX_POSITION_M),
+    Column("ee_start_y_m", pa.float64(), "m", True, "End-effector y position before the step (a log's start; "
+           "null: the previous step's end).", required=False, finite=True, minimum=-MAX_POSITION_M,
+           maximum=MAX_POSITION_M),
+    Column("force_n", pa.float64(), "N", True, "The contact force the step met (largest in-plane wrench over "
+           "the isolation window); null: none detected, or not measured.", required=False, finite=True,
+           minimum=0.0),
 )
 
 TRACKS_COLUMNS: tuple[Column, ...] = (

@@ -32,7 +32,7 @@ def _accepts(target: pa.DataType, t: pa.DataType) -> bool:
     if target == pa.float64():
         return pa.types.is_floating(t) or pa.types.is_integer(t)
     if target == pa.bool_():
-        return pa.types.is_boolean(t)
+        return pa.types.is_boolean(t) or pa.types.is_integer(t)  # integers: 0/1 only (checked on cast)
     return t == target
 
 
@@ -72,7 +72,7 @@ _ACCEPTED = {
     pa.string(): "string (string, large_string or dictionary of strings)",
     pa.int64(): "int64 (any integer type is accepted)",
     pa.float64(): "float64 (any float or integer type is accepted)",
-    pa.bool_(): "bool",
+    pa.bool_(): "bool (or integers 0/1)",
 }
 
 
@@ -142,6 +142,10 @@ def validate_spec(table: pa.Table, spec: TableSpec, path: str | os.PathLike = "<
             big = np.asarray(col.to_numpy(zero_copy_only=False)) > np.iinfo(np.int64).max
             if (r := first_row(big)) is not None:
                 raise SchemaError(path, c.name, r, f"{col[r].as_py()} does not fit in int64")
+        if c.type == pa.bool_() and pa.types.is_integer(col.type):
+            ints = np.asarray(col.fill_null(0).to_numpy(zero_copy_only=False))
+            if (r := first_row((ints != 0) & (ints != 1))) is not None:
+                raise SchemaError(path, c.name, r, f"is {int(ints[r])}; expected a boolean (true/false, or 1/0)")
         if col.type != c.type and not c.shape:
             col = col.cast(c.type)
         arrays[c.name] = col

@@ -52,7 +52,9 @@ PLAUSIBLE_SET = 64
 def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Contact point (K, 2) at the end of every action (NaN without) and the gripper's in-contact displacement
     (K, 2) (0 without), metres, re-isolated with the isolate stage's defaults from ``table`` (the run's
-    ``sim_run`` rows; the run file's when None)."""
+    ``sim_run`` rows; the run file's when None), or as a robot's log recorded them (``info.observed``)."""
+    if table is None and info.observed is not None:  # a robot's log: its contacts as it recorded them
+        return info.observed[0].copy(), info.observed[1].copy()
     cols, _, _ = isolate_run(pq.read_table(info.path) if table is None else table, *isolation_surface(sdf))
     inc = np.asarray(cols["in_contact"], dtype=bool)
     f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
@@ -352,7 +354,8 @@ def pushtrack_estimator(segments: Sequence[Segment], info: RunInfo, sdf, rngs: S
         return fallback
     target, seg, contact, touch, pts = info.target, tracked.segment, tracked.contact, tracked.touch, tracked.points
     result, free, others = tracked.result, tracked.free, tracked.others
-    best_pose, best = final_pose(target, result, free, others, own, info.scene)
+    plan_scene = info.scene if info.scene is not None else info.grasp_scene  # a log's stand-in for its grasp plan
+    best_pose, best = final_pose(target, result, free, others, own, plan_scene)
     order = np.lexsort((np.arange(len(result.log_w)), -tie_key(result.log_w, 1e-9)))[:PLAUSIBLE_SET]
     poses, log_w = result.poses[order], result.log_w[order]
     B = len(order)
