@@ -55,12 +55,12 @@ class RetrievalParams(Params):
         go to the lowest ICP error), and a chosen pose penetrating deeper is flagged "penetrating" (0.01).
         Not the tracker's 2 mm: objects move and tilt after the gripper has been somewhere, the run files keep
         only (x, y, yaw), so a true pose can read inside gripper poses visited while the object was tilted
-        (docs/retrieval.md, "Penetration ties").
+        (docs/retrieval.md, "Deviations from the paper": penetration ties).
     agreement_tolerance : float or None, metres
         The position variance that picks the segment is over the restarts whose ICP error is within this of
         the segment's best (0.002); None: over all 30, as the paper. Restarts that stopped in another local
         minimum say nothing about where the object is, yet dominate the variance of all 30
-        (docs/retrieval.md, "Position variance over agreeing restarts").
+        (docs/retrieval.md, "Deviations from the paper": position variance over agreeing restarts).
     segment_fit_gate : float, metres
         A segment whose best restart has an ICP error above this cannot be the target while another segment
         fits (0.02). Not in the paper: a straight run of points (a wall, a segment far from the target) fits

@@ -53,7 +53,8 @@ def initial_transforms(points: np.ndarray, model: np.ndarray, n: int, rng: np.ra
     theta ~ U[0, 2 pi) about the segment's centroid, and the centroid is put at a uniformly random point of the
     model's bounding box. (The authors rotated about the world origin with zero translation, which starts ICP
     tens of centimetres away. Putting the centroid on the model's centre instead traps ICP: contacts lie on
-    the surface, so their centroid is never the centre; docs/retrieval.md, "Initial poses", has the figures.)
+    the surface, so their centroid is never the centre; docs/retrieval.md, "Deviations from the paper", has the
+    figures.)
     """
     model = np.asarray(model, dtype=np.float64)
     theta = rng.uniform(0.0, 2.0 * np.pi, n)
