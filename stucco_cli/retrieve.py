@@ -45,6 +45,8 @@ def _side_path(out_path: Path, suffix: str) -> Path:
                                                                      registry.estimators())
               + " (pipeline/registry.py, docs/retrieval.md).")
 @click.option("--restarts", type=click.IntRange(2, 1000), default=None, help="ICP restarts per segment [30].")
+@click.option("--robot", default="panda", show_default=True,
+              help="The gripper whose trail is free space: 'panda' or 'disc:RADIUS' (metres), as `stucco track`.")
 @click.option("--hypotheses", type=click.IntRange(1, 4096), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
@@ -59,7 +61,7 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @pass_settings
 def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, contacts_path: Path | None,
              target: str | None, out_path: Path, cand_path: Path | None,
-             estimator: str, restarts: int | None, hypotheses: int | None, method: str | None, grasp: bool,
+             estimator: str, restarts: int | None, robot: str, hypotheses: int | None, method: str | None, grasp: bool,
              stream: int, print_table: bool, force_overwrite: bool) -> None:
     """Estimate the target pose of every run from its segments and grasp it in simulation (--runs), or estimate
     it from a robot's log (--contacts with --target)."""
@@ -88,7 +90,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, cont
     check_paths(inputs, {"--out": out_path, "--candidates": cand_path})
     refuse_overwrite({"--out": out_path, "--candidates": cand_path}, force_overwrite)
     with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
-        params = RetrievalParams(**({} if restarts is None else {"n_restarts": restarts}))
+        params = RetrievalParams(robot=robot, **({} if restarts is None else {"n_restarts": restarts}))
         # --hypotheses sets the estimator's own n_hypotheses (the plausible one's); other estimators ignore it.
         fields = getattr(registry.resolve(registry.estimator(estimator).params), "__dataclass_fields__", {})
         own = {"n_hypotheses": hypotheses} if hypotheses is not None and "n_hypotheses" in fields else None

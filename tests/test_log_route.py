@@ -137,3 +137,17 @@ def test_a_csv_missing_a_column_or_with_a_bad_boolean_is_one_line(routes, tmp_pa
     pq.write_table(bad, tmp_path / "b.parquet")
     last = _fails("track", "--in", tmp_path / "b.parquet", "--out", tmp_path / "t.parquet")
     assert "in_contact" in last and "row 3" in last and "1/0" in last
+
+
+def test_the_readme_route_with_a_disc_gripper(routes, tmp_path):
+    """README's "Your own robot log": CSV log -> track -> segment -> retrieve with the gripper a 5 cm disc."""
+    pcsv.write_csv(pq.read_table(routes / "log.parquet"), tmp_path / "mylog.csv")
+    _ok("track", "--in", tmp_path / "mylog.csv", "--out", tmp_path / "t.parquet", "--robot", "disc:0.05")
+    _ok("segment", "--in", tmp_path / "t.parquet", "--out", tmp_path / "s.parquet")
+    _ok("retrieve", "--segments", tmp_path / "s.parquet", "--contacts", tmp_path / "mylog.csv", "--target",
+        "box:0.0616x0.1575@10", "--robot", "disc:0.05", "--out", tmp_path / "pose.parquet")
+    row = pq.read_table(tmp_path / "pose.parquet").to_pylist()[0]
+    assert all(np.isfinite([row["x_m"], row["y_m"], row["yaw_rad"]])) and row["scene"] == "log"
+    assert (tmp_path / "pose.candidates.parquet").is_file()
+    meta = pq.read_schema(tmp_path / "pose.parquet").metadata
+    assert b"disc:0.05" in meta[b"stucco.params"] and b"box:0.0616x0.1575@10" in meta[b"stucco.params"]
