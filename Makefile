@@ -75,9 +75,9 @@ quick: setup
 reproduce: setup
 	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC --seeds 0-19 --methods all --jobs 2 --out out/reproduce
 
-# The active protocol (docs/active.md): STUCCO's Table II with probing and the set grasp, then grasp success against
-# the probe budget. One estimator: the policy's set grasp ends every run whatever the estimator, so the others'
-# columns would repeat it (docs/active.md, "Scoring").
+# The active protocol (docs/active.md): STUCCO's Table II with probing and the planned grasp, then grasp success
+# against the probe budget. One estimator: the policy's own grasp ends every run whatever the estimator, so the
+# others' columns would repeat it (docs/active.md, "Scoring").
 reproduce-active: setup
 	$(BIN)/stucco --seed 0 evaluate --policy scripted+probe --scenes FB,BC,IB,TC --seeds 0-19 --methods stucco \
 	  --estimators plausible --jobs 2 --out out/reproduce-active
