@@ -28,6 +28,7 @@ from pipeline.estimators.run_info import load_run
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
+from pipeline.safe_open import regular_file
 
 __all__ = ["MIN_PUSH", "REPLAYS", "PushCase", "push_cases", "model_pose", "replay_pose", "push_rows", "summarise",
            "summary_markdown", "write_outputs"]
@@ -70,7 +71,7 @@ class PushCase:
 
 def push_cases(path: str | Path, target_id: int) -> list[PushCase]:
     """The pushes of the target ``target_id`` in one run file (the module docstring), in step order."""
-    t = pq.read_table(path).to_pydict()
+    t = pq.read_table(regular_file(path, "the run file")).to_pydict()
     out = []
     for k in range(1, len(t["step"])):
         last = t["win_true_object"][k][-1] if t["win_true_object"][k] else -1
