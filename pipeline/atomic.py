@@ -17,11 +17,48 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy"]
+__all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy", "LockLost",
+           "held_lock", "guard_writes"]
 
 
 class FolderBusy(RuntimeError):
     """Another process holds the folder's lock (the message names the folder and the holder's pid)."""
+
+
+class LockLost(RuntimeError):
+    """A worker's writes are refused: the process that holds the folder's lock for it is gone or released it."""
+
+
+#: (lock file, pid) of the folder lock this process holds (:func:`exclusive`), handed to its worker processes.
+_HELD: list[tuple[str, int]] = []
+#: (lock file, pid) of the lock this worker process writes under (:func:`guard_writes`); every rename checks it.
+_GUARD: list[tuple[str, int]] = []
+
+
+def held_lock() -> tuple[str, int] | None:
+    """The folder lock this process holds now (lock file, pid), for :func:`guard_writes` in its workers."""
+    return _HELD[-1] if _HELD else None
+
+
+def guard_writes(held: tuple[str, int] | None) -> None:
+    """In a worker process: from now on, every output (:func:`atomic_path`, :func:`all_or_none`) is renamed into
+    place only while the process ``held[1]`` is this process's parent and its lock file ``held[0]`` still names
+    it; otherwise the write is dropped and :class:`LockLost` raised. A worker orphaned by a killed parent, or still
+    busy after the parent released the folder, never writes into it. None: no guard."""
+    _GUARD[:] = [] if held is None else [(str(held[0]), int(held[1]))]
+
+
+def _check_guard() -> None:
+    if not _GUARD:
+        return
+    lock, pid = _GUARD[0]
+    try:
+        holder = Path(lock).read_bytes()[:32].decode(errors="replace").strip()
+    except OSError:
+        holder = ""
+    if os.getppid() != pid or holder != str(pid):
+        raise LockLost(f"{lock}: the process {pid} that holds this folder is gone or released it; this worker "
+                       "writes nothing more")
 
 
 def _temporary(path: Path) -> Path:
@@ -51,6 +88,7 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
                 os.fsync(fd)
             finally:
                 os.close(fd)
+        _check_guard()
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -71,6 +109,7 @@ def all_or_none(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
         t.parent.mkdir(parents=True, exist_ok=True)
     try:
         yield tmps
+        _check_guard()
         for tmp, target in zip(tmps, targets):
             os.replace(tmp, target)
     except BaseException:
@@ -141,9 +180,12 @@ def exclusive(folder: str | os.PathLike, name: str = ".lock") -> Iterator[Path]:
                              "use another folder") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        _HELD.append((str(lock.resolve()), os.getpid()))
         try:
             yield lock
         finally:
+            _HELD.pop()
+            os.ftruncate(fd, 0)  # no longer names this process: its workers' writes are refused from now on
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
