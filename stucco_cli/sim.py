@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import click
 
 from pipeline import registry
+from pipeline.safe_open import regular_file
 from stucco_cli.common import (
     FORCE_OVERWRITE,
     NON_NEGATIVE,
@@ -130,8 +132,11 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
             raise click.ClickException(f"{in_path}: no *.parquet run files (write them with `stucco collect`)")
     elif in_path.is_file():
         files = [in_path]
-    else:
+    elif not os.path.lexists(in_path):
         raise click.ClickException(f"{in_path}: does not exist")
+    else:  # a FIFO, device or dangling link: named for what it is, never opened
+        with user_errors():
+            regular_file(in_path, "the run file")
     refuse_overwrite({"--out": out_path}, force_overwrite)
     with user_errors():
         res = isolate_file(files, out_path, seed=settings.seed)

@@ -25,6 +25,7 @@ from pipeline.evaluate.stages import StageTimes, stored_stage_s
 from pipeline.figures import figure_path, run_figure, summary_figure
 from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths, run_paths
 from pipeline.parallel import map_jobs
+from pipeline.probe.report import read_times
 from pipeline.report import table_ii
 from pipeline.retrieve import load_run, run_files_by_name
 
@@ -58,6 +59,7 @@ def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
     pairs = []
     for _, path in sorted(run_files_by_name(source).items()):
         info = load_run(path)
+        read_times(path)  # a policy's side file beside it, checked now rather than in the report after every job
         recorded = schema.read_metadata(path).get("seed")
         if isinstance(recorded, int) and recorded != root_seed:
             raise ValueError(f"{path}: collected with root seed {recorded}; replay it with `stucco --seed {recorded} "

@@ -16,7 +16,7 @@ from pipeline.layout import partition
 from pipeline.safe_open import optional_file, read_text
 from pipeline.schema.rules import MAX_SECONDS
 
-__all__ = ["PROBE_POLICY", "run_stats", "probe_lines", "times_path", "save_times", "save_collect_times"]
+__all__ = ["PROBE_POLICY", "run_stats", "probe_lines", "times_path", "save_times", "save_collect_times", "read_times"]
 
 #: The probing policy, whose :class:`~pipeline.registry.PolicySpec` declares the times side file.
 PROBE_POLICY = "scripted+probe"
@@ -50,10 +50,12 @@ def save_collect_times(path: str | Path, result) -> None:
     save_times(path, getattr(result, "probe_s", None))
 
 
-def _read_times(path: str | Path) -> tuple[list[float], float | None]:
+def read_times(path: str | Path) -> tuple[list[float], float | None]:
     """(decision times, prior time or None) from a run file's side file (or its name before layout 3); a side
     file written before the prior was timed holds the list of decision times alone; none at all (e.g. a run
-    copied by evaluate --from-runs without it): ([], None)."""
+    copied by evaluate --from-runs without it): ([], None). The side file is checked before it is opened (a regular
+    file) and after ({"decision_s": [s, ...], "prior_s": s}, times finite and >= 0): ValueError naming it and the
+    key otherwise."""
     for side in (times_path(path), _legacy_times_path(path)):
         if optional_file(side, "the policy's times file") is not None:  # a FIFO there is refused, never opened
             break
@@ -110,7 +112,7 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     turn = abs(float(wrap_angle(after[2] - before[2])))
-    times, prior = _read_times(path)
+    times, prior = read_times(path)
     return {"probes": int(meta.get("probes", 0)), "decision_s": times, "prior_s": prior,
             "flagged": meta.get("flagged", ""), "moved_m": math.hypot(*(after[:2] - before[:2])),
             "turned_rad": float(turn)}
