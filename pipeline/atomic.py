@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy", "LockLost",
-           "held_lock", "guard_writes"]
+           "held_lock", "guard_writes", "together"]
 
 
 class FolderBusy(RuntimeError):
@@ -88,11 +88,47 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
                 os.fsync(fd)
             finally:
                 os.close(fd)
+        if _GROUPS:  # renamed with the rest of its group (:func:`together`)
+            _GROUPS[-1].append((tmp, path))
+            return
         _check_guard()
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+#: The open groups of :func:`together`: (temporary, target) of each write made inside, in order.
+_GROUPS: list[list[tuple[Path, Path]]] = []
+
+
+@contextmanager
+def together() -> Iterator[None]:
+    """Outputs that belong together (a bench's CSV files and figure, ``report.md`` and ``report.csv``, a regression
+    snapshot) appear all together or not at all: every write made inside the block through this module
+    (:func:`atomic_path`, :func:`write_text`, :func:`write_csv_rows`, :func:`save_figure`, and
+    :func:`pipeline.schema.write_table`) goes to its temporary name, and all are renamed onto their targets only
+    when the block ends without error; if it fails, every temporary is removed and no target is touched. Blocks
+    nest (the outer one renames)."""
+    _GROUPS.append([])
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in _GROUPS.pop():
+            tmp.unlink(missing_ok=True)
+        raise
+    group = _GROUPS.pop()
+    if _GROUPS:  # an inner block: its writes are the outer block's
+        _GROUPS[-1].extend(group)
+        return
+    try:
+        _check_guard()
+    except BaseException:
+        for tmp, _ in group:
+            tmp.unlink(missing_ok=True)
+        raise
+    for tmp, target in group:
+        os.replace(tmp, target)
 
 
 @contextmanager

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import schema
-from pipeline.atomic import atomic_path, write_csv_rows
+from pipeline.atomic import atomic_path, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
@@ -150,6 +150,7 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: list[dict], summary: list[dict], out: str | Path, png: str | Path | None = None
                   ) -> list[Path]:
     """``probe_budget.csv`` (rows), ``probe_budget_summary.csv`` and the PNG (GS % against the budget per task,

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.atomic import together
 from pipeline.estimators.pushtrack.filter import model_length, model_push
 from pipeline.estimators.pushtrack.params import MOTIONS, SLICE_MOTIONS, PushTrackParams
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice, target_outline
@@ -205,6 +206,7 @@ def summary_markdown(summary: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path, Path]:
     """``pushes.csv`` (one row per push), ``pushes_summary.csv`` and ``pushes.png`` (per task, each model's yaw
     errors as a box plot) into ``out``, each written atomically."""

@@ -18,7 +18,7 @@ from pathlib import Path
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pipeline.atomic import save_figure, write_csv_rows
+from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file
 from pipeline.evaluate import EvalConfig, Job, single_threaded
 from pipeline.evaluate.stages import run_isolate, run_retrieve, run_score, run_segment, run_track
@@ -123,6 +123,7 @@ def growth(rows: list[dict]) -> dict[str, float | None]:
     return out
 
 
+@together()  # its outputs appear all together or not at all
 def write_contact_outputs(rows: list[dict], out: str | Path, png: str | Path | None = None) -> list[Path]:
     """``scale_contacts.csv`` and the PNG (CPU seconds of each stage against the run's contacts, log-log, with the
     total's wall time; ``png`` or ``out/scale_contacts.png``), each written atomically."""

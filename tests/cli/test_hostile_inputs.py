@@ -255,3 +255,37 @@ def test_evaluate_compares_its_sources_and_its_record_on_resume(tmp_path):
     one_line_error(invoke("evaluate", "--from-runs", src, "--seeds", "0", "--methods", "stucco", "--restarts", "5",
                           "--no-figures", "-j", "1", "--out", ev), "evaluation.json", "missing")
     assert not (ev / "evaluation.json").exists()
+
+
+# -- 8. outputs that belong together ---------------------------------------------------------------------------
+
+
+def test_a_group_of_writes_appears_all_together_or_not_at_all(tmp_path):
+    from pipeline.atomic import together, write_text
+
+    with together():
+        write_text(tmp_path / "a.md", "a")
+        assert not (tmp_path / "a.md").exists()  # renamed only at the end of the group
+        write_text(tmp_path / "b.csv", "b")
+    assert (tmp_path / "a.md").read_text() == "a" and (tmp_path / "b.csv").read_text() == "b"
+    with pytest.raises(OSError), together():
+        write_text(tmp_path / "a.md", "new a")
+        raise OSError(28, "No space left on device")
+    assert (tmp_path / "a.md").read_text() == "a" and sorted(p.name for p in tmp_path.iterdir()) == ["a.md", "b.csv"]
+
+
+def test_a_report_that_fails_halfway_leaves_neither_file(tmp_path, monkeypatch):
+    import pipeline.evaluate.results as results
+
+    def full(path, text):  # report.md written, then the disk is full
+        if Path(path).name == "report.csv":
+            raise OSError(28, "No space left on device", str(path))
+        return write_text(path, text)
+
+    write_text = results.write_text
+    monkeypatch.setattr(results, "write_text", full)
+    ev = tmp_path / "ev"
+    res = invoke("evaluate", "--scenes", "FB", "--seeds", "0", "--max-actions", "4", *TINY, "--out", ev)
+    one_line_error(res, "No space left on device")
+    assert not (ev / "report.md").exists() and not (ev / "report.csv").exists()
+    assert not [p for p in ev.iterdir() if p.name.endswith(".tmp")]
