@@ -93,9 +93,19 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
             return
         _check_guard()
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise _named(e, tmp, path) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _named(e: OSError, tmp: Path, path: Path) -> OSError:
+    """``e`` naming the target ``path`` instead of its hidden temporary name (what a user can find and fix)."""
+    if e.filename is not None and Path(e.filename).name == tmp.name:
+        return type(e)(e.errno, e.strerror, str(path))
+    return e
 
 
 #: The open groups of :func:`together`: (temporary, target) of each write made inside, in order.

@@ -9,11 +9,12 @@ import click
 
 from pipeline import registry
 from pipeline.safe_open import regular_file
+from pipeline.scenes.parse import MAX_NOISE_MM  # one bound: the scene files' and the option's
 from stucco_cli.common import (
     FORCE_OVERWRITE,
-    NON_NEGATIVE,
     NOT_RANDOM,
     ONE_PROCESS,
+    FiniteFloat,
     Settings,
     check_paths,
     global_options,
@@ -74,7 +75,7 @@ def _not_shadowing(sc) -> None:
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for one <scene>-<seed>.parquet per run.")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Stop each run after N actions.")
-@click.option("--noise-mm", type=NON_NEGATIVE, default=None,
+@click.option("--noise-mm", type=FiniteFloat(min=0.0, max=MAX_NOISE_MM), default=None,
               help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
 @click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
 @FORCE_OVERWRITE

@@ -289,3 +289,40 @@ def test_a_report_that_fails_halfway_leaves_neither_file(tmp_path, monkeypatch):
     one_line_error(res, "No space left on device")
     assert not (ev / "report.md").exists() and not (ev / "report.csv").exists()
     assert not [p for p in ev.iterdir() if p.name.endswith(".tmp")]
+
+
+# -- 9. lower ----------------------------------------------------------------------------------------------------
+
+
+def test_an_error_names_the_file_not_its_hidden_temporary(tmp_path):
+    from pipeline.atomic import atomic_path
+
+    with pytest.raises(OSError) as e, atomic_path(tmp_path / "_FB-000.wall_s.json") as tmp:
+        raise FileNotFoundError(2, "No such file or directory", str(tmp))
+    assert e.value.filename == str(tmp_path / "_FB-000.wall_s.json") and ".tmp" not in str(e.value)
+
+
+@pytest.mark.parametrize("option", [("--restarts", "5"), ("--no-figures",), ("--policy", "scripted"),
+                                    ("--estimators", "plausible")])
+def test_suite_training_refuses_the_options_it_would_drop(tmp_path, option):
+    res = invoke("evaluate", "--suite", "training", *option, "--out", tmp_path / "t")
+    assert res.exit_code == 2 and option[0].lstrip("-").split("/")[0] in res.stderr
+    assert "does not apply to --suite training" in res.stderr
+
+
+def test_collect_noise_has_the_scene_files_bound(tmp_path):
+    res = invoke("collect", "--scene", "FB", "--noise-mm", "1e308", "--out", tmp_path / "runs")
+    assert res.exit_code == 2 and "--noise-mm" in res.stderr and "50" in res.stderr
+
+
+def test_a_scene_file_of_more_actions_than_the_cap_is_refused_in_one_line(tmp_path):
+    from pipeline.scenes import load_scene
+    from pipeline.scenes.parse import MAX_ACTIONS
+
+    text = load_scene("FB").source
+    start = text.index("\nsequence = [") + 1
+    end = text.index("\n]\n", start) + 2
+    big = tmp_path / "BIG.toml"
+    big.write_text(text[:start] + "sequence = [" + ", ".join(["[0.5, 0.0]"] * (MAX_ACTIONS + 1)) + "]" + text[end:])
+    one_line_error(invoke("collect", "--scene", big, "--out", tmp_path / "runs"), "BIG.toml", "sequence",
+                   str(MAX_ACTIONS))
