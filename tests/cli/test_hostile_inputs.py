@@ -26,7 +26,7 @@ import pytest
 from pipeline import schema
 from pipeline.layout import LOCK
 from pipeline.probe.report import read_times, times_path
-from tests.cli.stages import invoke
+from tests.cli.stages import as_probe_run, invoke
 
 REG = Path(__file__).resolve().parents[2] / "data" / "regression"
 TINY = ("--methods", "stucco", "--restarts", "2", "--no-figures", "-j", "1")
@@ -148,27 +148,8 @@ def test_a_bad_side_file_of_a_stored_run_is_refused_before_any_job(tmp_path):
     assert not (tmp_path / "ev" / "runs").exists()
 
 
-def _probe_run(path: Path, *, k: int = 3, drop_column: bool = False, record=None, columns=None) -> Path:
-    """The regression's FB-000 run recast as a run of the probing policy whose last ``k`` actions are probe
-    actions of no probe (a consistent log), then edited: ``record`` changes its log, ``columns`` its columns."""
-    t = schema.read_run(REG / "FB-000.parquet")
-    meta = schema.read_metadata(REG / "FB-000.parquet")
-    n = t.num_rows
-    if not drop_column:
-        t = t.append_column("probe", pa.array([i >= n - k for i in range(n)], pa.bool_()))
-    log = {"params": {"budget": 0}, "probes": 0, "actions": k, "contacts": [], "lines": [], "share": 0.5,
-           "agreed": False, "flagged": "budget_spent", "segment": -1, "target_steps": [], "other_steps": [],
-           "switches": 0, "history": [{"rows": n - k, "segment": -1, "share": 0.5, "target_steps": [],
-                                       "stop": False, "held": 0.0}]}
-    log.update(record or {})
-    for name, values in (columns or {}).items():
-        t = t.set_column(t.column_names.index(name), name, values(t.column(name)))
-    params = dict(meta["params"], policy="scripted+probe", probe=log)
-    return schema.write_table(t, path, stage="collect", params=params, seed=meta["seed"], kind="sim_run")
-
-
 def test_a_consistent_probe_run_is_read(tmp_path):
-    run = _probe_run(tmp_path / "runs" / "FB-000.parquet")
+    run = as_probe_run(REG / "FB-000.parquet", tmp_path / "runs" / "FB-000.parquet")
     assert schema.probe_record(run)["actions"] == 3
 
 
@@ -185,7 +166,7 @@ def test_a_consistent_probe_run_is_read(tmp_path):
     (dict(columns={"run": lambda c: pa.array(["FB/7"] * len(c))}), ("column 'run'", "FB/0")),
 ])
 def test_a_run_whose_rows_and_metadata_disagree_is_refused_in_one_line(tmp_path, edit, needles):
-    run = _probe_run(tmp_path / "runs" / "FB-000.parquet", **edit)
+    run = as_probe_run(REG / "FB-000.parquet", tmp_path / "runs" / "FB-000.parquet", **edit)
     one_line_error(invoke("isolate", "--in", run, "--out", tmp_path / "c.parquet"), str(run), *needles)
 
 
