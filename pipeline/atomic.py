@@ -17,11 +17,48 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy"]
+__all__ = ["atomic_path", "all_or_none", "write_text", "save_figure", "exclusive", "FolderBusy", "LockLost",
+           "held_lock", "guard_writes", "together"]
 
 
 class FolderBusy(RuntimeError):
     """Another process holds the folder's lock (the message names the folder and the holder's pid)."""
+
+
+class LockLost(RuntimeError):
+    """A worker's writes are refused: the process that holds the folder's lock for it is gone or released it."""
+
+
+#: (lock file, pid) of the folder lock this process holds (:func:`exclusive`), handed to its worker processes.
+_HELD: list[tuple[str, int]] = []
+#: (lock file, pid) of the lock this worker process writes under (:func:`guard_writes`); every rename checks it.
+_GUARD: list[tuple[str, int]] = []
+
+
+def held_lock() -> tuple[str, int] | None:
+    """The folder lock this process holds now (lock file, pid), for :func:`guard_writes` in its workers."""
+    return _HELD[-1] if _HELD else None
+
+
+def guard_writes(held: tuple[str, int] | None) -> None:
+    """In a worker process: from now on, every output (:func:`atomic_path`, :func:`all_or_none`) is renamed into
+    place only while the process ``held[1]`` is this process's parent and its lock file ``held[0]`` still names
+    it; otherwise the write is dropped and :class:`LockLost` raised. A worker orphaned by a killed parent, or still
+    busy after the parent released the folder, never writes into it. None: no guard."""
+    _GUARD[:] = [] if held is None else [(str(held[0]), int(held[1]))]
+
+
+def _check_guard() -> None:
+    if not _GUARD:
+        return
+    lock, pid = _GUARD[0]
+    try:
+        holder = Path(lock).read_bytes()[:32].decode(errors="replace").strip()
+    except OSError:
+        holder = ""
+    if os.getppid() != pid or holder != str(pid):
+        raise LockLost(f"{lock}: the process {pid} that holds this folder is gone or released it; this worker "
+                       "writes nothing more")
 
 
 def _temporary(path: Path) -> Path:
@@ -51,10 +88,57 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = False) -> Iterator[Pat
                 os.fsync(fd)
             finally:
                 os.close(fd)
+        if _GROUPS:  # renamed with the rest of its group (:func:`together`)
+            _GROUPS[-1].append((tmp, path))
+            return
+        _check_guard()
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise _named(e, tmp, path) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _named(e: OSError, tmp: Path, path: Path) -> OSError:
+    """``e`` naming the target ``path`` instead of its hidden temporary name (what a user can find and fix)."""
+    if e.filename is not None and Path(e.filename).name == tmp.name:
+        return type(e)(e.errno, e.strerror, str(path))
+    return e
+
+
+#: The open groups of :func:`together`: (temporary, target) of each write made inside, in order.
+_GROUPS: list[list[tuple[Path, Path]]] = []
+
+
+@contextmanager
+def together() -> Iterator[None]:
+    """Outputs that belong together (a bench's CSV files and figure, ``report.md`` and ``report.csv``, a regression
+    snapshot) appear all together or not at all: every write made inside the block through this module
+    (:func:`atomic_path`, :func:`write_text`, :func:`write_csv_rows`, :func:`save_figure`, and
+    :func:`pipeline.schema.write_table`) goes to its temporary name, and all are renamed onto their targets only
+    when the block ends without error; if it fails, every temporary is removed and no target is touched. Blocks
+    nest (the outer one renames)."""
+    _GROUPS.append([])
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in _GROUPS.pop():
+            tmp.unlink(missing_ok=True)
+        raise
+    group = _GROUPS.pop()
+    if _GROUPS:  # an inner block: its writes are the outer block's
+        _GROUPS[-1].extend(group)
+        return
+    try:
+        _check_guard()
+    except BaseException:
+        for tmp, _ in group:
+            tmp.unlink(missing_ok=True)
+        raise
+    for tmp, target in group:
+        os.replace(tmp, target)
 
 
 @contextmanager
@@ -71,6 +155,7 @@ def all_or_none(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
         t.parent.mkdir(parents=True, exist_ok=True)
     try:
         yield tmps
+        _check_guard()
         for tmp, target in zip(tmps, targets):
             os.replace(tmp, target)
     except BaseException:
@@ -141,9 +226,12 @@ def exclusive(folder: str | os.PathLike, name: str = ".lock") -> Iterator[Path]:
                              "use another folder") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        _HELD.append((str(lock.resolve()), os.getpid()))
         try:
             yield lock
         finally:
+            _HELD.pop()
+            os.ftruncate(fd, 0)  # no longer names this process: its workers' writes are refused from now on
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)

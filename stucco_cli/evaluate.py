@@ -66,11 +66,15 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
     from pipeline.evaluate import QUICK_SCENES, QUICK_SEEDS, EvalConfig, parse_methods, parse_scenes, scene_files
 
     if suite == "training":
-        if backend != "loky" or quick or from_runs or snapshot_dir or estimator_stream:
-            raise click.UsageError("--suite training takes --scenes, --seeds, --methods, --out, -j, --max-actions")
+        ctx = click.get_current_context()
+        given = [p.opts[-1] if p.name != "figures" else "--figures/--no-figures" for p in ctx.command.params
+                 if p.name in _NOT_TRAINING and ctx.get_parameter_source(p.name) not in
+                 (click.core.ParameterSource.DEFAULT, None)]
+        if given or quick:  # an option the suite would drop silently
+            raise click.UsageError(f"{(given or ['--quick'])[0]} does not apply to --suite training, which takes "
+                                   "--scenes, --seeds, --methods, --out, -j, --max-actions")
         from stucco_cli.study import training
 
-        ctx = click.get_current_context()
         ctx.invoke(training, scenes=scenes or "SELECT1,SELECT2,SELECT3,SELECT4", seeds=seeds or "7-46",
                    out_dir=out_dir or Path("out/training"), jobs=jobs, max_actions=max_actions, methods=methods)
         return
@@ -140,3 +144,8 @@ def _run(settings: Settings, out_dir: Path, scenes, seeds, methods, cfg, jobs: i
                    err=True)
         if snapshot_dir is not None:
             click.echo(f"snapshot -> {', '.join(str(p) for p in written)}", err=True)
+
+
+#: The options of ``evaluate`` that ``--suite training`` has no use for (refused when given).
+_NOT_TRAINING = ("backend", "scheduler", "from_runs", "snapshot_dir", "estimator_stream", "policy", "estimators",
+                 "restarts", "figures")

@@ -2,16 +2,19 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import click
 
 from pipeline import registry
+from pipeline.safe_open import regular_file
+from pipeline.scenes.parse import MAX_NOISE_MM  # one bound: the scene files' and the option's
 from stucco_cli.common import (
     FORCE_OVERWRITE,
-    NON_NEGATIVE,
     NOT_RANDOM,
     ONE_PROCESS,
+    FiniteFloat,
     Settings,
     check_paths,
     global_options,
@@ -72,7 +75,7 @@ def _not_shadowing(sc) -> None:
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for one <scene>-<seed>.parquet per run.")
 @click.option("--max-actions", type=click.IntRange(min=1), default=None, help="Stop each run after N actions.")
-@click.option("--noise-mm", type=NON_NEGATIVE, default=None,
+@click.option("--noise-mm", type=FiniteFloat(min=0.0, max=MAX_NOISE_MM), default=None,
               help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
 @click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
 @FORCE_OVERWRITE
@@ -130,8 +133,11 @@ def isolate(settings: Settings, in_path: Path, out_path: Path, report: bool, for
             raise click.ClickException(f"{in_path}: no *.parquet run files (write them with `stucco collect`)")
     elif in_path.is_file():
         files = [in_path]
-    else:
+    elif not os.path.lexists(in_path):
         raise click.ClickException(f"{in_path}: does not exist")
+    else:  # a FIFO, device or dangling link: named for what it is, never opened
+        with user_errors():
+            regular_file(in_path, "the run file")
     refuse_overwrite({"--out": out_path}, force_overwrite)
     with user_errors():
         res = isolate_file(files, out_path, seed=settings.seed)

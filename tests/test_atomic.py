@@ -65,11 +65,13 @@ def test_one_writer_per_folder_and_a_killed_holder_releases_it(tmp_path):
     while True:  # the kernel drops the lock with the process
         try:
             with exclusive(tmp_path):
+                assert (tmp_path / ".lock").read_text().strip() == str(os.getpid())
                 break
         except FolderBusy:
             assert time.monotonic() < deadline
             time.sleep(0.05)
-    assert (tmp_path / ".lock").read_text().strip() == str(os.getpid())
+    # released: the file names no process any more (a worker of this one may not write into the folder now)
+    assert (tmp_path / ".lock").read_text() == ""
 
 
 def test_all_or_none_touches_no_target_when_a_later_write_fails(tmp_path):

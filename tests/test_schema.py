@@ -171,7 +171,7 @@ CASES = [
     ("ee_differs_within_step", _set("ee_y_m", 2, 0.21), "ee_y_m", 2,
      r"is 0\.21 but row 1 of the same step 1 \(run 'a'\) has 0\.2; all rows of one step must share"),
     ("ee_in_millimetres", lambda c: c.update(ee_x_m=[v * 1000 for v in c["ee_x_m"]]), "ee_x_m", 0,
-     r"is 150\.0, which looks like the wrong unit \(positions beyond 100 m\); metres are expected"),
+     r"is 150\.0, which looks like the wrong unit \(positions beyond 5 m\); metres are expected"),
     ("contact_in_millimetres", _set("contact_y_m", 5, 550.0), "contact_y_m", 5,
      r"is 550\.0, which looks like the wrong unit"),
     ("displacement_in_millimetres", _set("dx_m", 1, 10.0), "dx_m", 1,

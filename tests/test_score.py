@@ -96,8 +96,8 @@ def _run_file(path: Path, run="FB/4", seed=4):
             "obj_pose": pa.array([_poses().tolist()] * n, t.schema.field("obj_pose").type)}
     for name, values in over.items():
         t = t.set_column(t.column_names.index(name), name, values)
-    write_table(t.replace_schema_metadata(None), path, stage="collect", params=read_metadata(stored)["params"],
-                seed=0, kind="sim_run")
+    params = dict(read_metadata(stored)["params"], run_seed=seed)  # the metadata names the run its rows hold
+    write_table(t.replace_schema_metadata(None), path, stage="collect", params=params, seed=0, kind="sim_run")
 
 
 def _segments(run="FB/4"):

@@ -16,6 +16,7 @@ from pipeline.detection import contact_forces
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
+from pipeline.safe_open import regular_file
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_from_text, scene_names
 from pipeline.seeds import check_stream, run_key
 
@@ -184,7 +185,7 @@ def _run_name(f: Path) -> str | None:
     """The run a collected run file holds (its first ``run``), or None for a Parquet file of another table kind;
     SchemaError for a file that is not Parquet or has no rows."""
     try:
-        names = pq.read_schema(f).names
+        names = pq.read_schema(regular_file(f, "the run file")).names
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
         raise schema.SchemaError(f, None, None, f"not a Parquet file ({' '.join(str(e).split())})") from None
     if "run" not in names or "obj_pose" not in names:

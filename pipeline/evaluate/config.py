@@ -16,6 +16,7 @@ from pipeline.constraints import Params
 from pipeline.estimators.params import MAX_COUNT
 from pipeline.evaluate.migrate import MIGRATES_FROM, migrate
 from pipeline.layout import CONFIG, LAYOUT_VERSION
+from pipeline.safe_open import optional_file, read_text
 from pipeline.scenes import Scene, SceneError, load_scene, scene_digest, scene_names
 from pipeline.seeds import check_stream
 
@@ -224,10 +225,18 @@ def check_config(out: Path, cfg: EvalConfig) -> None:
     ``evaluation.json`` rewritten; an older layout is refused."""
     path = out / CONFIG
     want = dict(cfg.to_dict(), layout=LAYOUT_VERSION)
-    if path.is_file():
+    if optional_file(path, CONFIG) is None:
+        # Results without the record of what made them: stamping this call's settings over them would claim
+        # settings they were not made with (a deleted evaluation.json, then another --restarts).
+        found = sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) if out.is_dir() else []
+        if found:
+            raise ValueError(f"{path}: missing, but {out} holds {', '.join(found[:3])}"
+                             f"{', …' if len(found) > 3 else ''}; what made them is unknown: restore {CONFIG} or "
+                             "use another --out (or delete the folder)")
+    else:
         try:
-            have = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+            have = json.loads(read_text(path, CONFIG))
+        except (OSError, json.JSONDecodeError) as e:
             raise ValueError(f"{path}: unreadable ({e}); remove it or use another --out") from None
         if not isinstance(have, dict):
             raise ValueError(f"{path}: holds {type(have).__name__} {json.dumps(have)[:40]}, not the JSON object "

@@ -16,10 +16,12 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from pipeline import schema
+from pipeline.collect import output_path
 from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import Job
 from pipeline.layout import STAGE_SPECS, STAGES, JobPaths, job_paths, run_paths, stage_spec
 from pipeline.registry import DEFAULT_ESTIMATOR
+from pipeline.safe_open import optional_file
 
 __all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
            "figure_stale"]
@@ -43,10 +45,14 @@ class Digests:
     def __call__(self, path: Path) -> str | None:
         path = Path(path)
         if path not in self._d:
-            if not path.is_file():
+            if optional_file(path) is None:
                 return None
             self._d[path] = file_digest(path)
         return self._d[path]
+
+    def forget(self, path: Path) -> None:
+        """Drop the digest of ``path`` (a file rewritten since it was taken: a stored run copied again)."""
+        self._d.pop(Path(path), None)
 
 
 def up_to_date(path: Path, inputs: dict[str, Path], digest: Digests) -> bool:
@@ -100,15 +106,40 @@ def _every_step(path: Path) -> bool:
         return False
 
 
-def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests) -> tuple[str, ...]:
+def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests, source: Path | None = None,
+                        root_seed: int | None = None) -> tuple[str, ...]:
     """The stages of a (scene, seed) shared by its methods to (re)run: ``("collect", "isolate")`` when the run
-    file is missing, ``("isolate",)`` when the contacts are not up to date with it, else ``()``."""
+    file is missing, or differs from the stored run ``source`` it was copied from (``--from-runs``: the stored
+    run was collected again since), ``("isolate",)`` when the contacts are not up to date with it, else ``()``.
+
+    A run file that is not the run of ``scene`` and ``seed`` (a run of another seed placed there), or was
+    collected with another root seed than ``root_seed``, is refused (ValueError naming it): its results would be
+    reported as this seed's."""
     paths = run_paths(out, scene, seed)
-    if not paths["runs"].is_file():
+    run = paths["runs"]
+    if optional_file(run, "the run file") is None:
+        return "collect", "isolate"
+    check_run_identity(run, scene, seed, root_seed)
+    if source is not None and digest(run) != digest(output_path(source, scene, seed)):
         return "collect", "isolate"
     isolate = stage_spec("isolate")
     fresh = all(up_to_date(p, paths.inputs(isolate), digest) for p in paths.outputs(isolate).values())
     return () if fresh else (isolate.name,)
+
+
+def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None) -> None:
+    """ValueError (one line naming ``path``) unless the run file holds the run of ``scene`` and ``seed``, collected
+    with ``root_seed`` (None: any); its rows agree with its metadata (:func:`pipeline.schema.read_run`)."""
+    meta = schema.read_metadata(path)
+    params = meta.get("params") or {}
+    have = (params.get("scene"), params.get("run_seed"))
+    if have != (scene, seed):
+        raise ValueError(f"{path}: holds the run {have[0]}/{have[1]}, not {scene}/{seed}; a run file stands for "
+                         "the scene and seed of its name (remove it to collect the right one)")
+    recorded = meta.get("seed")
+    if root_seed is not None and isinstance(recorded, int) and recorded != root_seed:
+        raise ValueError(f"{path}: collected with root seed {recorded}, this evaluation's is {root_seed}; use "
+                         "another --out")
 
 
 def figure_stale(png: Path, inputs: Iterable[Path]) -> bool:

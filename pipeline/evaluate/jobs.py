@@ -56,10 +56,10 @@ class PreparedRun:
 def _prepare(out: Path, scene: str, seed: int, cfg: EvalConfig, todo: Sequence[str] | None) -> PreparedRun:
     out = Path(out)
     if todo is None:
-        todo = shared_stale_stages(out, scene, seed, Digests())
+        todo = shared_stale_stages(out, scene, seed, Digests(), cfg.source, cfg.root_seed)
     paths = run_paths(out, scene, seed)
     times: StageTimes = {}
-    if "collect" in todo and not paths["runs"].is_file():
+    if "collect" in todo:
         times["collect"] = run_collect(paths, cfg)
     if todo:  # a new run, or contacts not up to date with it
         with single_threaded():

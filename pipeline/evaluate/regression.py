@@ -10,6 +10,7 @@ from pathlib import Path
 import pyarrow as pa
 
 from pipeline import registry, schema
+from pipeline.atomic import together
 from pipeline.evaluate.config import EvalConfig, Job
 from pipeline.evaluate.results import gather_scores
 from pipeline.layout import partition
@@ -44,6 +45,7 @@ def snapshot(out: str | Path, job_list: Sequence[Job], estimators: Sequence[str]
     return {"contacts": contacts, "segments": segments, "scores": scores}
 
 
+@together()  # its outputs appear all together or not at all
 def write_snapshot(out: str | Path, job_list: Sequence[Job], dest: str | Path, cfg: EvalConfig) -> list[Path]:
     """Write :func:`snapshot` to ``dest/<kind>.parquet`` (the expected results of ``data/regression``)."""
     dest = Path(dest)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from pipeline.atomic import write_text
+from pipeline.atomic import together, write_text
 from pipeline.environment import environment_line
 from pipeline.evaluate.config import Job
 from pipeline.evaluate.stages import STAGE_COLUMNS
@@ -72,6 +72,7 @@ def gather_scores(out: str | Path, job_list: Sequence[Job], estimators: Sequence
     return pa.concat_tables(tables, promote_options="permissive")
 
 
+@together()  # its outputs appear all together or not at all
 def write_report(out: str | Path, scores: pa.Table, extra: tuple[str, ...] = (),
                  estimator_stream: int = 0, tail: str = "") -> tuple[Path, Path]:
     """``out/report.md`` (Table II with the paper's claims checked below it, then the ``extra`` lines, e.g. the

@@ -23,8 +23,9 @@ from pipeline.evaluate.parallel import parallel_backend
 from pipeline.evaluate.results import gather_scores, write_report
 from pipeline.evaluate.stages import StageTimes, stored_stage_s
 from pipeline.figures import figure_path, run_figure, summary_figure
-from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths
+from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths, run_paths
 from pipeline.parallel import map_jobs
+from pipeline.probe.report import read_times
 from pipeline.report import table_ii
 from pipeline.retrieve import load_run, run_files_by_name
 
@@ -58,6 +59,7 @@ def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
     pairs = []
     for _, path in sorted(run_files_by_name(source).items()):
         info = load_run(path)
+        read_times(path)  # a policy's side file beside it, checked now rather than in the report after every job
         recorded = schema.read_metadata(path).get("seed")
         if isinstance(recorded, int) and recorded != root_seed:
             raise ValueError(f"{path}: collected with root seed {recorded}; replay it with `stucco --seed {recorded} "
@@ -123,10 +125,14 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         # One pass over the files: every digest taken once (the prepare phase writes only files not hashed
         # yet: a missing run, and contacts, which are checked as outputs here), the stale stages handed on.
         digest = Digests()
-        shared_todo = {(sc, s): shared_stale_stages(out, sc, s, digest) for sc, s in pairs}
+        shared_todo = {(sc, s): shared_stale_stages(out, sc, s, digest, cfg.source, cfg.root_seed)
+                       for sc, s in pairs}
         need = [(out, sc, s, cfg, todo) for (sc, s), todo in shared_todo.items() if todo]
         with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:
             prepared = {(p.scene, p.seed): p for p in map_jobs(prepare_one, need, jobs, bar)}
+        for (sc, s), todo_shared in shared_todo.items():
+            if "collect" in todo_shared:  # a stored run copied again (--from-runs) was hashed before its copy
+                digest.forget(run_paths(out, sc, s)["runs"])
         paths = {j: job_paths(out, j, cfg.estimators) for j in job_list}
         stale = {j: job_stale_stages(paths[j], digest) for j in job_list}
         known = _shared_times(job_list, paths, stale, prepared)

@@ -23,7 +23,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import registry
-from pipeline.atomic import atomic_path
+from pipeline.atomic import all_or_none
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.estimate import needs_every_step
 from pipeline.evaluate.config import EvalConfig
@@ -31,6 +31,7 @@ from pipeline.grasp import GraspParams
 from pipeline.isolate import isolate_file
 from pipeline.layout import STAGES, JobPaths, stage_spec
 from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
+from pipeline.safe_open import optional_file, regular_file
 from pipeline.score import score_file
 from pipeline.segment import segment_file
 
@@ -58,15 +59,16 @@ def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
     t0 = time.perf_counter()
     if cfg.source is not None:
         src = output_path(cfg.source, scene, seed)
-        if not src.is_file():
+        if optional_file(src, "the stored run") is None:
             raise FileNotFoundError(f"{src}: no stored run for {scene} seed {seed}")
-        with atomic_path(dest) as tmp:
-            shutil.copyfile(src, tmp)
+        sides = [(side, registry.side_path(dest, suffix)) for suffix in _side_suffixes()
+                 if optional_file(side := registry.side_path(src, suffix), "the run's side file") is not None]
+        # the run and its side files appear together (a side file of an older copy never outlives its run)
         for suffix in _side_suffixes():
-            side = registry.side_path(src, suffix)
-            if side.is_file():
-                with atomic_path(registry.side_path(dest, suffix)) as tmp:
-                    shutil.copyfile(side, tmp)
+            registry.side_path(dest, suffix).unlink(missing_ok=True)
+        with all_or_none([dest, *(d for _, d in sides)]) as tmps:
+            for (from_, _), tmp in zip([(src, dest), *sides], tmps):
+                shutil.copyfile(regular_file(from_, "the stored run"), tmp)
         return None
     res = collect_file(cfg.scene(scene), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
                        max_actions=cfg.max_actions, keep_discarded=True)
@@ -155,7 +157,7 @@ def stored_stage_s(scores_files: Iterable[Path]) -> StageTimes:
     """Stage -> wall time (s) recorded in the first existing file of ``scores_files`` (its ``stage_<name>_s``
     columns, first row); the stages it has no finite value for are left out; {} when none exists."""
     for path in scores_files:
-        if not Path(path).is_file():
+        if optional_file(path, "the scores file") is None:
             continue
         names = set(pq.read_schema(path).names)
         cols = [c for c in STAGE_COLUMNS if c in names]

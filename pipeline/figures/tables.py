@@ -35,6 +35,7 @@ from pipeline.figures.draw import (
     wrap,
 )
 from pipeline.retrieve import load_run, run_files_by_name
+from pipeline.safe_open import regular_file
 from pipeline.segment import final_estimates, segment_file
 
 __all__ = ["PLOTTABLE", "probe_actions", "find_run_file", "plot_table", "segments_with_plot"]
@@ -49,7 +50,7 @@ _UP = 5
 def probe_actions(run_path: str | Path, n: int) -> np.ndarray:
     """(n,) bool: which actions of a run file the probing policy made (its optional ``probe`` column; all False
     for a run without one)."""
-    names = pq.read_schema(run_path).names
+    names = pq.read_schema(regular_file(run_path, "the run file")).names
     if "probe" not in names:
         return np.zeros(n, bool)
     col = pq.read_table(run_path, columns=["probe"]).column("probe").to_pylist()

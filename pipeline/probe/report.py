@@ -13,8 +13,10 @@ from pipeline import registry, schema
 from pipeline.atomic import write_text
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
+from pipeline.safe_open import optional_file, read_text
+from pipeline.schema.rules import MAX_SECONDS
 
-__all__ = ["PROBE_POLICY", "run_stats", "probe_lines", "times_path", "save_times", "save_collect_times"]
+__all__ = ["PROBE_POLICY", "run_stats", "probe_lines", "times_path", "save_times", "save_collect_times", "read_times"]
 
 #: The probing policy, whose :class:`~pipeline.registry.PolicySpec` declares the times side file.
 PROBE_POLICY = "scripted+probe"
@@ -48,23 +50,39 @@ def save_collect_times(path: str | Path, result) -> None:
     save_times(path, getattr(result, "probe_s", None))
 
 
-def _read_times(path: str | Path) -> tuple[list[float], float | None]:
+def read_times(path: str | Path) -> tuple[list[float], float | None]:
     """(decision times, prior time or None) from a run file's side file (or its name before layout 3); a side
     file written before the prior was timed holds the list of decision times alone; none at all (e.g. a run
-    copied by evaluate --from-runs without it): ([], None)."""
-    times = None
+    copied by evaluate --from-runs without it): ([], None). The side file is checked before it is opened (a regular
+    file) and after ({"decision_s": [s, ...], "prior_s": s}, times finite and >= 0): ValueError naming it and the
+    key otherwise."""
     for side in (times_path(path), _legacy_times_path(path)):
-        try:
-            times = json.loads(side.read_text())
+        if optional_file(side, "the policy's times file") is not None:  # a FIFO there is refused, never opened
             break
-        except (OSError, ValueError):
-            continue
-    if times is None:
+    else:
         return [], None
-    if isinstance(times, list):
-        return [float(v) for v in times], None
+    try:
+        times = json.loads(read_text(side, "the policy's times file"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{side}: not JSON ({e})") from None
+    if isinstance(times, list):  # written before the prior was timed
+        return _seconds(side, "", times), None
+    if not isinstance(times, dict) or set(times) - {"decision_s", "prior_s"}:
+        raise ValueError(f"{side}: holds {json.dumps(times)[:40]}; expected "
+                         '{"decision_s": [seconds, ...], "prior_s": seconds}')
     prior = times.get("prior_s")
-    return [float(v) for v in times.get("decision_s") or []], None if prior is None else float(prior)
+    return (_seconds(side, "decision_s", times.get("decision_s", [])),
+            None if prior is None else _seconds(side, "prior_s", [prior])[0])
+
+
+def _seconds(side: Path, key: str, values) -> list[float]:
+    """``values`` as wall times (finite numbers >= 0, s); ValueError naming the file and key otherwise."""
+    if not isinstance(values, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= MAX_SECONDS
+            for v in values):
+        raise ValueError(f"{side}: {key or 'the list'} is {json.dumps(values)[:40]}; expected "
+                         f"{'a list of ' if key != 'prior_s' else ''}seconds (finite, in [0, {MAX_SECONDS:g}])")
+    return [float(v) for v in values]
 
 
 def run_stats(path: str | Path, rows: int | None = None) -> dict:
@@ -79,9 +97,13 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
         ``turned_rad`` (|yaw change| over the same).
     """
     t = schema.read_run(path)
-    meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
-    tid = (schema.read_metadata(path).get("params") or {}).get("bodies", []).index(
-        (schema.read_metadata(path).get("params") or {}).get("target"))
+    meta = schema.probe_record(path)
+    params = schema.read_metadata(path).get("params") or {}
+    bodies, target = params.get("bodies"), params.get("target")
+    if not isinstance(bodies, list) or target not in bodies:
+        raise schema.SchemaError(path, None, None, f"metadata stucco.params.target {target!r} is not one of its "
+                                                   "bodies (stucco.params.bodies)")
+    tid = bodies.index(target)
     flags = np.asarray(t.column("probe").to_numpy(zero_copy_only=False), dtype=bool) \
         if "probe" in t.column_names else np.zeros(t.num_rows, dtype=bool)
     n0 = int(np.argmax(flags)) if flags.any() else t.num_rows
@@ -90,7 +112,7 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
     before = np.asarray(poses[n0 - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     after = np.asarray(poses[end - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
     turn = abs(float(wrap_angle(after[2] - before[2])))
-    times, prior = _read_times(path)
+    times, prior = read_times(path)
     return {"probes": int(meta.get("probes", 0)), "decision_s": times, "prior_s": prior,
             "flagged": meta.get("flagged", ""), "moved_m": math.hypot(*(after[:2] - before[:2])),
             "turned_rad": float(turn)}

@@ -61,7 +61,8 @@ class ActiveResult:
 
 
 def _probe_meta(info: RunInfo) -> dict:
-    return (schema.read_metadata(info.path).get("params") or {}).get("probe") or {}
+    """The run's probe log, checked against its rows (:func:`pipeline.schema.probe_record`); {} without one."""
+    return schema.probe_record(info.path)
 
 
 def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,

@@ -14,6 +14,7 @@ import tomllib
 from dataclasses import replace
 from pathlib import Path
 
+from pipeline.safe_open import NotRegularFile, optional_file, read_bytes
 from pipeline.scenes.parse import parse_scene
 from pipeline.scenes.types import Scene, SceneError
 
@@ -34,8 +35,11 @@ def scene_path(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Path:
     text = str(name_or_path)
     if text.endswith(".toml") or "/" in text or "\\" in text:
         path = Path(text)
-        if not path.is_file():
-            raise SceneError(f"{path}: scene file does not exist")
+        try:
+            if optional_file(path, "the scene file") is None:
+                raise SceneError(f"{path}: scene file does not exist")
+        except NotRegularFile as e:  # a FIFO would block the reader
+            raise SceneError(str(e)) from None
         return path
     path = Path(directory) / f"{text}.toml"
     if not path.is_file():
@@ -64,7 +68,9 @@ def load_scene(name_or_path: str | Path, directory: Path = SCENE_DIR) -> Scene:
     """
     path = scene_path(name_or_path, directory)
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = read_bytes(path, "the scene file").decode("utf-8")
+    except NotRegularFile as exc:
+        raise SceneError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise SceneError(f"{path}: not a TOML text file (byte {exc.start} is not UTF-8)") from None
     except OSError as exc:
@@ -92,8 +98,8 @@ def shipped_digest(name: str, directory: Path = SCENE_DIR) -> str | None:
     if not isinstance(name, str) or name not in scene_names(directory):
         return None
     try:
-        return scene_digest((Path(directory) / f"{name}.toml").read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError):
+        return scene_digest(read_bytes(Path(directory) / f"{name}.toml", "the scene file").decode("utf-8"))
+    except (OSError, UnicodeDecodeError, NotRegularFile):
         return None
 
 

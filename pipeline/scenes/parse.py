@@ -44,8 +44,9 @@ MAX_ACTION_SCALE_M = 0.5
 MAX_NOISE_MM = 50.0
 #: Sim steps of settling before the first action (1000 by default; 100000 is 7 minutes of simulated time).
 MAX_SETTLE_STEPS = 100_000
-#: Actions of a scripted sequence or of a walk.
-MAX_ACTIONS = 100_000
+#: Actions of a scripted sequence or of a walk (a shipped scene has at most about 300; 100,000 actions would run
+#: for half an hour). Also the largest ``--max-actions``.
+MAX_ACTIONS = 5_000
 
 
 class _Reader:

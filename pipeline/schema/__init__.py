@@ -34,6 +34,8 @@ One role per module (each imports only the ones listed before it):
     The multi-column and multi-row rules of the stage tables.
 :mod:`~pipeline.schema.runs`
     The ``sim_run`` table as data (:data:`SIM_RUN`) and its rule.
+:mod:`~pipeline.schema.run_meta`
+    A run file's rows against its metadata: run, scene and seed, the ``probe`` column, the probing policy's log.
 :mod:`~pipeline.schema.specs`
     The stage tables as data (:data:`TABLES`) and their validators (:func:`validate_table`, ...).
 :mod:`~pipeline.schema.io`
@@ -55,6 +57,7 @@ from pipeline.schema.io import (
     METADATA_KEYS,
     WRITER_OPTIONS,
     file_digest,
+    probe_record,
     read_contacts,
     read_diagnostics,
     read_metadata,
@@ -110,6 +113,7 @@ __all__ = [
     "validate_segments",
     "read_diagnostics",
     "read_run",
+    "probe_record",
     "validate_diagnostics",
     "read_table",
     "validate_table",

@@ -23,8 +23,10 @@ import pyarrow.parquet as pq
 from pipeline import __version__
 from pipeline.atomic import atomic_path
 from pipeline.environment import environment
+from pipeline.safe_open import NotRegularFile, regular_file
 from pipeline.schema.csv_tables import is_csv, read_csv
 from pipeline.schema.errors import SchemaError
+from pipeline.schema.run_meta import check_run_metadata
 from pipeline.schema.specs import CONTACTS_COLUMNS, TABLES, validate_table
 
 __all__ = [
@@ -38,6 +40,7 @@ __all__ = [
     "read_diagnostics",
     "write_table",
     "read_metadata",
+    "probe_record",
     "file_digest",
     "recorded_number",
 ]
@@ -83,11 +86,7 @@ def read_parquet(path: str | os.PathLike) -> pa.Table:
     SchemaError
         One line, when `path` does not exist, is not a file or is not Parquet.
     """
-    p = Path(path)
-    if not p.exists():
-        raise SchemaError(p, None, None, "file not found")
-    if not p.is_file():
-        raise SchemaError(p, None, None, "is not a file; expected a Parquet file")
+    p = _regular(path)
     try:
         return pq.ParquetFile(p).read()
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:
@@ -140,17 +139,38 @@ def read_diagnostics(path: str | os.PathLike) -> pa.Table:
 
 
 def read_run(path: str | os.PathLike) -> pa.Table:
-    """Read and validate a collected run file (``sim_run``, the output of ``stucco collect``)."""
-    return read_table(path, "sim_run")
+    """Read and validate a collected run file (``sim_run``, the output of ``stucco collect``), its rows against
+    its metadata too (:func:`pipeline.schema.run_meta.check_run_metadata`: run, scene and seed; the ``probe``
+    column and the probing policy's log)."""
+    table = read_table(path, "sim_run")
+    check_run_metadata(table, read_metadata(path), path)
+    return table
+
+
+def probe_record(path: str | os.PathLike) -> dict:
+    """The probing policy's log of a run file (its metadata's ``params.probe``), checked against the run's rows
+    (:func:`read_run`); ``{}`` for a run of another policy. Every reader of the log goes through here."""
+    read_run(path)
+    return (read_metadata(path).get("params") or {}).get("probe") or {}
 
 
 # --------------------------------------------------------------------------------------------------------
 # Writing with provenance
 
 
+def _regular(path: str | os.PathLike) -> Path:
+    """``path`` when it is a regular file (:func:`pipeline.safe_open.regular_file`), else SchemaError naming it:
+    "file not found", or what it is (a FIFO would block the reader, and with it the folder's lock)."""
+    try:
+        return regular_file(path, "the table")
+    except NotRegularFile as e:
+        raise SchemaError(e.path, None, None, "file not found" if e.reason.endswith("not found") else
+                          e.reason.replace("the table is", "is")) from None
+
+
 def file_digest(path: str | os.PathLike) -> str:
-    """Hex SHA-256 of the file's bytes."""
-    with open(path, "rb") as f:
+    """Hex SHA-256 of the file's bytes (SchemaError naming a path that is not a regular file)."""
+    with open(_regular(path), "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
@@ -289,9 +309,7 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
         Present keys among ``stage``, ``version``, ``schema`` (str), ``params``, ``inputs``, ``runs`` (dict), ``seed``
         (int or None). A file written by other tools gives ``{}``.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise SchemaError(p, None, None, "file not found" if not p.exists() else "is not a file")
+    p = _regular(path)
     try:
         raw = pq.read_schema(p).metadata or {}
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OSError) as e:

@@ -15,8 +15,10 @@ __all__ = ["MAX_POSITION_M", "MAX_SECONDS", "MAX_STEP_DISPLACEMENT_M", "check_co
            "check_diagnostics"]
 
 # Values beyond these are almost certainly millimetres (or centimetres) passed as metres: the paper's
-# workspace is well under a metre across and a control step moves the gripper by millimetres.
-MAX_POSITION_M = 100.0
+# workspace is well under a metre across (a scene's walls lie within 1 m of the origin) and a control step moves
+# the gripper by millimetres. One bound for every table that holds positions (runs, contacts, tracks, segments):
+# a run or segments file in centimetres puts its positions at tens of units and is refused by name and column.
+MAX_POSITION_M = 5.0
 #: Longest wall time a timing column may record (one day, s): sums of such times stay finite.
 MAX_SECONDS = 86_400.0
 MAX_STEP_DISPLACEMENT_M = 1.0

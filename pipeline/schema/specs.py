@@ -115,8 +115,8 @@ CONTACTS = TableSpec(
         "in contact; all rows of one step share `ee_x_m`/`ee_y_m`.",
         "When `in_contact` is true, `contact_x_m`, `contact_y_m`, `dx_m`, `dy_m` are finite (a null `dx_m` is "
         "a contact without displacement); when false they are null (NaN is rejected: use null).",
-        "Units: |`ee_*`| and |`contact_*`| above 100 m or |`dx_m`|, |`dy_m`| above 1 m per step are rejected "
-        "as the wrong unit (metres are expected).",
+        f"Units: |`ee_*`| and |`contact_*`| above {MAX_POSITION_M:g} m or |`dx_m`|, |`dy_m`| above 1 m per step are "
+        "rejected as the wrong unit (metres are expected).",
         "`object_id` is optional; if present it has no nulls.",
         "Any other column is allowed and carried through unchanged, after the columns above.",
     ),

@@ -178,10 +178,11 @@ def validate_spec(table: pa.Table, spec: TableSpec, path: str | os.PathLike = "<
                     below = ok & ((v <= c.minimum) if c.exclusive_minimum else (v < c.minimum))
                     if (r := first_row(_rows(below))) is not None:
                         bound = ("greater than " if c.exclusive_minimum else "at least ") + format_bound(c.minimum)
-                        raise SchemaError(path, c.name, r, f"{_what(v[r], below[r], shape)}; expected {bound}")
+                        raise SchemaError(path, c.name, r, f"{_what(v[r], below[r], shape)}; expected {bound}"
+                                                           f"{_unit_hint(c)}")
                 if c.maximum is not None and (r := first_row(_rows(above := ok & (v > c.maximum)))) is not None:
-                    raise SchemaError(path, c.name, r,
-                                      f"{_what(v[r], above[r], shape)}; expected at most {format_bound(c.maximum)}")
+                    raise SchemaError(path, c.name, r, f"{_what(v[r], above[r], shape)}; expected at most "
+                                                       f"{format_bound(c.maximum)}{_unit_hint(c)}")
 
     codes, run_names = encode_runs(arrays["run"]) if "run" in arrays else (np.zeros(n, np.int64), [])
     cols = ColumnViews(path, n, values, null, codes, run_names, arrays)
@@ -215,3 +216,9 @@ def check_steps_nondecreasing(cols: ColumnViews, strict: bool, why: str) -> tupl
         cols.fail("step", r, f"step {step[r]} follows step {step[p]} (row {p}) in run "
                              f"{cols.run_names[cols.run_codes[r]]!r}; {why}")
     return order, same
+
+
+def _unit_hint(c) -> str:
+    """What a length out of its plausible range most likely is: another unit (a run or segments file in cm)."""
+    return " (m; a length beyond it is almost certainly in cm or mm: metres are expected)" if c.unit.startswith("m") \
+        and c.name.endswith("_m") else ""

@@ -13,12 +13,14 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from pipeline.safe_open import optional_file, regular_file
+
 ANCHOR_DIR = Path(__file__).resolve().parents[2] / "data" / "anchors"
 
 
 def load_stream(path: str | Path) -> dict[str, np.ndarray]:
     """Load one stream file into a dict of arrays."""
-    with np.load(path) as z:
+    with np.load(regular_file(path, "the stream file"), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
@@ -32,7 +34,8 @@ def source_path(T: int, directory: str | Path | None = None) -> Path:
     the missing file when there is neither."""
     path = stream_path(T, directory)
     longer = sorted(t for t in _stream_counts(path.parent) if t > T)
-    return path if path.is_file() or not longer else stream_path(longer[0], directory)
+    return path if optional_file(path, "the stream file") is not None or not longer else \
+        stream_path(longer[0], directory)
 
 
 def _stream_counts(folder: Path) -> list[int]:
@@ -68,7 +71,7 @@ def check_streams(ts: list[int] | tuple[int, ...], directory: str | Path | None 
     paths = []
     for T in ts:
         path = source_path(T, directory)
-        if not path.is_file():
+        if optional_file(path, "the stream file") is None:  # a FIFO there is refused, never opened
             have = _stream_counts(path.parent)
             raise ValueError(f"{path}: no stream for T={T} (nor a longer one to cut); streams in {path.parent}: "
                              f"{', '.join(f'T={t}' for t in have) or 'none'}")

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import schema
-from pipeline.atomic import atomic_path, write_csv_rows
+from pipeline.atomic import atomic_path, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
@@ -79,9 +79,17 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
         save_times(path, collect_file(scene, seed, path, root_seed=root_seed, policy="scripted+probe",
                                       policy_params=params).probe_s)
     info = load_run(path)
-    meta = (schema.read_metadata(path).get("params") or {}).get("probe") or {}
-    collected = int((meta.get("params") or {}).get("budget", params.budget))
-    history = meta.get("history") or [{"rows": schema.read_run(path).num_rows, "share": 0.0, "target_steps": []}]
+    meta = schema.probe_record(path)  # checked against the run's rows: a history of one entry per decision
+    if not meta:
+        policy = (schema.read_metadata(path).get("params") or {}).get("policy")
+        raise ValueError(f"{path}: a run of policy {policy!r}, not of scripted+probe; bench probe reads the "
+                         "probing policy's runs (another --runs directory)")
+    recorded = schema.read_metadata(path).get("seed")
+    if isinstance(recorded, int) and recorded != root_seed:
+        raise ValueError(f"{path}: collected with root seed {recorded}; run `stucco --seed {recorded} bench probe` "
+                         "or use another --runs directory")
+    collected = int(meta["params"].get("budget", params.budget))
+    history = meta["history"]
     need = required_contacts(info.target, params)
     if max(budgets) > collected and meta.get("flagged") == "budget_spent":
         # the run stands for a larger budget only where its policy stopped by itself before its own budget
@@ -149,6 +157,7 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: list[dict], summary: list[dict], out: str | Path, png: str | Path | None = None
                   ) -> list[Path]:
     """``probe_budget.csv`` (rows), ``probe_budget_summary.csv`` and the PNG (GS % against the budget per task,

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.atomic import together
 from pipeline.estimators.pushtrack.filter import model_length, model_push
 from pipeline.estimators.pushtrack.params import MOTIONS, SLICE_MOTIONS, PushTrackParams
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice, target_outline
@@ -28,6 +29,7 @@ from pipeline.estimators.run_info import load_run
 from pipeline.geometry import wrap_angle
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
+from pipeline.safe_open import regular_file
 
 __all__ = ["MIN_PUSH", "REPLAYS", "PushCase", "push_cases", "model_pose", "replay_pose", "push_rows", "summarise",
            "summary_markdown", "write_outputs"]
@@ -70,7 +72,7 @@ class PushCase:
 
 def push_cases(path: str | Path, target_id: int) -> list[PushCase]:
     """The pushes of the target ``target_id`` in one run file (the module docstring), in step order."""
-    t = pq.read_table(path).to_pydict()
+    t = pq.read_table(regular_file(path, "the run file")).to_pydict()
     out = []
     for k in range(1, len(t["step"])):
         last = t["win_true_object"][k][-1] if t["win_true_object"][k] else -1
@@ -204,6 +206,7 @@ def summary_markdown(summary: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path, Path]:
     """``pushes.csv`` (one row per push), ``pushes_summary.csv`` and ``pushes.png`` (per task, each model's yaw
     errors as a box plot) into ``out``, each written atomically."""

@@ -57,6 +57,7 @@ from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
 from pipeline.retrieve.stage import contact_step_segments
 from pipeline.robot import load_robot
+from pipeline.safe_open import regular_file
 from pipeline.segment import final_estimates
 
 __all__ = ["PERTURBATIONS", "RUNGS", "MOTION_RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason",
@@ -136,7 +137,8 @@ def ideal_segments(path: str | Path, info: RunInfo) -> list[Segment]:
         body's frame at its pose after the action and put back at its final pose; ``steps`` (M,) the action
         indices, increasing.
     """
-    t = pq.read_table(path, columns=["step", "win_true_contact_m", "win_true_object", "true_contact_x_m",
+    t = pq.read_table(regular_file(path, "the run file"),
+                      columns=["step", "win_true_contact_m", "win_true_object", "true_contact_x_m",
                                      "true_contact_y_m", "object_id", "obj_pose"])
     steps = t.column("step").to_numpy()
     body = t.column("object_id").to_numpy()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import save_figure, write_text
+from pipeline.atomic import save_figure, together, write_text
 from pipeline.studies.retrieval_ladder import PERTURBATIONS, RUNGS, LadderRow
 
 __all__ = ["summarise", "summary_markdown", "ladder_tables", "write_outputs"]
@@ -94,6 +94,7 @@ def _csv(rows: Sequence[dict]) -> str:
     return buf.getvalue()
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: Sequence[LadderRow], out: str | Path) -> tuple[Path, Path, Path]:
     """``ladder.csv`` (one row per grasp), ``ladder_summary.csv`` and ``ladder.png`` (per task, GS % per rung and
     estimator) into ``out``, each written atomically."""

@@ -13,7 +13,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.atomic import save_figure, write_csv_rows
+from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.evaluate import EvalConfig, evaluate
 
 __all__ = ["FIELDS", "scale_rows", "write_outputs"]
@@ -70,6 +70,7 @@ def scale_rows(out: str | Path, scene: str, run_counts: Sequence[int], methods: 
     return rows
 
 
+@together()  # its outputs appear all together or not at all
 def write_outputs(rows: list[dict], out: str | Path, png: str | Path | None = None) -> list[Path]:
     """``scale.csv`` and the PNG (wall time and booked work against runs, log-log; ``png`` or
     ``out/scale.png``), each written atomically."""

@@ -18,12 +18,13 @@ from pathlib import Path
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pipeline.atomic import save_figure, write_csv_rows
+from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file
 from pipeline.evaluate import EvalConfig, Job, single_threaded
 from pipeline.evaluate.stages import run_isolate, run_retrieve, run_score, run_segment, run_track
 from pipeline.layout import STAGES, job_paths
 from pipeline.policies import RummageParams
+from pipeline.safe_open import regular_file
 
 __all__ = ["CONTACT_FIELDS", "WARMUP_CONTACTS", "contact_rows", "growth", "write_contact_outputs"]
 
@@ -67,8 +68,8 @@ def _one_run(dest: Path, scene: str, seed: int, contacts: int, method: str, esti
             earlier["retrieve"] = walls[("retrieve", est)]
             times.append(("score", est, *_timed(run_score, p, cfg, est, earlier)))
     load = os.getloadavg()[0]
-    actions = pq.read_metadata(p["runs"]).num_rows
-    xs = pq.read_table(p["contacts"], columns=["contact_x_m"]).column(0)
+    actions = pq.read_metadata(regular_file(p["runs"], "the run file")).num_rows
+    xs = pq.read_table(regular_file(p["contacts"], "the contacts file"), columns=["contact_x_m"]).column(0)
     n_contacts = len(xs) - xs.null_count - int(pc.sum(pc.is_nan(xs)).as_py() or 0)
     return [dict(scene=scene, seed=seed, requested=contacts, actions=actions, contacts=n_contacts, warmup=warmup,
                  stage=stage, estimator=est, wall_s=wall, cpu_s=cpu, load_avg=load)
@@ -122,6 +123,7 @@ def growth(rows: list[dict]) -> dict[str, float | None]:
     return out
 
 
+@together()  # its outputs appear all together or not at all
 def write_contact_outputs(rows: list[dict], out: str | Path, png: str | Path | None = None) -> list[Path]:
     """``scale_contacts.csv`` and the PNG (CPU seconds of each stage against the run's contacts, log-log, with the
     total's wall time; ``png`` or ``out/scale_contacts.png``), each written atomically."""

@@ -26,6 +26,7 @@ from pipeline.estimators.run_info import run_scene
 from pipeline.evaluate import map_jobs, single_threaded
 from pipeline.isolate import DetectionParams, IsolationParams, isolate_runs, params_dict
 from pipeline.retrieve import Primitive, primitive_of
+from pipeline.safe_open import regular_file
 from pipeline.scenes import load_scene
 from pipeline.score import contact_error_cm, fmi
 from pipeline.segment import final_estimates, segment_table, segmentation_params
@@ -90,7 +91,8 @@ def collect_training(out: str | Path, scenes: Sequence[str] = TRAINING_SCENES,
 
 def _run_truth(path: Path) -> dict[str, Any]:
     """Per run: scene, final poses (B, 3), ground truth per step (force-masked, -1 = none), ambiguity."""
-    t = pq.read_table(path, columns=["run", "step", "object_id", "force_rep_x_n", "force_rep_y_n", "obj_pose",
+    t = pq.read_table(regular_file(path, "the run file"),
+                      columns=["run", "step", "object_id", "force_rep_x_n", "force_rep_y_n", "obj_pose",
                                      "obj_distance_m"])
     params = schema.read_metadata(path).get("params") or {}
     scene = run_scene(path, params)  # the scene the run carries, never a path named in its metadata

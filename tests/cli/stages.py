@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pyarrow as pa
 from click.testing import CliRunner
 
+from pipeline import schema
 from stucco_cli.main import cli
 
 N_ACTIONS = 12
@@ -48,3 +50,22 @@ def make(d: Path) -> dict[str, str]:
     for name, (args, _) in commands(d).items():
         said[name] = ok(invoke(*args)).stderr
     return said
+
+
+def as_probe_run(src: Path, path: Path, *, k: int = 3, drop_column: bool = False, record=None, columns=None) -> Path:
+    """The run file ``src`` recast as a run of the probing policy whose last ``k`` actions are probe
+    actions of no probe (a consistent log), then edited: ``record`` changes its log, ``columns`` its columns."""
+    t = schema.read_run(src)
+    meta = schema.read_metadata(src)
+    n = t.num_rows
+    if not drop_column:
+        t = t.append_column("probe", pa.array([i >= n - k for i in range(n)], pa.bool_()))
+    log = {"params": {"budget": 0}, "probes": 0, "actions": k, "contacts": [], "lines": [], "share": 0.5,
+           "agreed": False, "flagged": "budget_spent", "segment": -1, "target_steps": [], "other_steps": [],
+           "switches": 0, "history": [{"rows": n - k, "segment": -1, "share": 0.5, "target_steps": [],
+                                       "stop": False, "held": 0.0}]}
+    log.update(record or {})
+    for name, values in (columns or {}).items():
+        t = t.set_column(t.column_names.index(name), name, values(t.column(name)))
+    params = dict(meta["params"], policy="scripted+probe", probe=log)
+    return schema.write_table(t, path, stage="collect", params=params, seed=meta["seed"], kind="sim_run")

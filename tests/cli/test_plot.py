@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import shutil
 
-import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
@@ -13,7 +11,7 @@ import pipeline.figures.draw as draw
 import pipeline.figures.tables as tables
 from pipeline.atomic import save_figure
 from pipeline.layout import partition
-from tests.cli.stages import invoke, ok
+from tests.cli.stages import as_probe_run, invoke, ok
 
 TABLES = {"run": "runs/FB-000.parquet", "contacts": "contacts.parquet", "tracks": "tracks.parquet",
           "segments": "segments.parquet", "retrieval": "retrieval.parquet"}
@@ -68,11 +66,8 @@ def test_segment_plot_names_objects_and_shows_every_colour(stages, drawn, tmp_pa
 
 def test_probes_are_told_apart_from_the_scripted_trail(stages, tmp_path, drawn):
     d, _ = stages
-    t = pq.read_table(d / "runs" / "FB-000.parquet")
-    probe = np.zeros(t.num_rows, bool)
-    probe[-3:] = True
-    run = tmp_path / "FB-000.parquet"
-    pq.write_table(t.append_column("probe", pa.array(probe)), run)
+    # a run of the probing policy whose last 3 actions are its (its rows and metadata agree)
+    run = as_probe_run(d / "runs" / "FB-000.parquet", tmp_path / "FB-000.parquet", k=3)
     ok(invoke("plot", "--in", run, "--out", tmp_path / "p.png"))
     (fig,) = drawn
     assert "probes (3 actions)" in fig["labels"]

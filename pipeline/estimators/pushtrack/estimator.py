@@ -39,6 +39,7 @@ from pipeline.estimators.run_info import RunInfo
 from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate, wrap_symmetric
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
+from pipeline.safe_open import regular_file
 from pipeline.schema.retrieval import run_candidates
 
 __all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of",
@@ -55,7 +56,8 @@ def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None) -> tuple
     ``sim_run`` rows; the run file's when None), or as a robot's log recorded them (``info.observed``)."""
     if table is None and info.observed is not None:  # a robot's log: its contacts as it recorded them
         return info.observed[0].copy(), info.observed[1].copy()
-    cols, _, _ = isolate_run(pq.read_table(info.path) if table is None else table, *isolation_surface(sdf))
+    rows = pq.read_table(regular_file(info.path, "the run file")) if table is None else table
+    cols, _, _ = isolate_run(rows, *isolation_surface(sdf))
     inc = np.asarray(cols["in_contact"], dtype=bool)
     f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
     contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
