@@ -8,9 +8,9 @@ KSTAMP := $(VENV)/.kernels
 KERNELS := $(wildcard pipeline/track/*.py pipeline/estimators/*/kernel.py pipeline/estimators/paper/icp_kernel.py pipeline/estimators/pushtrack/slice_pusher.py pipeline/pairwise_sum.py)
 ANCHORS ?= data/anchors
 
-.PHONY: setup syslibs lock quick reproduce reproduce-active test bench clean
+.PHONY: setup syslibs verify-venv lock quick reproduce reproduce-active test bench clean
 
-setup: syslibs $(STAMP) $(KSTAMP)
+setup: syslibs verify-venv $(STAMP) $(KSTAMP)
 
 # open3d's shared library links against libusb-1.0 (Debian package libusb-1.0-0).
 syslibs:
@@ -30,12 +30,31 @@ syslibs:
 # then proves the environment consistent (every requirement met, every wheel for this platform), as pip check
 # does. `make lock` still resolves with pip.
 UV := uv==0.13.8
+# What a working environment imports: every direct dependency and the project (a package folder deleted by hand
+# passes uv pip check, whose records stay, but not this).
+IMPORTS := import numpy, scipy, sklearn, open3d, pybullet, click, pyarrow, tqdm, numba, matplotlib, pipeline, stucco_cli
+# A new environment is built beside the previous one (moved to .venv.old) and replaces it only when it passes its
+# checks; otherwise the previous one is put back, untouched, and setup fails.
 $(STAMP): pyproject.toml requirements.lock
-	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --no-compile --no-deps $(UV)
-	$(BIN)/uv pip install -q --python $(BIN)/python --no-deps -r requirements.lock -e '.[dev]'
-	$(BIN)/uv pip check -q --python $(BIN)/python
-	@touch $(STAMP)
+	@rm -rf $(VENV).old; if [ -d $(VENV) ]; then mv $(VENV) $(VENV).old; fi
+	@if $(PYTHON) -m venv $(VENV) \
+	    && $(BIN)/pip install -q --no-compile --no-deps $(UV) \
+	    && $(BIN)/uv pip install -q --python $(BIN)/python --no-deps -r requirements.lock -e '.[dev]' \
+	    && $(BIN)/uv pip check -q --python $(BIN)/python \
+	    && $(BIN)/python -c "$(IMPORTS)" 2>/dev/null; then \
+	  rm -rf $(VENV).old; touch $(STAMP); \
+	else \
+	  rm -rf $(VENV); if [ -d $(VENV).old ]; then mv $(VENV).old $(VENV); fi; \
+	  echo "make setup: the new environment failed its checks; the previous one is kept as it was" >&2; exit 1; \
+	fi
+
+# An environment installed before is checked on every setup (uv pip check, then the imports, about 3 s): a damaged
+# one loses its stamp and is built again.
+verify-venv:
+	@if [ -f $(STAMP) ] && ! { $(BIN)/uv pip check -q --python $(BIN)/python >/dev/null 2>&1 \
+	    && $(BIN)/python -c "$(IMPORTS)" >/dev/null 2>&1; }; then \
+	  echo "make setup: $(VENV) fails its checks (a damaged install?): building it again"; rm -f $(STAMP); \
+	fi
 
 # Compile the numba kernels once (cached on disk), again whenever their sources change, so no stage books
 # compilation as its own time (never inside a timed update or estimate). Two processes side by side, so that the
