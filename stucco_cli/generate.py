@@ -51,7 +51,8 @@ def _numbers(option: str, text: str | None, count: int, what: str) -> tuple[floa
 @click.option("--region-margin", type=str, default=None,
               help="LOW,HIGH, metres: the target region is the clutter's box grown by a margin drawn in [LOW, HIGH] "
                    "[0.03,0.1].")
-@click.option("--lane-spacing", type=float, default=None, help="Depth between the rummage's lanes, m [0.08].")
+@click.option("--lane-spacing", type=float, default=None,
+              help="Largest lateral distance between the rummage's poke lanes, m [0.2].")
 @click.option("--force-overwrite", is_flag=True, help="Replace existing scene files.")
 @pass_settings
 def generate_scenes_command(settings: Settings, n: int, batch_seed: int | None, first: int, out_dir: Path,

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from pipeline.scenes import WORKSPACE_M, SceneError, load_scene, scene_from_text
 from pipeline.scenes.catalogue import MODEL_BY_KEY, MODELS, TASK_WALLS
-from pipeline.scenes.coverage import coverage_passes, coverage_waypoints
+from pipeline.scenes.coverage import FAR_SLACK_M, coverage_passes, coverage_waypoints, lanes
 from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, hidden_fraction, object_outline, separation
 from pipeline.scenes.generate import GAP_MIN_M, DrawRejected, GeneratorSpec, GeneratorSpecError, sample_layout
 from pipeline.scenes.generated_toml import layout_actions
@@ -168,16 +168,33 @@ def test_the_rummage_is_made_from_region_and_start_only(batch):
     assert scene.action_scale == 0.03 and all(abs(u) <= 1.0 for a in scene.actions for u in a)
 
 
-def test_the_coverage_passes_sweep_the_whole_region():
-    region, start = ((0.1, -0.2), (0.5, 0.3)), (-0.05, 0.0)
-    actions = np.array(coverage_passes(region, start, scale_m=0.03, lane_spacing_m=0.08))
+def test_the_pokes_reach_across_and_into_the_region_and_come_back():
+    region, start = ((0.1, -0.2), (0.7, 0.3)), (-0.05, 0.0)
+    actions = np.array(coverage_passes(region, start, scale_m=0.03, lane_spacing_m=0.2))
     path = np.asarray(start) + np.cumsum(actions * 0.03, axis=0)
-    points = np.array(coverage_waypoints(region, start, lane_spacing_m=0.08))
+    points = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2))
     assert np.allclose(path[-1], points[-1], atol=1e-3)
-    tips = path[:, 0] + GRIPPER_OUTLINE_M[1][0]
-    assert tips.max() == pytest.approx(0.5, abs=1e-3)  # the last lane's fingertips reach the far edge
-    assert path[:, 1].min() == pytest.approx(-0.2, abs=1e-3) and path[:, 1].max() == pytest.approx(0.3, abs=1e-3)
-    assert len(np.unique(np.round(points[2:, 0], 4))) == 5  # lanes 0.08 m apart over 0.4 m
+    assert np.abs(actions).max() <= 1.0
+    reach = GRIPPER_OUTLINE_M[1][0]
+    line = min(start[0], 0.1 - reach)
+    tips = path[:, 0] + reach
+    assert tips.max() == pytest.approx(0.7 - FAR_SLACK_M, abs=1e-3)  # the deepest pokes, just short of the far edge
+    assert path[:, 0].min() == pytest.approx(line, abs=1e-3)  # the approach line, before the region
+    # Three lanes over 0.5 m (at most 0.2 m apart), the nearest the start's y first; the hand (0.2 m) spans them all.
+    ys = lanes(region, start, 0.2)
+    assert len(ys) == 3 and ys[0] == pytest.approx(0.05) and sorted(ys) == pytest.approx([-0.2 + 0.5 * (k + 0.5) / 3
+                                                                                           for k in range(3)])
+    # Every poke is a straight move along +x from the line and the same move back; each round goes deeper.
+    depths = []
+    for a, b, c in zip(points[1:], points[2:], points[3:]):
+        if a[0] == pytest.approx(line) and c[0] == pytest.approx(line) and b[0] > line:
+            assert a[1] == b[1] == c[1]
+            depths.append(b[0])
+    rounds = sorted(set(np.round(depths, 6)))
+    assert len(depths) == 3 * len(rounds) and len(rounds) >= 2
+    assert depths == sorted(depths)
+    # Only the region and the start matter, and the same arguments give the same actions.
+    assert coverage_passes(region, start, scale_m=0.03, lane_spacing_m=0.2) == tuple(map(tuple, actions))
 
 
 # -- knobs and the command line -------------------------------------------------------------------------------------

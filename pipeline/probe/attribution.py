@@ -93,7 +93,7 @@ def set_from_steps(choice: TargetChoice, target: Primitive, sensing: Sensing, ro
     on = np.isin(steps, np.asarray(list(target_steps), dtype=np.int64))
     return pose_set(choice, target, sensing.visited, np.asarray(sensing.steps), sensing.sdf,
                     retrieval_rng(root_seed, run)[2], pts[on], steps[on], pts[~on],
-                    prior=prior_for(sensing, choice, target))
+                    prior=prior_for(sensing, choice, target), region=getattr(sensing, "region", None))
 
 
 def prior_for(sensing: Sensing, choice: TargetChoice, target: Primitive) -> Callable[[np.ndarray], np.ndarray] | None:

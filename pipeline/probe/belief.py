@@ -44,7 +44,7 @@ from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
 __all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set",
-           "explaining", "surface_distance", "prior_set"]
+           "explaining", "surface_distance", "prior_set", "declared_region"]
 
 
 class Sensing:
@@ -67,6 +67,9 @@ class Sensing:
         Actions of the scripted part.
     method : str
         Tracking method (``stucco`` or a baseline of :mod:`pipeline.methods`).
+    region : ((x_min, y_min), (x_max, y_max)), metres, optional
+        The scene's target region (:func:`declared_region`: what the user tells, not a pose): the no-segment
+        prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
 
     Attributes
     ----------
@@ -77,8 +80,9 @@ class Sensing:
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
-                 robot: str = "panda") -> None:
+                 robot: str = "panda", region=None) -> None:
         self.sdf = load_robot(robot)
+        self.region = region
         config = TrackConfig(method=method, robot=robot)
         warm_up(config, self.sdf)
         self.method = method
@@ -258,7 +262,7 @@ def misfit(target: Primitive, belief: PoseSet, points: np.ndarray) -> float:
 def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf,
              rng: np.random.Generator, probe_points: np.ndarray, probe_steps: np.ndarray, probe_others: np.ndarray,
              plausible: PlausibleParams = PlausibleParams(n_hypotheses=16, iterations=20), probe_growth: float = 1.25,
-             max_seeds: int = 8, prior: Callable[[np.ndarray], np.ndarray] | None = None) -> PoseSet:
+             max_seeds: int = 8, prior: Callable[[np.ndarray], np.ndarray] | None = None, region=None) -> PoseSet:
     """The plausible set from the scripted part's target segment plus the probes' contacts on the target.
 
     The plausible estimator's fit (:func:`pipeline.estimators.plausible.fit.fit_segment`): the segment's tracked points
@@ -278,12 +282,14 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     prior : callable, optional
         COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost before the set is drawn
         (:func:`pipeline.estimators.plausible.fit.fit_segment`; the pushes' prior, :mod:`pipeline.probe.history`).
+    region : ((x_min, y_min), (x_max, y_max)), metres, optional
+        The scene's target region: where :func:`prior_set` puts its hypotheses when there is nothing to fit.
     """
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
     probe_steps = np.asarray(probe_steps, dtype=np.int64).reshape(-1)
     if choice.segment < 0 and len(probe_points) == 0:
-        return prior_set(target, ee, steps, sdf, plausible, rng)
+        return prior_set(target, ee, steps, sdf, plausible, rng, region=region)
     all_steps = np.concatenate([choice.steps, probe_steps]).astype(np.int64)
     sigma_old = recency_sigma(all_steps, plausible)[:len(choice.steps)]
     later = len(probe_steps) - 1 - np.arange(len(probe_steps))
@@ -353,16 +359,39 @@ def _surface_at(target: Primitive, poses: np.ndarray, point: np.ndarray):
     return pp, local, sd, grad
 
 
+def declared_region(scene) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """The target region a scene declares (``[target_region]``, :attr:`pipeline.scenes.Scene.target_region`), or
+    None when it declares none (its region is then the whole workspace, which says nothing) or there is no scene."""
+    from pipeline.scenes.types import WORKSPACE_M
+
+    region = getattr(scene, "target_region", None)
+    if region is None or tuple(map(tuple, region)) == tuple(map(tuple, WORKSPACE_M)):
+        return None
+    return (tuple(map(float, region[0])), tuple(map(float, region[1])))
+
+
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,
-              rng: np.random.Generator, n: int = 48, reach: float = 0.25) -> PoseSet:
+              rng: np.random.Generator, n: int = 48, reach: float = 0.25, region=None) -> PoseSet:
     """A set when no segment fits the target (no contact yet, or none the estimator accepts): poses spread
-    uniformly (position within ``reach`` of the centroid of the gripper's visited positions, any yaw), kept where
-    they do not overlap the gripper's free space, equally likely (``notes`` = ``no_segment``)."""
+    uniformly, any yaw, kept where they do not overlap the gripper's free space (the space it swept), equally
+    likely (``notes`` = ``no_segment``).
+
+    Without ``region`` the positions lie within ``reach`` of the centroid of the gripper's visited positions.
+    With ``region`` ((x_min, y_min), (x_max, y_max), metres: the scene's target region, where the user says the
+    target lies) they lie in the region, and four times as many are drawn, for the rummage has swept much of it;
+    when fewer than four are clear of the free space, all drawn are kept."""
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
-    centre = ee.mean(axis=0)
-    cand = np.column_stack([centre + rng.uniform(-reach, reach, (4 * n, 2)), rng.uniform(-np.pi, np.pi, 4 * n)])
+    if region is None:
+        centre = ee.mean(axis=0)
+        cand = np.column_stack([centre + rng.uniform(-reach, reach, (4 * n, 2)), rng.uniform(-np.pi, np.pi, 4 * n)])
+        radius = reach + 0.2
+    else:
+        low, high = np.asarray(region[0], dtype=np.float64), np.asarray(region[1], dtype=np.float64)
+        centre = (low + high) / 2.0
+        cand = np.column_stack([rng.uniform(low, high, (16 * n, 2)), rng.uniform(-np.pi, np.pi, 16 * n)])
+        radius = float(np.linalg.norm(high - low)) / 2.0 + 0.2
     lattice = cached_gripper_lattice(sdf, 2 * plausible.free_resolution)
-    free = free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, reach + 0.2)
+    free = free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, radius)
     if len(free):
         local = rotate(free[None, :, :] - target.centre_world(cand)[:, None, :], (cand[:, 2] + target.yaw)[:, None],
                        inverse=True)

@@ -33,7 +33,7 @@ from pipeline.probe.attribution import (
     set_from_steps,
     set_share,
 )
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, misfit
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, declared_region, misfit
 from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
@@ -79,14 +79,15 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     scene : pipeline.scenes.Scene, optional
         The run's scene (its geometry, not its state); needed with ``params.history`` "pushtrack": the pushtrack
         estimator's set after the scripted part is then the prior of every set fitted to the segment it tracked
-        (:mod:`pipeline.probe.history`).
+        (:mod:`pipeline.probe.history`). Its target region (:func:`pipeline.probe.belief.declared_region`) is where
+        the no-segment prior puts its hypotheses.
 
     Returns
     -------
     ProbeLog
     """
     rows = table()
-    sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method)
+    sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, region=declared_region(scene))
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()

@@ -22,7 +22,7 @@ from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
 from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, declared_region
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
@@ -93,7 +93,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     history = meta.get("history") or []
     state = history[min(decision, len(history) - 1)] if decision is not None and history else \
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
-    sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method)
+    sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, region=declared_region(info.scene))
     sensing.observe(table.slice(0, int(state["rows"])))
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,

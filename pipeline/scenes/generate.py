@@ -3,7 +3,8 @@
 A layout (:class:`Layout`) is a target from the tasks' YCB primitives (:mod:`pipeline.scenes.catalogue`) behind,
 between or beside 2-6 distractors, optional task walls, a gripper start in front of the clutter (fingers along
 +x, as in the tasks), the target region the user is told (the clutter's bounding box plus a drawn margin, never
-the target's own pose) and a generic rummage over that region (:func:`pipeline.scenes.coverage.coverage_passes`).
+the target's own pose) and a generic rummage of that region, pokes from the start's side
+(:func:`pipeline.scenes.coverage.coverage_passes`).
 Draw ``d`` of scene ``index`` depends only on (seed, index, d); the checks after settling and the redraws are in
 :mod:`pipeline.sim.generate`, the TOML text in :mod:`pipeline.scenes.generated_toml` (docs/scene_generator.md).
 """
@@ -91,7 +92,7 @@ class GeneratorSpec:
         The target region is the clutter's bounding box grown on each side by a margin drawn in [low, high] and
         rounded outward to the centimetre.
     lane_spacing_m : float, metres
-        Depth between the rummage's lanes.
+        Largest lateral distance between the rummage's poke lanes (:func:`pipeline.scenes.coverage.lanes`).
     """
 
     min_distractors: int = 2

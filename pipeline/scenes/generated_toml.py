@@ -31,7 +31,7 @@ def describe(layout: Layout, n_actions: int) -> str:
     walls = ", ".join(w.name for w in layout.walls) or "no walls"
     return (f"Generated: retrieve a {target.mass:.1f} kg {target.name} {layout.placement} "
             f"{len(layout.objects) - 1} distractors ({layout.hidden:.0%} of it hidden from the start); {walls}; "
-            f"{n_actions} coverage actions over the target region.")
+            f"{n_actions} rummage actions (pokes) over the target region.")
 
 
 def layout_toml(layout: Layout, spec: GeneratorSpec) -> str:
