@@ -372,14 +372,10 @@ def declared_region(scene) -> tuple[tuple[float, float], tuple[float, float]] | 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,
               rng: np.random.Generator, n: int = 48, reach: float = 0.25, region=None) -> PoseSet:
-    """A set when no segment fits the target (no contact yet, or none the estimator accepts): poses spread
-    uniformly, any yaw, kept where they do not overlap the gripper's free space (the space it swept), equally
-    likely (``notes`` = ``no_segment``).
-
-    Without ``region`` the positions lie within ``reach`` of the centroid of the gripper's visited positions.
-    With ``region`` ((x_min, y_min), (x_max, y_max), metres: the scene's target region, where the user says the
-    target lies) they lie in the region, and four times as many are drawn, for the rummage has swept much of it;
-    when fewer than four are clear of the free space, all drawn are kept."""
+    """A set when no segment fits the target (no contact yet, or none accepted): poses uniform, any yaw, equally
+    likely, kept clear of the space the gripper swept (all kept when fewer than four are; ``notes`` = ``no_segment``),
+    within ``reach`` of the visited positions' centroid, or in ``region`` ((x_min, y_min), (x_max, y_max), m: the
+    scene's target region), where four times as many are drawn, for the rummage swept much of it."""
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     if region is None:
         centre = ee.mean(axis=0)
