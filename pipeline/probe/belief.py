@@ -385,7 +385,7 @@ def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausib
         low, high = np.asarray(region[0], dtype=np.float64), np.asarray(region[1], dtype=np.float64)
         centre = (low + high) / 2.0
         cand = np.column_stack([rng.uniform(low, high, (16 * n, 2)), rng.uniform(-np.pi, np.pi, 16 * n)])
-        radius = float(np.linalg.norm(high - low)) / 2.0 + 0.2
+        radius = math.hypot(*(high - low)) / 2.0 + 0.2
     lattice = cached_gripper_lattice(sdf, 2 * plausible.free_resolution)
     free = free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, radius)
     if len(free):
