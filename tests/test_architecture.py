@@ -114,11 +114,8 @@ def test_no_new_oversized_module():
 
 
 #: Stage tables written outside their stage's ``<stage>_file`` function: the training study's cache of the
-#: training set's contacts (its own metadata: the run files it holds, docs/studies.md), and the retrieve stage's
-#: second file function, for a robot's log (its inputs are a contacts table and a target spec, not run files).
-KNOWN_OTHER_WRITERS = {("contacts", "pipeline.studies.training._isolate_training"),
-                       ("retrieval", "pipeline.retrieve.log_route.retrieve_log_file"),
-                       ("candidates", "pipeline.retrieve.log_route.retrieve_log_file")}
+#: training set's contacts (its own metadata: the run files it holds, docs/studies.md).
+KNOWN_OTHER_WRITERS = {("contacts", "pipeline.studies.training._isolate_training")}
 
 
 def stage_table_writers() -> dict[str, set[str]]:
@@ -143,8 +140,10 @@ def stage_table_writers() -> dict[str, set[str]]:
 def test_each_stage_table_is_written_by_its_stage_file_function_only():
     expected = {"sim_run": "pipeline.collect.collect_file", "contacts": "pipeline.isolate.isolate_file",
                 "tracks": "pipeline.track.stage.track_file", "diagnostics": "pipeline.track.stage.track_file",
-                "segments": "pipeline.segment.segment_file", "retrieval": "pipeline.retrieve.stage.retrieve_file",
-                "candidates": "pipeline.retrieve.stage.retrieve_file", "scores": "pipeline.score.score_file"}
+                "segments": "pipeline.segment.segment_file",
+                # the retrieve stage's two file functions (simulated runs, a robot's log) write through one helper
+                "retrieval": "pipeline.retrieve.stage.write_retrieval_tables",
+                "candidates": "pipeline.retrieve.stage.write_retrieval_tables", "scores": "pipeline.score.score_file"}
     writers = stage_table_writers()
     for kind, fn in expected.items():
         others = writers.get(kind, set()) - {fn} - {w for k, w in KNOWN_OTHER_WRITERS if k == kind}

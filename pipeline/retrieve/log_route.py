@@ -16,11 +16,17 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import registry, schema
-from pipeline.atomic import all_or_none
 from pipeline.estimators.estimate import needs_every_step
 from pipeline.estimators.log_run import log_runs, parse_target
 from pipeline.parallel import run_calls
-from pipeline.retrieve.stage import RetrieveConfig, contact_step_segments, final_segments_by_run, retrieve_one
+from pipeline.retrieve.stage import (
+    RetrieveConfig,
+    contact_step_segments,
+    final_segments_by_run,
+    read_segments_for,
+    retrieve_one,
+    write_retrieval_tables,
+)
 from pipeline.schema.retrieval import candidates_table, retrieval_table
 
 __all__ = ["retrieve_log", "retrieve_log_file"]
@@ -72,24 +78,11 @@ def retrieve_log_file(segments_path: str | Path, contacts_path: str | Path, targ
                       progress: Callable | None = None) -> tuple[pa.Table, pa.Table]:
     """:func:`retrieve_log` on files (the contacts table Parquet or CSV), writing the candidates and retrieval
     tables both or neither, with the target spec, the segments and the contacts as provenance."""
-    segments = schema.read_segments(segments_path)
+    segments, config = read_segments_for(segments_path, config)
     contacts = schema.read_contacts(contacts_path)
-    if config.method is None:
-        recorded = (schema.read_metadata(segments_path).get("params") or {}).get("method")
-        config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
-    if needs_every_step([config.estimator]) and not (schema.read_metadata(segments_path).get("params") or {}).get(
-            "every_step"):
-        raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
-                         f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "
-                         f"then segment")
     config = dataclasses.replace(config, grasp=False)
     table, candidates = retrieve_log(segments, contacts, target, config, root_seed=seed, jobs=jobs, progress=progress,
                                      segments_path=str(segments_path), contacts_path=str(contacts_path))
-    meta = dict(config.metadata(), target=str(target))
-    inputs = {"segments": str(segments_path), "contacts": str(contacts_path)}
-    with all_or_none([candidates_path, out_path]) as (cand_tmp, retrieval_tmp):
-        schema.write_table(candidates, cand_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
-                           kind="candidates")
-        schema.write_table(table, retrieval_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
-                           kind="retrieval")
+    write_retrieval_tables(table, candidates, out_path, candidates_path, dict(config.metadata(), target=str(target)),
+                           seed, {"segments": str(segments_path), "contacts": str(contacts_path)})
     return table, candidates

@@ -231,26 +231,39 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     ``config.grasp_params`` is used and recorded when ``config.grasp``; ``config.method`` None takes the tracking
     method the segments file records (ValueError if it is not registered); ``seed`` is the root seed.
     """
+    segments, config = read_segments_for(segments_path, config)
+    check_runs(segments_path, segments, run_files_by_name(run_dir))
+    table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
+                                 segments_path=str(segments_path))
+    write_retrieval_tables(table, candidates, out_path, candidates_path, config.metadata(), seed,
+                           {"segments": str(segments_path)})
+    return table, candidates
+
+
+def read_segments_for(segments_path: str | Path, config: RetrieveConfig) -> tuple[pa.Table, RetrieveConfig]:
+    """A validated segments table and ``config`` with its tracking method (the one the file records when
+    ``config.method`` is None); ValueError (one line) when the method is not registered or the estimator needs
+    every step and the file holds only the final estimate."""
     segments = schema.read_segments(segments_path)
+    params = schema.read_metadata(segments_path).get("params") or {}
     if config.method is None:
-        recorded = (schema.read_metadata(segments_path).get("params") or {}).get("method")
         try:
-            config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
+            config = dataclasses.replace(config, method=str(params.get("method") or registry.tracker_names()[0]))
         except ValueError as e:
             raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
-    check_runs(segments_path, segments, run_files_by_name(run_dir))
-    if needs_every_step([config.estimator]) and not (schema.read_metadata(segments_path).get("params") or {}).get(
-            "every_step"):
+    if needs_every_step([config.estimator]) and not params.get("every_step"):
         raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
                          f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "
                          f"then segment")
-    table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
-                                 segments_path=str(segments_path))
-    meta = config.metadata()
-    inputs = {"segments": str(segments_path)}
+    return segments, config
+
+
+def write_retrieval_tables(table: pa.Table, candidates: pa.Table, out_path: str | Path,
+                           candidates_path: str | Path, meta: dict, seed: int, inputs: dict) -> None:
+    """The retrieve stage's two tables, with provenance (``meta`` its parameters, ``inputs`` role -> path), both or
+    neither (:func:`pipeline.atomic.all_or_none`; the retrieval is renamed last)."""
     with all_or_none([candidates_path, out_path]) as (cand_tmp, retrieval_tmp):
         schema.write_table(candidates, cand_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
                            kind="candidates")
         schema.write_table(table, retrieval_tmp, stage="retrieve", params=meta, seed=seed, inputs=inputs,
                            kind="retrieval")
-    return table, candidates
