@@ -15,6 +15,7 @@ import numpy as np
 from pipeline.atomic import atomic_path
 from pipeline.robot.grid import GridSDF
 from pipeline.robot.panda_mesh import PYBULLET_COLLISION_MARGIN, build_panda_grid, builder_digest
+from pipeline.safe_open import regular_file
 
 __all__ = ["panda_sdf"]
 
@@ -41,7 +42,7 @@ def _write_atomic_npz(path: Path, **arrays: np.ndarray) -> None:
 
 def _read_grid_npz(path: Path) -> GridSDF:
     """The grid stored by :func:`panda_sdf` in ``path`` (no pickles)."""
-    with np.load(path, allow_pickle=False) as z:
+    with np.load(regular_file(path, "the gripper's cached grid"), allow_pickle=False) as z:
         return GridSDF(
             z["values"],
             z["origin"],

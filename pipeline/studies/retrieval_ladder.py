@@ -49,7 +49,7 @@ import pyarrow.parquet as pq
 
 from pipeline import registry, schema
 from pipeline.estimators.estimate import Segment, estimate, history_from_final, needs_every_step
-from pipeline.estimators.run_info import RunInfo, load_run, retrieval_rng
+from pipeline.estimators.run_info import RunInfo, check_runs, load_run, retrieval_rng
 from pipeline.estimators.target_model import pose_error
 from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
@@ -328,8 +328,21 @@ def _run_pair(out: Path, scene: str, seed: int, estimators: Sequence[str], metho
     if not runs.is_file():
         raise FileNotFoundError(f"{runs}: no collected run for {scene} seed {seed}; run `stucco evaluate` first")
     seg = partition(out, "segments", scene, seed, method)
+    if seg.is_file():
+        check_segments_of_run(seg, runs, f"{scene}/{seed}")
     with single_threaded():
         return run_ladder(runs, seg if seg.is_file() else None, estimators, root_seed)
+
+
+def check_segments_of_run(segments_path: Path, run_path: Path, run: str) -> None:
+    """ValueError (one line) unless the segments file holds the segments of ``run`` only and were made from the run
+    file ``run_path`` (its root seed, steps and digest: :func:`~pipeline.estimators.run_info.check_runs`, the check
+    ``retrieve`` and ``score`` make)."""
+    table = schema.read_segments(segments_path)
+    others = sorted(set(table.column("run").to_pylist()) - {run})
+    if others:
+        raise ValueError(f"{segments_path}: holds segments of run {others[0]!r}, not only of {run!r} ({run_path})")
+    check_runs(segments_path, table, {run: run_path})
 
 
 def ladder_rows(runs_from: Path, pairs: Sequence[tuple[str, int]], estimators: Sequence[str], method: str,
