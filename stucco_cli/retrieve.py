@@ -50,8 +50,8 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @click.option("--hypotheses", type=click.IntRange(1, 4096), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
-@click.option("--grasp/--no-grasp", default=True, show_default=True,
-              help="Simulate the grasp at each estimate (pybullet).")
+@click.option("--grasp/--no-grasp", default=None,
+              help="Simulate the grasp at each estimate (pybullet) [--grasp with --runs; a log has nothing to grasp].")
 @click.option("--stream", type=click.IntRange(min=0), default=0, show_default=True,
               help="The estimator's random stream: 0 the default; 1, 2, ... independent reruns of a stochastic "
                    "estimator on the same segments (recorded in the metadata).")
@@ -61,7 +61,8 @@ def _side_path(out_path: Path, suffix: str) -> Path:
 @pass_settings
 def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, contacts_path: Path | None,
              target: str | None, out_path: Path, cand_path: Path | None,
-             estimator: str, restarts: int | None, robot: str, hypotheses: int | None, method: str | None, grasp: bool,
+             estimator: str, restarts: int | None, robot: str, hypotheses: int | None, method: str | None,
+             grasp: bool | None,
              stream: int, print_table: bool, force_overwrite: bool) -> None:
     """Estimate the target pose of every run from its segments and grasp it in simulation (--runs), or estimate
     it from a robot's log (--contacts with --target)."""
@@ -72,6 +73,9 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, cont
                                "--target box:0.0616x0.1575 or --target cylinder:0.039")
     if run_dir is not None and target is not None:
         raise click.UsageError("--target is for a robot's log (--contacts); simulated runs carry their scene")
+    if contacts_path is not None and grasp:
+        raise click.UsageError("--grasp needs a simulated run (--runs): a robot's log has no scene to grasp in")
+    grasp = grasp if grasp is not None else run_dir is not None
     from pipeline.grasp import GraspParams
     from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
 

@@ -162,3 +162,34 @@ def test_an_unreachable_target_ends_with_a_note(ib_run):
     r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, info.true_pose[None, :],
                        np.ones(1), 0, around)
     assert not r.success and r.attempts[-1].outcome == NO_REACHABLE_GRASP
+
+
+def test_a_gripper_against_the_target_can_still_leave_and_plan():
+    # the gripper stopped 3 mm from the box's long face, with the real gripper's outline
+    from pipeline.probe.planning import gripper_outline
+    from pipeline.robot import load_robot
+
+    outline = gripper_outline(load_robot("panda"))
+    here = np.array([BOX.half[0] + 0.003 + float(np.max(-outline[:, 0])), 0.0])
+    s = Surroundings(here, here[None, :], np.zeros((0, 2)), [], outline)
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, s)
+    assert g.reachable and len(g.via) >= 1
+
+
+def test_a_gripper_already_at_the_pregrasp_point_still_has_a_way_in():
+    pre = np.array([0.0, -approach_offset(BOX)])
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around(pre + [0.001, 0.0]))
+    assert g.reachable and len(g.via) >= 1 and np.allclose(g.via[-1], g.pregrasp)
+
+
+@pytest.mark.parametrize("weights", [np.zeros(2), np.array([np.nan, 1.0]), np.array([-1.0, 2.0])])
+def test_a_set_without_usable_weights_is_refused_in_one_line(weights):
+    with pytest.raises(ValueError, match="finite weights >= 0, not all 0"):
+        plan_grasp(BOX, 0.03, np.zeros((2, 3)), weights, 0, _around([0.0, -0.4]))
+
+
+def test_a_lane_through_a_wall_is_never_taken():
+    # a wall just beyond the box's -y end: the near end's lane (+y approach from -y) would sweep it
+    wall = [(np.array([0.0, -0.16]), np.array([0.2, 0.01]), 0.0)]
+    g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.3, 0.0], walls=wall))
+    assert g.reachable and g.approach[1] < 0  # from the +y end

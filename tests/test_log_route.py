@@ -151,3 +151,26 @@ def test_the_readme_route_with_a_disc_gripper(routes, tmp_path):
     assert (tmp_path / "pose.candidates.parquet").is_file()
     meta = pq.read_schema(tmp_path / "pose.parquet").metadata
     assert b"disc:0.05" in meta[b"stucco.params"] and b"box:0.0616x0.1575@10" in meta[b"stucco.params"]
+
+
+def test_a_log_with_an_unlogged_move_is_refused(routes, tmp_path):
+    log = pq.read_table(routes / "log.parquet")
+    xs = np.array(log.column("ee_start_x_m").to_numpy(zero_copy_only=False), dtype=float)
+    xs[5] += 0.05  # step 5 starts 5 cm from where step 4 ended
+    pq.write_table(log.set_column(log.column_names.index("ee_start_x_m"), "ee_start_x_m", pa.array(xs)),
+                   tmp_path / "gap.parquet")
+    last = _fails("retrieve", "--segments", routes / "log-segments.parquet", "--contacts", tmp_path / "gap.parquet",
+                  "--target", "FB:cracker_box", "--out", tmp_path / "r.parquet")
+    assert "step 5: starts 50.0 mm from where step 4 ended" in last and "contiguous" in last
+
+
+def test_an_object_that_is_not_the_scenes_target_takes_the_plan_of_its_shape():
+    assert parse_target("FB:tomato_can")[2].name == "TC"
+    assert parse_target("TC:tomato_can")[2].name == "TC"
+    assert parse_target("FB:cracker_box")[2].name == "FB"
+
+
+def test_grasp_is_refused_for_a_log(routes, tmp_path):
+    last = _fails("retrieve", "--segments", routes / "log-segments.parquet", "--contacts", routes / "log.parquet",
+                  "--target", "FB:cracker_box", "--grasp", "--out", tmp_path / "r.parquet")
+    assert "--grasp needs a simulated run" in last

@@ -29,6 +29,8 @@ _BOX = re.compile(rf"box:{_NUMBER}x{_NUMBER}(?:@{_NUMBER})?")
 _CYLINDER = re.compile(rf"cylinder:{_NUMBER}(?:@{_NUMBER})?")
 #: Largest target side or radius accepted (m): a spec in millimetres is refused rather than read as metres.
 MAX_SIZE_M = 2.0
+#: Largest gap (m) between a step's start and the previous step's end in a log.
+MAX_GAP_M = 0.001
 
 
 def _size(text: str, value: str, what: str) -> float:
@@ -78,7 +80,9 @@ def parse_target(text: str) -> tuple[Primitive, float, object]:
         if spec is None:
             raise ValueError(f"--target {text!r}: scene {scene.name} has no object {obj!r} "
                              f"(objects: {', '.join(o.name for o in scene.objects)})")
-        return primitive_of(spec), float(spec.mass), scene
+        # the grasp plan of the scene is its target's: another object takes the paper's task of its shape
+        plan_scene = scene if spec.target else load_scene("TC" if spec.shape == "cylinder" else "FB")
+        return primitive_of(spec), float(spec.mass), plan_scene
     raise ValueError(f"--target {text!r}: expected box:WxL or cylinder:R (metres, optionally @MASS_KG), or "
                      "SCENE:OBJECT")
 
@@ -107,12 +111,19 @@ def log_runs(contacts: pa.Table, target: Primitive, mass_kg: float = math.nan, g
     for run in dict.fromkeys(runs):
         rows = np.flatnonzero(runs == run)
         steps, first = np.unique(step[rows], return_index=True)
-        # per step: its first in-contact row if any, else its first row
+        # per step: its first in-contact row if any, else its first row (steps are sorted within a run)
         pick = rows[first].copy()
-        for k, s in enumerate(steps):
-            touching = rows[(step[rows] == s) & inc[rows]]
-            if len(touching):
-                pick[k] = touching[0]
+        touching = rows[inc[rows]]
+        t_steps, t_first = np.unique(step[touching], return_index=True)
+        pick[np.searchsorted(steps, t_steps)] = touching[t_first]
+        # a step that starts away from where the last one ended: the gripper moved unlogged, and a straight line
+        # between the two would be claimed as free space it never swept
+        gap = np.hypot(*(start[pick[1:]] - ee[pick[:-1]]).T)
+        bad = np.flatnonzero(np.isfinite(gap) & (gap > MAX_GAP_M))
+        if len(bad):
+            k = int(bad[0]) + 1
+            raise ValueError(f"run {run!r}, step {int(steps[k])}: starts {gap[k - 1] * 1000:.1f} mm from where step "
+                             f"{int(steps[k - 1])} ended (ee_start_* against ee_*); a log must be contiguous")
         at_start = start[rows[0]] if np.all(np.isfinite(start[rows[0]])) else ee[rows[0]]
         contact = np.where(inc[pick, None], point[pick], np.nan)
         moved = np.nan_to_num(np.where(inc[pick, None], push[pick], 0.0))

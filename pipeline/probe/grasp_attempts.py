@@ -81,12 +81,13 @@ class Attempts:
 
     @property
     def first_success(self) -> bool:
-        return bool(self.attempts and self.attempts[0].success)
+        """The first attempt held the target and the robot kept it (a hand that felt a miss lets go)."""
+        return bool(self.attempts and self.attempts[0].success and self.attempts[0].felt_ok)
 
     @property
     def success(self) -> bool:
-        """Held at the end: the attempt the robot stopped at succeeded."""
-        return bool(self.attempts and self.attempts[-1].success)
+        """Held at the end: the attempt the robot stopped at succeeded, and the robot kept it."""
+        return bool(self.attempts and self.attempts[-1].success and self.attempts[-1].felt_ok)
 
     @property
     def outcome(self) -> str:

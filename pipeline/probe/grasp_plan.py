@@ -161,8 +161,8 @@ class PlannedGrasp:
 
 def approach_offset(prim: Primitive) -> float:
     """Pre-grasp distance (m) from the target's centre: the open fingers' tips (``PAD_FROM_BASE[1]`` ahead of the
-    hand's base) stay 5 cm short of the target's far extent along the approach (0.25 m for the cracker box, as
-    the paper's script; 0.2 m for a can)."""
+    hand's base) stay 5 cm short of the target's far extent along the approach (0.24 m for the cracker box, the
+    paper's script 0.25; 0.2 m for a can)."""
     reach = prim.half[1] if prim.kind == "box" else prim.half[0]
     return max(0.2, round(reach + PAD_FROM_BASE[1] + 0.05, 2))
 
@@ -186,13 +186,14 @@ def _candidates(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: i
     order = np.r_[best, np.delete(np.arange(len(poses)), best)]
     if prim.kind == "cylinder":
         dirs = 2 * np.pi * np.arange(params.can_directions) / params.can_directions
-        c = np.vstack([centres[best], np.sum(weights[:, None] * centres, axis=0)])
+        c = np.vstack([centres[order], np.sum(weights[:, None] * centres, axis=0)])
         return np.repeat(dirs[None, :], len(c), axis=0).ravel(), np.repeat(c, len(dirs), axis=0)
     # A box is held across its short side: approach along its long axis (primitive y), from either end.
     dy = (axes[:, None] - axes[None, :] + np.pi / 2) % np.pi - np.pi / 2
     near = (np.abs(dy) < 0.05) * weights[None, :]
     # sums, not a matrix product: no BLAS call decides a candidate (the same bits on every CPU)
     pooled = np.sum(near[:, :, None] * centres[None, :, :], axis=1) / np.maximum(near.sum(axis=1), 1e-12)[:, None]
+    pooled = np.where(near.sum(axis=1)[:, None] > 0, pooled, centres)  # a group of zero weight: its own centre
     yaw = np.r_[axes[order], axes[order]]
     centre = np.vstack([centres[order], pooled[order]])
     return np.r_[yaw, yaw + np.pi], np.vstack([centre, centre])
@@ -313,18 +314,22 @@ def _simplify(path: np.ndarray, free_at) -> np.ndarray:
             j -= 1
         out.append(path[j])
         i = j
-    return np.array(out).reshape(-1, 2)
+    return np.array(out or [path[-1]]).reshape(-1, 2)  # at least the goal: a path of one cell still moves there
 
 
 def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.ndarray, best: int,
                surroundings: Surroundings, params: PlanningParams = PlanningParams(),
                grasp: GraspParams = GraspParams()) -> PlannedGrasp:
     """The reachable grasp that holds the largest weighted share of the set (COM poses (H, 3), weights (H,) >= 0),
-    the estimate's own (``best``) first among equals, then the shortest way in.
+    then the cheapest way in (a lane past a sensed object costing extra), then the estimate's own (``best``) first
+    among equals; a lane through a wall is never taken.
 
     Returns the best share's grasp with ``reachable`` False when no candidate can be reached."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     w = np.asarray(weights, dtype=np.float64)
+    if len(poses) == 0 or not (np.all(np.isfinite(poses)) and np.all(np.isfinite(w)) and np.all(w >= 0)
+                               and np.sum(w) > 0):
+        raise ValueError("plan_grasp: the set needs finite poses and finite weights >= 0, not all 0")
     w = w / np.sum(w)
     offset = approach_offset(prim)
     yaw0, centre0 = _candidates(prim, poses, w, best, params)
@@ -360,6 +365,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     # The target's hypotheses and the walls are modelled and block; an object of unknown extent only costs (where
     # the gripper has been it cannot be, unless pushed there since: then the attempt feels it and re-plans).
     free = ~by_target & ~by_walls
+    # the robot may always leave the space it occupies (a gripper that stopped against a hypothesis of the target)
+    free |= np.hypot(cells[:, 0] - s.here[0], cells[:, 1] - s.here[1]) <= params.target_clearance + 1.5 * params.cell
     weight = np.where(seen, 1.0, np.where(by_objects, params.object_cost, params.unknown_cost))
     cost, pred = grid.graph(free, weight, int(grid.index(s.here)[0]))
 
@@ -367,13 +374,13 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     # Nearest-cell rounding may land a pre-grasp point a few millimetres inside a blocked cell: require the cell.
     reach_cost = np.where(free[pre_cell], cost[pre_cell], np.inf)
     lane_margin = params.object_radius + params.clearance
-    lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin) & \
-        _lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
+    lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin)
+    lane_in_wall = ~_lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
     fresh = np.ones(len(g_yaw), dtype=bool)
     for yaw_t, cx, cy in s.tried:
         turn = np.abs((g_yaw - yaw_t + np.pi) % (2 * np.pi) - np.pi)
         fresh &= (turn > 0.2) | (np.hypot(g_centre[:, 0] - cx, g_centre[:, 1] - cy) > 0.015)
-    feasible = np.isfinite(reach_cost) & (share > 0) & fresh
+    feasible = np.isfinite(reach_cost) & (share > 0) & fresh & ~lane_in_wall  # the open hand cannot sweep a wall
     if feasible.any():
         # The largest share first; among equal shares the cheapest way in, a lane past a sensed object costing
         # extra (argmin keeps the estimate's own grasp first among equals).
@@ -387,7 +394,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
             node = int(pred[node])
         path = np.array(path[::-1])
         path[0], path[-1] = s.here, pre[j]
-        via = _simplify(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) < params.cell))
+        near_here = params.target_clearance + 1.5 * params.cell
+        via = _simplify(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here))
         reachable, c = True, float(reach_cost[j])
     else:
         j = int(np.argmax(share))

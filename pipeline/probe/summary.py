@@ -43,13 +43,16 @@ def _pushed_m(run_path: Path) -> float:
     return math.hypot(*(last[:2] - first[:2]))
 
 
-def active_rows(out: str | Path, scores: pa.Table, method: str = "stucco") -> list[dict]:
+def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) -> list[dict]:
     """One dict per group (paper task, or other scenes by target shape) of an evaluation made with ``--policy
     scripted+probe``: ``group``, ``runs``, ``gs_first_pct``, ``gs_any_pct``, ``attempts``, ``probes``,
     ``actions`` (median), ``decision_s`` (median), ``decision_max_s``, ``pushed_cm`` (median).
     ``scores`` is the evaluation's scores table; the first estimator of each run is read (the active protocol's
-    grasp is the same for every estimator). Empty when no run of ``method`` was probed."""
-    rows = [r for r in scores.to_pylist() if r["method"] == method]
+    grasp is the same for every estimator). ``method`` None: the first method of the scores. Empty when no run of
+    ``method`` was probed."""
+    every = scores.to_pylist()
+    method = method if method is not None else next(iter(r["method"] for r in every), None)  # the first method's
+    rows = [r for r in every if r["method"] == method]
     first: dict[tuple[str, int], dict] = {}
     for r in rows:
         first.setdefault((r["scene"], r["seed"]), r)
