@@ -20,13 +20,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
 from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan
 from pipeline.grasp_rule import box_success, can_success
+from pipeline.probe.plane_grid import PlaneGrid, simplify_path
 
 __all__ = ["Surroundings", "PlanningParams", "PlannedGrasp", "plan_grasp", "approach_offset", "held_by"]
 
@@ -247,43 +246,6 @@ def _wall_points(walls: list, spacing: float) -> np.ndarray:
     return np.vstack(out)
 
 
-class _Grid:
-    """The plane around the gripper and the set as cells of side ``cell``; which the gripper may occupy."""
-
-    def __init__(self, lo: np.ndarray, hi: np.ndarray, cell: float) -> None:
-        self.cell = cell
-        self.lo = np.floor(lo / cell) * cell
-        self.shape = tuple(int(v) for v in np.ceil((hi - self.lo) / cell).astype(int) + 1)
-        ix, iy = np.meshgrid(np.arange(self.shape[0]), np.arange(self.shape[1]), indexing="ij")
-        self.centres = self.lo + cell * np.column_stack([ix.ravel(), iy.ravel()])
-
-    def index(self, points: np.ndarray) -> np.ndarray:
-        """Cell (N,) of each point (N, 2), clipped to the grid."""
-        ij = np.rint((np.asarray(points).reshape(-1, 2) - self.lo) / self.cell).astype(int)
-        ij = np.clip(ij, 0, np.array(self.shape) - 1)
-        return ij[:, 0] * self.shape[1] + ij[:, 1]
-
-    def graph(self, free: np.ndarray, weight: np.ndarray, source: int):
-        """Dijkstra from ``source`` over 8-connected free cells (the source itself always usable); edge cost =
-        length x the mean ``weight`` of its two cells. Returns (cost (C,), predecessor (C,))."""
-        nx, ny = self.shape
-        usable = free.copy()
-        usable[source] = True
-        ids = np.arange(nx * ny).reshape(nx, ny)
-        rows, cols, costs = [], [], []
-        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-            a = ids[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)].ravel()
-            b = ids[max(0, dx):nx - max(0, -dx) or None, max(0, dy):ny - max(0, -dy) or None].ravel()
-            ok = usable[a] & usable[b]
-            length = self.cell * math.hypot(dx, dy)
-            rows.append(a[ok])
-            cols.append(b[ok])
-            costs.append(length * 0.5 * (weight[a[ok]] + weight[b[ok]]))
-        r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(costs)
-        g = coo_matrix((np.r_[w, w], (np.r_[r, c], np.r_[c, r])), shape=(nx * ny, nx * ny)).tocsr()
-        return dijkstra(g, indices=source, return_predecessors=True)
-
-
 def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: float, blockers: np.ndarray,
                 margin: float) -> np.ndarray:
     """Whether the open hand's swept footprint along each lane (pre-grasp (G, 2) to ``advance`` actions on) keeps
@@ -299,22 +261,6 @@ def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: fl
     inside = (along >= -0.03 - margin) & (along <= advance[:, None] * scale + PAD_FROM_BASE[1] + margin) & \
         (across <= half_width)
     return ~inside.any(axis=1)
-
-
-def _simplify(path: np.ndarray, free_at) -> np.ndarray:
-    """Waypoints (W, 2) of a grid path (P, 2): the farthest point in sight of each, greedily."""
-    out, i = [], 0
-    while i < len(path) - 1:
-        j = len(path) - 1
-        while j > i + 1:
-            n = max(2, int(np.ceil(math.hypot(*(path[j] - path[i])) / 0.005)))
-            line = path[i] + np.linspace(0.0, 1.0, n)[:, None] * (path[j] - path[i])
-            if np.all(free_at(line)):
-                break
-            j -= 1
-        out.append(path[j])
-        i = j
-    return np.array(out or [path[-1]]).reshape(-1, 2)  # at least the goal: a path of one cell still moves there
 
 
 def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.ndarray, best: int,
@@ -347,7 +293,7 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     likely = _target_points(prim, poses[_likely(poses, w, params)], params.cell)
     lo = np.min(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) - 0.1
     hi = np.max(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) + 0.1
-    grid = _Grid(lo, hi, params.cell)
+    grid = PlaneGrid(lo, hi, params.cell)
     outline = np.asarray(s.outline, dtype=np.float64).reshape(-1, 2)
 
     def overlaps(points: np.ndarray, radius: float, cells: np.ndarray) -> np.ndarray:
@@ -395,7 +341,7 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
         path = np.array(path[::-1])
         path[0], path[-1] = s.here, pre[j]
         near_here = params.target_clearance + 1.5 * params.cell
-        via = _simplify(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here))
+        via = simplify_path(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here))
         reachable, c = True, float(reach_cost[j])
     else:
         j = int(np.argmax(share))
