@@ -1,5 +1,6 @@
-"""`stucco bench retrieval` checks that the segments it reads belong to the run they are filed under, as
-`retrieve` and `score` do (docs/retrieval.md, "Where grasps are lost")."""
+"""The benches check that their inputs belong together: `stucco bench retrieval`'s segments are of the run they
+are filed under, as `retrieve` and `score` check (docs/retrieval.md, "Where grasps are lost"); `stucco bench probe`
+reads only runs of the probing policy collected with its root seed (docs/active.md)."""
 from __future__ import annotations
 
 import shutil
@@ -38,3 +39,24 @@ def test_segments_of_another_run_are_refused_in_one_line(tmp_path):
     assert r.exit_code != 0 and "Traceback" not in r.output
     last = [line for line in r.output.splitlines() if line.strip()][-1]
     assert "holds segments of run 'TC/0', not only of 'FB/0'" in last and str(seg) in last
+
+
+def test_bench_probe_refuses_a_run_of_another_policy_or_root_seed(tmp_path):
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    shutil.copy(REGRESSION / "FB-000.parquet", runs / "FB-000.parquet")  # the paper's protocol, not the probing one
+    args = ["bench", "probe", "--scenes", "FB", "--seeds", "0", "--runs", str(runs), "--budgets", "0",
+            "--out", str(tmp_path / "out")]
+    r = CliRunner().invoke(cli, ["-q", "--seed", "0", *args])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "not of scripted+probe" in r.output.splitlines()[-1]
+
+
+def test_bench_probe_refuses_a_run_of_another_root_seed(tmp_path):
+    runs = tmp_path / "runs"
+    _ok("--seed", "1", "collect", "--scene", "TC", "--seeds", "0", "--policy", "scripted+probe", "--max-actions", "20",
+        "--out", runs)
+    r = CliRunner().invoke(cli, ["-q", "--seed", "0", "bench", "probe", "--scenes", "TC", "--seeds", "0", "--runs",
+                                 str(runs), "--budgets", "0", "--out", str(tmp_path / "out")])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "collected with root seed 1" in r.output.splitlines()[-1]
