@@ -15,6 +15,7 @@ from pipeline.portable import atan2
 from pipeline.scenes.types import ObjectSpec, WallSpec
 
 __all__ = ["GRIPPER_OUTLINE_M", "CIRCLE_SIDES", "object_outline", "wall_outline", "gripper_outline", "rectangle",
+           "inside", "containment_problem",
            "separation", "ray_entry", "hidden_fraction", "bounding_box"]
 
 #: The closed Panda hand's outline on the plane in the gripper base frame, ((x_min, y_min), (x_max, y_max)) in
@@ -125,3 +126,28 @@ def bounding_box(polys: list[np.ndarray]) -> tuple[tuple[float, float], tuple[fl
     pts = np.concatenate(polys)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     return (float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1]))
+
+
+def inside(point, poly: np.ndarray) -> bool:
+    """Whether ``point`` (2,) lies strictly inside the convex counter-clockwise polygon ``poly`` (V, 2)."""
+    a = np.asarray(poly, dtype=np.float64)
+    b = np.roll(a, -1, axis=0)
+    q = np.asarray(point, dtype=np.float64)
+    cross = (b[:, 0] - a[:, 0]) * (q[1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (q[0] - a[:, 0])
+    return bool(np.all(cross > 0.0))
+
+
+def containment_problem(objects, walls, start) -> str | None:
+    """Why a scene's layout is impossible, or None: an object whose centre lies inside another object or a wall,
+    or a gripper start inside one. Shallow interpenetration is left to the simulator's settling, as the paper's
+    levels need it (FB's box and can overlap by 2 cm at spawn); a centre inside another body is no layout at all."""
+    bodies = [(o.name, object_outline(o)) for o in objects] + [(w.name, wall_outline(w)) for w in walls]
+    for o in objects:
+        for name, poly in bodies:
+            if name != o.name and inside(o.centre_xy, poly):
+                return f"object {o.name!r} has its centre inside {name!r}"
+    if start is not None:
+        for name, poly in bodies:
+            if inside(start, poly):
+                return f"the gripper starts inside {name!r}"
+    return None

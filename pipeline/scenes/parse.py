@@ -11,6 +11,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from pipeline.scenes.footprint import containment_problem
 from pipeline.scenes.types import (
     DEFAULT_ACTION_SCALE,
     WORKSPACE_M,
@@ -325,6 +326,9 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     desc = r.string("description", "")
     if "\n" in desc.strip():
         raise r.fail("description", "expected one line")
+    impossible = containment_problem(objects, walls, start)
+    if impossible:
+        raise r.fail("objects", impossible)
     return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
                  objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, walk=walk,
                  target_region=region, notes=r.string("notes", ""))

@@ -42,6 +42,10 @@ CASES = [
      "'effects.settle_steps'"),
     ("noise of 1 m", _sub(r"^noise_mm = 0.5", "noise_mm = 1000.0"), "'effects.noise_mm'"),
     ("gripper far away", _sub(r"^start = \[0.0, 0.1\]", "start = [0.0, 1e7]"), "'gripper.start'"),
+    ("a can inside the box", _sub(r"^position = \[0.2, -0.1\]", "position = [0.17, 0.03]"),
+     "'cracker_box' has its centre inside 'tomato_can'"),
+    ("the gripper inside the box", _sub(r"^start = \[0.0, 0.1\]", "start = [0.18, 0.04]"),
+     "the gripper starts inside 'cracker_box'"),
 ]
 
 
