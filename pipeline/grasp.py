@@ -33,12 +33,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.geometry import Primitive, primitive_of, quat_yaw, rot2
+from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 from pipeline.grasp_judge import PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
            "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "PAD_FROM_BASE", "set_fingers",
-           "finger_contacts", "body_pose"]
+           "finger_contacts", "body_pose", "move_to", "close_and_judge"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
 FINGER_FORCE = 30.0  # N (MAX_GRIPPER_FORCE)
@@ -264,19 +264,50 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
     return result
 
 
-def _move_to(world, goal: np.ndarray, params: GraspParams, scale: float) -> bool:
-    """The script's move to ``goal`` (2,) (``goal - here`` clipped per axis); whether it got within reach."""
+def move_to(world, goal: np.ndarray, params: GraspParams, scale: float, stall_share: float | None = None) -> bool:
+    """The script's move to ``goal`` (2,) (``goal - here`` clipped per axis); whether it got within reach. With
+    ``stall_share``, a guarded move: it stops when an action moves the gripper less than that share of what it
+    commanded (it met something)."""
     for _ in range(params.max_moves):
-        d = goal - world.gripper_pose()[0][:2]
+        here = world.gripper_pose()[0][:2]
+        d = goal - here
         if math.hypot(*d) < params.reach_tolerance:
             return True
-        world.advance(*(float(u * scale) for u in np.clip(d / scale, -1.0, 1.0)))
+        step = np.clip(d / scale, -1.0, 1.0) * scale
+        world.advance(float(step[0]), float(step[1]))
+        if stall_share is not None:
+            moved = world.gripper_pose()[0][:2] - here
+            if dot2(moved, step) < stall_share * dot2(step, step):
+                return False
     return bool(math.hypot(*(goal - world.gripper_pose()[0][:2])) < params.reach_tolerance)
+
+
+def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: np.ndarray, steps: int,
+                    scale: float, params: GraspParams) -> tuple[list[FingerContacts], np.ndarray, bool, str]:
+    """The script from the pre-grasp point on: turn the hand to ``yaw`` (fingers along the unit ``approach`` (2,)),
+    open, advance ``steps`` actions of ``scale`` (m), close; then the success rule on the target (``body``, of
+    shape ``target``). Returns (each finger's contacts, the target's COM pose (3,), success, why)."""
+    p = _pybullet()
+    # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
+    world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
+    world.advance(0.0, 0.0)
+    set_fingers(world, OPEN)
+    world.advance(0.0, 0.0)
+    for _ in range(steps):
+        world.advance(float(approach[0] * scale), float(approach[1] * scale))
+    set_fingers(world, 0.0)
+    world.advance(0.0, 0.0)
+    fingers = finger_contacts(world, body)
+    pose = body_pose(world, body)
+    if target.kind == "cylinder":
+        ok, why = judge_can(fingers, target, pose, world.gripper_pose()[0][:2], approach, params)
+    else:
+        ok, why = judge_box(fingers, target, pose, params)
+    return fingers, pose, ok, why
 
 
 def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int, via) -> GraspResult:
     """The simulation of :func:`grasp_with` (``wall_s`` left at 0)."""
-    p = _pybullet()
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     target = primitive_of(scene.objects[tid])
     pre = np.asarray(pre, dtype=np.float64)
@@ -285,26 +316,11 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
     world = restore_world(scene, np.asarray(poses, dtype=np.float64), np.asarray(ee, dtype=np.float64),
                           params.settle_steps)
     with world:
-        body = world.body_of[tid]
         for point in via:
-            _move_to(world, point, params, scale)
-        reached = _move_to(world, pre, params, scale)
-        # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
-        world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
-        world.advance(0.0, 0.0)
-        set_fingers(world, OPEN)
-        world.advance(0.0, 0.0)
-        for _ in range(steps):
-            world.advance(float(approach[0] * scale), float(approach[1] * scale))
-        set_fingers(world, 0.0)
-        world.advance(0.0, 0.0)
-        fingers = finger_contacts(world, body)
-        pose = body_pose(world, body)
-        base = world.gripper_pose()[0][:2]
-        if target.kind == "cylinder":
-            ok, why = judge_can(fingers, target, pose, base, approach, params)
-        else:
-            ok, why = judge_box(fingers, target, pose, params)
+            move_to(world, point, params, scale)
+        reached = move_to(world, pre, params, scale)
+        fingers, pose, ok, why = close_and_judge(world, world.body_of[tid], target, yaw, approach, steps, scale,
+                                                 params)
     if not ok and not reached:
         why = f"{why}; pre-grasp point not reached"
     return GraspResult(success=ok, outcome=why, yaw=yaw, pregrasp=pre, reached=reached, target_pose=pose,

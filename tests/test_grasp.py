@@ -230,8 +230,8 @@ def test_a_waypoint_is_visited_before_the_pre_grasp_point(fb_run, monkeypatch):
     monkeypatch.setattr(grasp_module, "_MEMO", type(grasp_module._MEMO)())
     yaw, pre, approach = pregrasp(plan_for(fb_run.scene), _box(), fb_run.true_pose)
     goals = []
-    real = grasp_module._move_to
-    monkeypatch.setattr(grasp_module, "_move_to", lambda w, g, *a: goals.append(np.array(g)) or real(w, g, *a))
+    real = grasp_module.move_to
+    monkeypatch.setattr(grasp_module, "move_to", lambda w, g, *a: goals.append(np.array(g)) or real(w, g, *a))
     a = grasp_module.grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, approach, P)
     b = grasp_module.grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, approach, P,
                                 via=fb_run.final_ee[None, :])

@@ -19,16 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of
-from pipeline.grasp import (
-    OPEN,
-    GraspParams,
-    body_pose,
-    finger_contacts,
-    judge_box,
-    judge_can,
-    restore_world,
-    set_fingers,
-)
+from pipeline.grasp import OPEN, GraspParams, close_and_judge, move_to, restore_world, set_fingers
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, held_by, plan_grasp
 
 __all__ = ["Attempt", "Attempts", "attempt_grasps", "felt_width", "NO_REACHABLE_GRASP"]
@@ -99,22 +90,6 @@ def felt_width(prim: Primitive) -> float:
     return 2.0 * float(prim.half[0])
 
 
-def _guarded_move(world, goal: np.ndarray, params: GraspParams, scale: float) -> bool:
-    """Move toward ``goal`` (2,) with clipped steps as the grasp script does, stopping when an action moves the
-    gripper less than ``STALL_SHARE`` of what it commanded (it met something). Whether it got within reach."""
-    for _ in range(params.max_moves):
-        here = world.gripper_pose()[0][:2]
-        d = goal - here
-        if math.hypot(*d) < params.reach_tolerance:
-            return True
-        step = np.clip(d / scale, -1.0, 1.0) * scale
-        world.advance(float(step[0]), float(step[1]))
-        moved = world.gripper_pose()[0][:2] - here
-        if dot2(moved, step) < STALL_SHARE * dot2(step, step):
-            return False
-    return bool(math.hypot(*(goal - world.gripper_pose()[0][:2])) < params.reach_tolerance)
-
-
 def _finger_opening(world) -> float:
     import pybullet as p
 
@@ -123,7 +98,7 @@ def _finger_opening(world) -> float:
 
 def _extent(outline: np.ndarray, direction: np.ndarray) -> float:
     """How far (m) the gripper's outline reaches from its centre along a unit ``direction``."""
-    return float(np.max(outline[:, 0] * direction[0] + outline[:, 1] * direction[1]))
+    return float(np.max(dot2(outline, direction)))
 
 
 def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: Primitive, poses: np.ndarray,
@@ -143,7 +118,6 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
     world = restore_world(scene, np.asarray(final_poses, dtype=np.float64), np.asarray(final_ee, dtype=np.float64),
                           params.settle_steps)
     with world:
-        import pybullet as p
 
         body = world.body_of[tid]
         transit = world.gripper.orientation
@@ -155,7 +129,7 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
                 break
             trail, reached = [s.here], True
             for point in g.via:
-                reached = _guarded_move(world, point, params, scale)
+                reached = move_to(world, point, params, scale, STALL_SHARE)
                 trail.append(world.gripper_pose()[0][:2].copy())
                 if not reached:
                     break
@@ -167,23 +141,11 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
                 s = s.moved(at, trail).with_obstacle(at + (_extent(s.outline, heading) + 0.005) * heading)
                 out.attempts.append(Attempt(g, False, math.nan, False, False, "pre-grasp point not reached"))
                 continue
-            world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, g.yaw + math.pi / 2)))
-            world.advance(0.0, 0.0)
-            set_fingers(world, OPEN)
-            world.advance(0.0, 0.0)
-            for _ in range(g.advance):
-                world.advance(float(g.approach[0] * scale), float(g.approach[1] * scale))
-            set_fingers(world, 0.0)
-            world.advance(0.0, 0.0)
+            # the judge reads the truth for the report; the robot feels only the fingers' opening
+            _, _, ok, why = close_and_judge(world, body, truth_shape, g.yaw, g.approach, g.advance, scale, params)
             width = _finger_opening(world)
             narrower, wider = WIDTH_TOLERANCE[prim.kind]
             felt_ok = -narrower <= width - felt_width(prim) <= wider
-            fingers = finger_contacts(world, body)
-            pose = body_pose(world, body)
-            if truth_shape.kind == "cylinder":
-                ok, why = judge_can(fingers, truth_shape, pose, world.gripper_pose()[0][:2], g.approach, params)
-            else:
-                ok, why = judge_box(fingers, truth_shape, pose, params)
             out.attempts.append(Attempt(g, True, width, felt_ok, ok, why))
             if felt_ok:
                 break
