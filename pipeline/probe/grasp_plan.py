@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
+from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate, wrap_angle, wrap_symmetric
 from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan
 from pipeline.grasp_rule import box_success, can_success
 from pipeline.probe.plane_grid import PlaneGrid, simplify_path
@@ -188,8 +188,7 @@ def _candidates(prim: Primitive, poses: np.ndarray, weights: np.ndarray, best: i
         c = np.vstack([centres[order], np.sum(weights[:, None] * centres, axis=0)])
         return np.repeat(dirs[None, :], len(c), axis=0).ravel(), np.repeat(c, len(dirs), axis=0)
     # A box is held across its short side: approach along its long axis (primitive y), from either end.
-    dy = (axes[:, None] - axes[None, :] + np.pi / 2) % np.pi - np.pi / 2
-    near = (np.abs(dy) < 0.05) * weights[None, :]
+    near = (np.abs(wrap_symmetric(axes[:, None] - axes[None, :], np.pi)) < 0.05) * weights[None, :]
     # sums, not a matrix product: no BLAS call decides a candidate (the same bits on every CPU)
     pooled = np.sum(near[:, :, None] * centres[None, :, :], axis=1) / np.maximum(near.sum(axis=1), 1e-12)[:, None]
     pooled = np.where(near.sum(axis=1)[:, None] > 0, pooled, centres)  # a group of zero weight: its own centre
@@ -205,6 +204,12 @@ def _likely(poses: np.ndarray, weights: np.ndarray, params: PlanningParams) -> n
     return order[:min(k, params.max_likely, len(order))]
 
 
+def _rectangle_outline(hx: float, hy: float, spacing: float) -> np.ndarray:
+    """Points (P, 2), metres, about ``spacing`` apart along the outline of [-hx, hx] x [-hy, hy] (at least 8)."""
+    n = max(8, int(4 * (hx + hy) / spacing))
+    return outline_point((np.arange(n) + 0.5) * 4 * (hx + hy) / n, hx, hy)
+
+
 def _target_points(prim: Primitive, poses: np.ndarray, spacing: float) -> np.ndarray:
     """Outline points (P, 2) of the target at each pose (H, 3)."""
     pp = primitive_pose(prim, poses)
@@ -213,9 +218,7 @@ def _target_points(prim: Primitive, poses: np.ndarray, spacing: float) -> np.nda
         a = 2 * np.pi * np.arange(n) / n
         local = prim.half[0] * np.column_stack([np.cos(a), np.sin(a)])
     else:
-        hx, hy = prim.half[:2]
-        n = max(8, int(4 * (hx + hy) / spacing))
-        local = outline_point((np.arange(n) + 0.5) * 4 * (hx + hy) / n, hx, hy)
+        local = _rectangle_outline(prim.half[0], prim.half[1], spacing)
     return (pp[:, None, :2] + rotate(local[None, :, :], pp[:, 2, None])).reshape(-1, 2)
 
 
@@ -239,9 +242,7 @@ def _wall_points(walls: list, spacing: float) -> np.ndarray:
     only enter one across its outline)."""
     out = [np.zeros((0, 2))]
     for centre, half, yaw in walls:
-        hx, hy = float(half[0]), float(half[1])
-        n = max(8, int(4 * (hx + hy) / spacing))
-        local = outline_point((np.arange(n) + 0.5) * 4 * (hx + hy) / n, hx, hy)
+        local = _rectangle_outline(float(half[0]), float(half[1]), spacing)
         out.append(np.asarray(centre, dtype=np.float64) + rotate(local, yaw))
     return np.vstack(out)
 
@@ -291,9 +292,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     discs = _obstacle_discs(s, prim, poses[best], params)
     walls = _wall_points(s.walls, params.cell)
     likely = _target_points(prim, poses[_likely(poses, w, params)], params.cell)
-    lo = np.min(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) - 0.1
-    hi = np.max(np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]]), axis=0) + 0.1
-    grid = PlaneGrid(lo, hi, params.cell)
+    spanned = np.vstack([s.here[None, :], s.visited, pre, poses[:, :2]])
+    grid = PlaneGrid(spanned.min(axis=0) - 0.1, spanned.max(axis=0) + 0.1, params.cell)
     outline = np.asarray(s.outline, dtype=np.float64).reshape(-1, 2)
 
     def overlaps(points: np.ndarray, radius: float, cells: np.ndarray) -> np.ndarray:
@@ -312,7 +312,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     # the gripper has been it cannot be, unless pushed there since: then the attempt feels it and re-plans).
     free = ~by_target & ~by_walls
     # the robot may always leave the space it occupies (a gripper that stopped against a hypothesis of the target)
-    free |= np.hypot(cells[:, 0] - s.here[0], cells[:, 1] - s.here[1]) <= params.target_clearance + 1.5 * params.cell
+    near_here = params.target_clearance + 1.5 * params.cell
+    free |= np.hypot(cells[:, 0] - s.here[0], cells[:, 1] - s.here[1]) <= near_here
     weight = np.where(seen, 1.0, np.where(by_objects, params.object_cost, params.unknown_cost))
     cost, pred = grid.graph(free, weight, int(grid.index(s.here)[0]))
 
@@ -324,7 +325,7 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     lane_in_wall = ~_lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
     fresh = np.ones(len(g_yaw), dtype=bool)
     for yaw_t, cx, cy in s.tried:
-        turn = np.abs((g_yaw - yaw_t + np.pi) % (2 * np.pi) - np.pi)
+        turn = np.abs(wrap_angle(g_yaw - yaw_t))
         fresh &= (turn > 0.2) | (np.hypot(g_centre[:, 0] - cx, g_centre[:, 1] - cy) > 0.015)
     feasible = np.isfinite(reach_cost) & (share > 0) & fresh & ~lane_in_wall  # the open hand cannot sweep a wall
     if feasible.any():
@@ -340,7 +341,6 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
             node = int(pred[node])
         path = np.array(path[::-1])
         path[0], path[-1] = s.here, pre[j]
-        near_here = params.target_clearance + 1.5 * params.cell
         via = simplify_path(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here))
         reachable, c = True, float(reach_cost[j])
     else:
