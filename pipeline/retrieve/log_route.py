@@ -16,18 +16,13 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import registry, schema
-from pipeline.estimators.estimate import needs_every_step
 from pipeline.estimators.log_run import log_runs, parse_target
-from pipeline.parallel import run_calls
 from pipeline.retrieve.stage import (
     RetrieveConfig,
-    contact_step_segments,
-    final_segments_by_run,
     read_segments_for,
-    retrieve_one,
+    retrieve_runs,
     write_retrieval_tables,
 )
-from pipeline.schema.retrieval import candidates_table, retrieval_table
 
 __all__ = ["retrieve_log", "retrieve_log_file"]
 
@@ -62,15 +57,7 @@ def retrieve_log(segments: pa.Table, contacts: pa.Table, target: str, config: Re
     prim, mass, grasp_scene = parse_target(target)
     _check_segments_match(segments, contacts, segments_path, contacts_path)
     infos = log_runs(contacts, prim, mass, grasp_scene)
-    by_run = final_segments_by_run(segments)
-    steps = contact_step_segments(segments) if needs_every_step([config.estimator]) else None
-    args = [(info, by_run.get(run, []), config, root_seed, None if steps is None else steps.get(run, []))
-            for run, info in infos.items()]
-    results = run_calls(retrieve_one, args, jobs)
-    if progress is not None:
-        results = progress(results, total=len(args))
-    outs = list(results)
-    return retrieval_table([o.row for o in outs]), candidates_table([o.candidates for o in outs])
+    return retrieve_runs(list(infos.values()), segments, config, root_seed, jobs, progress)
 
 
 def retrieve_log_file(segments_path: str | Path, contacts_path: str | Path, target: str, out_path: str | Path,

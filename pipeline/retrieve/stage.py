@@ -33,7 +33,7 @@ from pipeline.seeds import check_stream
 from pipeline.segment import final_estimates
 
 __all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file",
-           "retrieve_one", "LOG_SCENE"]
+           "retrieve_one", "retrieve_runs", "read_segments_for", "write_retrieval_tables", "LOG_SCENE"]
 
 #: The ``scene`` of a retrieval row made from a robot's log (no scene).
 LOG_SCENE = "log"
@@ -209,7 +209,15 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
     if missing:
         raise ValueError(f"{segments_path}: run {missing[0]!r} has no collected run file in {run_dir} "
                          f"({len(files)} run file(s) there)")
-    infos = [load_run(files[r]) for r in files]
+    return retrieve_runs([load_run(files[r]) for r in files], segments, config, root_seed, jobs, progress)
+
+
+def retrieve_runs(infos: list[RunInfo], segments: pa.Table, config: RetrieveConfig, root_seed: int, jobs: int,
+                  progress: Callable | None) -> tuple[pa.Table, pa.Table]:
+    """Every run of ``infos`` estimated (and grasped, as ``config`` says) from its segments in ``segments`` (none:
+    estimated as such), the runs in parallel processes; the retrieval and candidates tables. The one loop of both
+    routes of the stage (simulated runs, a robot's log)."""
+    by_run = final_segments_by_run(segments)
     steps = contact_step_segments(segments) if needs_every_step([config.estimator]) else None
     args = [(info, by_run.get(info.run, []), config, root_seed, None if steps is None else steps.get(info.run, []))
             for info in infos]

@@ -19,14 +19,11 @@ def is_csv(path: str | os.PathLike) -> bool:
 
 
 def read_csv(path: str | os.PathLike, columns) -> pa.Table:
-    """The table of a CSV file with a header row; each of the spec's ``columns`` (:class:`Column`) it holds read
-    as the spec's type (booleans as true/false or 1/0; empty cells are nulls). SchemaError (one line, naming the
-    file and, where pyarrow says, the row) for a file that is missing, not a file or not CSV of those types."""
+    """The table of a CSV file with a header row (a regular file: the caller checks, as
+    :func:`pipeline.schema.io.read_contacts` does); each of the spec's ``columns`` (:class:`Column`) it holds read as
+    the spec's type (booleans as true/false or 1/0; empty cells are nulls). SchemaError (one line, naming the file
+    and, where pyarrow says, the row) for a file that is not CSV of those types."""
     p = Path(path)
-    if not p.exists():
-        raise SchemaError(p, None, None, "file not found")
-    if not p.is_file():
-        raise SchemaError(p, None, None, "is not a file; expected a CSV file")
     types = {c.name: c.type for c in columns if not getattr(c, "shape", None)}
     convert = pcsv.ConvertOptions(column_types=types, strings_can_be_null=True,
                                   true_values=["true", "True", "TRUE", "1"],

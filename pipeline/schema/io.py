@@ -119,7 +119,7 @@ def read_contacts(path: str | os.PathLike) -> pa.Table:
     """Read and validate a contacts file (the input of ``stucco track``): Parquet, or CSV with the same columns
     (by the ``.csv`` extension: a robot's log written by other tools)."""
     if is_csv(path):
-        return validate_table(read_csv(path, CONTACTS_COLUMNS), "contacts", path)
+        return validate_table(read_csv(_regular(path), CONTACTS_COLUMNS), "contacts", path)
     return read_table(path, "contacts")
 
 
