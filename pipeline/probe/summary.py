@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import schema
+from pipeline.estimators.run_info import load_run
 from pipeline.layout import partition
 from pipeline.probe.report import run_stats
 
@@ -22,25 +23,13 @@ __all__ = ["active_rows", "active_markdown"]
 PAPER_TASKS = ("FB", "BC", "IB", "TC")
 
 
-def _group(scene: str, run_path: Path) -> str:
-    return scene if scene in PAPER_TASKS else f"other scenes, {_target_shape(run_path)} target"
-
-
-def _target_shape(run_path: Path) -> str:
-    from pipeline.estimators.run_info import load_run  # the scene recorded in the run file
-
-    return "can" if load_run(run_path).target.kind == "cylinder" else "box"
-
-
-def _pushed_m(run_path: Path) -> float:
-    """How far the target's centre moved from after the first action to the end of the run (m)."""
-    t = schema.read_run(run_path)
-    params = schema.read_metadata(run_path).get("params") or {}
-    tid = params.get("bodies", []).index(params.get("target"))
-    poses = t.column("obj_pose")
-    first = np.asarray(poses[0].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
-    last = np.asarray(poses[t.num_rows - 1].as_py(), dtype=np.float64).reshape(-1, 3)[tid]
-    return math.hypot(*(last[:2] - first[:2]))
+def _run_facts(run_path: Path) -> tuple[str, int, float]:
+    """(the target's shape, "box" or "can"; the run's actions; how far the target's centre moved from after the
+    first action to the end of the run, m) of a run file."""
+    info = load_run(run_path)  # the scene recorded in the run file, its target, the final poses
+    first = np.asarray(schema.read_run(run_path).column("obj_pose")[0].as_py(), dtype=np.float64).reshape(-1, 3)
+    moved = math.hypot(*(info.true_pose[:2] - first[info.target_id, :2]))
+    return ("can" if info.target.kind == "cylinder" else "box"), len(info.steps), moved
 
 
 def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) -> list[dict]:
@@ -61,9 +50,9 @@ def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) ->
         path = partition(out, "runs", scene, seed)
         if r.get("grasp_attempts") is None or not path.is_file():
             continue
-        stats = run_stats(path)
-        actions = schema.read_run(path).num_rows
-        groups.setdefault(_group(scene, path), []).append((r, stats, actions, _pushed_m(path)))
+        shape, actions, pushed = _run_facts(path)
+        group = scene if scene in PAPER_TASKS else f"other scenes, {shape} target"
+        groups.setdefault(group, []).append((r, run_stats(path), actions, pushed))
     out_rows = []
     order = {name: i for i, name in enumerate(PAPER_TASKS)}
     for name in sorted(groups, key=lambda g: (order.get(g, len(order)), g)):
