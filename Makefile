@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 KSTAMP := $(VENV)/.kernels
-KERNELS := $(wildcard pipeline/track/*.py pipeline/estimators/*/kernel.py pipeline/estimators/paper/icp_kernel.py pipeline/estimators/pushtrack/slice_pusher.py pipeline/pairwise_sum.py)
+KERNELS := $(wildcard pipeline/track/*.py pipeline/estimators/*/kernel.py pipeline/estimators/paper/icp_kernel.py pipeline/estimators/pushtrack/slice_pusher.py pipeline/grasp_rule.py pipeline/pairwise_sum.py)
 ANCHORS ?= data/anchors
 
 .PHONY: setup syslibs verify-venv lock quick reproduce reproduce-active test bench clean
@@ -72,7 +72,8 @@ $(KSTAMP): $(STAMP) $(KERNELS)
 	    from pipeline.estimators.plausible.kernel import warm_up; warm_up(); \
 	    from pipeline.estimators.paper.icp_kernel import warm_up as icp; icp(); \
 	    from pipeline.estimators.pushtrack.kernel import warm_up as pt; pt(); \
-	    from pipeline.estimators.pushtrack.slice_pusher import warm_up as sw; sw()"; second=$$?; \
+	    from pipeline.estimators.pushtrack.slice_pusher import warm_up as sw; sw(); \
+	    from pipeline.grasp_rule import warm_up as rule; rule()"; second=$$?; \
 	  wait $$first && test $$second = 0
 	@touch $(KSTAMP)
 

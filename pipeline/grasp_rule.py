@@ -8,18 +8,22 @@ the pads' span (every outline point within ``CONTACT_BAND`` of that extreme: the
 holds when both fingers touch the two long faces (relative yaw within ``face_angle_deg``) with the centre of their
 contacts at least ``corner_margin`` from the face's ends; a can grasp when its centre is within the pads' span and
 the fingers can close around it. The simulated rule (:func:`pipeline.grasp.judge_box`, :func:`~pipeline.grasp.
-judge_can`) is the judge; this form is what a planner can afford per hypothesis: arrays (grasps, hypotheses).
+judge_can`) is the judge; this form is what a planner can afford per hypothesis: arrays (grasps, hypotheses), the
+box's finger rule compiled (numba), summing in numpy's order so that it gives the bits of the array form it
+replaced (tests/test_grasp_rule.py keeps that form as the reference).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numba import njit
 
 from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
 from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan, grasp_yaw, plan_for
+from pipeline.pairwise_sum import pairwise_sum
 
-__all__ = ["CONTACT_BAND", "box_success", "can_success", "holds", "own_grasp_shares"]
+__all__ = ["CONTACT_BAND", "box_success", "can_success", "holds", "own_grasp_shares", "warm_up"]
 
 #: Outline points within this distance (m) of a finger's farthest reach touch it (compliant pads): calibrated so
 #: that a box turned by 0.05 rad holds and one turned by 0.10 rad slips to the corner, as simulated
@@ -47,27 +51,67 @@ def box_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.
     delta = (pp[None, :, 2] - yaw[:, None] + np.pi / 2) % np.pi - np.pi / 2  # (G, H)
     local = outline_point((np.arange(n_outline) + 0.5) * (4 * (hx + hy) / n_outline), hx, hy)  # (K, 2)
     world = pp[:, None, :2] + rotate(local[None, :, :], pp[:, 2, None])  # (H, K, 2)
-    rel = world[None, :, :, :] - base[:, None, None, :]  # (G, H, K, 2)
-    depth = np.sum(rel * approach[:, None, None, :], axis=-1)
-    lateral = np.sum(rel * closing[:, None, None, :], axis=-1)
-    # The palm stops at the object: shift the object's depth so that its nearest point is at the finger bases.
-    depth = depth + np.maximum(PAD_FROM_BASE[0] - depth.min(axis=2, keepdims=True), 0.0)
-    band = (depth >= PAD_FROM_BASE[0]) & (depth <= PAD_FROM_BASE[1])
     ok = np.abs(delta) <= math.radians(params.face_angle_deg)
-    ok &= band.any(axis=2)
-    faces = []
-    for sign in (1.0, -1.0):
-        s = np.where(band, sign * lateral, -np.inf)
-        reach = s.max(axis=2, keepdims=True)
-        touch = band & (s >= reach - CONTACT_BAND)
-        n = np.maximum(touch.sum(axis=2), 1)
-        y_mean = np.where(touch, local[None, None, :, 1], 0.0).sum(axis=2) / n
-        x_mean = np.where(touch, local[None, None, :, 0], 0.0).sum(axis=2) / n
-        ok &= reach[..., 0] <= OPEN  # the box fits inside the open finger
-        ok &= np.abs(y_mean) <= hy - params.corner_margin  # not on a corner
-        ok &= np.abs(x_mean) >= hx - 0.002  # on a long face, not an end
-        faces.append(np.sign(x_mean))
-    return ok & (faces[0] != faces[1])
+    _box_faces(np.ascontiguousarray(world), np.ascontiguousarray(base), np.ascontiguousarray(approach),
+               np.ascontiguousarray(closing), np.ascontiguousarray(local), float(hx), float(hy),
+               float(params.corner_margin), ok)
+    return ok
+
+
+@njit(cache=True)
+def _box_faces(world, base, approach, closing, local, hx, hy, corner_margin, ok):
+    """The finger rule of :func:`box_success` for every grasp g and hypothesis h with ``ok[g, h]`` (G, H) still
+    true, in place. ``world`` (H, K, 2) the outline points, ``base``, ``approach``, ``closing`` (G, 2), ``local``
+    (K, 2) the outline points in the box frame. The palm stops at the object (its nearest point shifted to the
+    finger bases); each finger touches the band's points within ``CONTACT_BAND`` of its farthest reach; the
+    touches' centre must be on a long face and ``corner_margin`` from its ends, the two fingers on opposite faces.
+    Sums run in numpy's pairwise order (:func:`pipeline.pairwise_sum.pairwise_sum`): the same bits as the array
+    form it replaces."""
+    G, H, K = ok.shape[0], ok.shape[1], local.shape[0]
+    depth = np.empty(K)
+    lateral = np.empty(K)
+    band = np.empty(K, dtype=np.bool_)
+    ys = np.empty(K)
+    xs = np.empty(K)
+    lo, hi = PAD_FROM_BASE[0], PAD_FROM_BASE[1]
+    for g in range(G):
+        ax, ay, cx, cy = approach[g, 0], approach[g, 1], closing[g, 0], closing[g, 1]
+        for h in range(H):
+            if not ok[g, h]:
+                continue
+            nearest = np.inf
+            for k in range(K):
+                rx = world[h, k, 0] - base[g, 0]
+                ry = world[h, k, 1] - base[g, 1]
+                depth[k] = -0.0 + rx * ax + ry * ay
+                lateral[k] = -0.0 + rx * cx + ry * cy
+                nearest = min(nearest, depth[k])
+            shift = max(lo - nearest, 0.0)
+            any_band = False
+            for k in range(K):
+                d = depth[k] + shift
+                band[k] = d >= lo and d <= hi
+                any_band = any_band or band[k]
+            good = any_band
+            face = np.zeros(2)
+            for f in range(2):
+                sign = 1.0 if f == 0 else -1.0
+                reach = -np.inf
+                for k in range(K):
+                    if band[k]:
+                        reach = max(reach, sign * lateral[k])
+                n = 0
+                for k in range(K):
+                    touch = band[k] and sign * lateral[k] >= reach - CONTACT_BAND
+                    n += touch
+                    ys[k] = local[k, 1] if touch else 0.0
+                    xs[k] = local[k, 0] if touch else 0.0
+                n = max(n, 1)
+                y_mean = pairwise_sum(ys, 0, K) / n
+                x_mean = pairwise_sum(xs, 0, K) / n
+                good = good and reach <= OPEN and abs(y_mean) <= hy - corner_margin and abs(x_mean) >= hx - 0.002
+                face[f] = np.sign(x_mean)
+            ok[g, h] = good and face[0] != face[1]
 
 
 def can_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray,
@@ -107,3 +151,9 @@ def own_grasp_shares(scene, prim: Primitive, poses: np.ndarray, weights: np.ndar
     centre = prim.centre_world(poses)
     held = holds(scene, prim, yaw, centre, np.full(len(poses), float(params.approach_steps)), poses, params)
     return np.sum(held * w[None, :], axis=1), held
+
+
+def warm_up() -> None:
+    """Compile the box rule's kernel (numba caches it on disk), as ``make setup`` does."""
+    _box_faces(np.zeros((1, 1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), 0.01,
+               0.01, 0.0, np.ones((1, 1), dtype=bool))
