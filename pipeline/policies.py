@@ -2,7 +2,8 @@
 
 ``scripted``
     The scene's hand-made action sequence plus uniform replay noise (``[effects] noise_mm``), drawn once for the
-    whole sequence before the run.
+    whole sequence before the run; or, for a scene whose ``[actions] replay`` is ``"guarded"`` (the generated
+    scenes), the sequence's waypoints followed in closed loop (:mod:`pipeline.guarded_replay`).
 ``greedy-walk``
     Start and goal uniform in the scene's square (rejected if closer than the scene's minimum distance or if the
     gripper would touch anything at either); stop within the goal tolerance; after an action that ends in contact
@@ -31,6 +32,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from pipeline.constraints import Constraint, Params, integer
+from pipeline.guarded_replay import GuardedReplay
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
 
@@ -80,15 +82,23 @@ class ScriptedPolicy:
 
     def plan(self) -> int:
         seq = np.asarray(self.scene.actions, dtype=np.float64)
+        eff = self.scene.effects
+        if self.scene.replay == "guarded":
+            # Closed loop on the gripper's position; noise drawn per action as it is made.
+            self.guarded = GuardedReplay(seq, np.asarray(self.scene.gripper_start, dtype=np.float64),
+                                         self.scene.action_scale, self.noise_rng, eff.noise_mm)
+            limit = self.guarded.limit
+            return limit if self.max_actions is None else min(limit, self.max_actions)
         if self.max_actions is not None:
             seq = seq[:self.max_actions]
         # Drawn once for the whole sequence before the run, as the authors do.
-        eff = self.scene.effects
         self.actions = np.clip(seq + action_noise(self.noise_rng, len(seq), eff.noise_mm, self.scene.action_scale),
                                -1.0, 1.0)
         return len(self.actions)
 
-    def action(self, world, k: int, last_contact: bool) -> np.ndarray:
+    def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
+        if self.scene.replay == "guarded":
+            return self.guarded.next(world.gripper_pose()[0][:2], last_contact)
         return self.actions[k]
 
 

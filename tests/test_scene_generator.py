@@ -1,7 +1,8 @@
 """The retrieval scene generator (docs/scene_generator.md) and the ``[target_region]`` scene key.
 
 Deterministic from (seed, index); scenes at rest after settling; the target region holds the target; the rummage is
-made from the region and the gripper start only; bad knobs refused in one line; a generated file collects.
+made from the region, the gripper start and the walls only, and pokes from every side the walls leave open; bad
+knobs refused in one line; a generated file collects.
 pybullet work is kept to a handful of scenes (a settle is about 0.05 s, a collected action about 0.04 s).
 """
 from __future__ import annotations
@@ -18,8 +19,8 @@ from click.testing import CliRunner
 
 from pipeline.scenes import WORKSPACE_M, SceneError, load_scene, scene_from_text
 from pipeline.scenes.catalogue import MODEL_BY_KEY, MODELS, TASK_WALLS
-from pipeline.scenes.coverage import FAR_SLACK_M, coverage_passes, coverage_waypoints, lanes
-from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, hidden_fraction, object_outline, separation
+from pipeline.scenes.coverage import FAR_SLACK_M, SIDE_CLEARANCE_M, SIDES, coverage_passes, coverage_waypoints, lanes
+from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, hidden_fraction, object_outline, separation, wall_outline
 from pipeline.scenes.generate import GAP_MIN_M, DrawRejected, GeneratorSpec, GeneratorSpecError, sample_layout
 from pipeline.scenes.generated_toml import layout_actions
 from pipeline.sim import World
@@ -155,17 +156,55 @@ def test_a_bad_region_is_one_line_naming_file_and_key(tmp_path, region, key, mat
 # -- the rummage ----------------------------------------------------------------------------------------------------
 
 
-def test_the_rummage_is_made_from_region_and_start_only(batch):
+def test_the_rummage_is_made_from_region_start_and_walls_only(batch):
     params = list(inspect.signature(coverage_passes).parameters)
-    assert params == ["region_m", "start_m", "scale_m", "lane_spacing_m"]
+    assert params == ["region_m", "start_m", "scale_m", "lane_spacing_m", "sides", "walls"]
     lay = batch[0].layout
     rng = np.random.default_rng(0)
     moved = tuple(replace(o, position=tuple(np.add(o.position, rng.uniform(-0.2, 0.2, 2))), yaw=o.yaw + 1.0)
                   for o in lay.objects)
-    assert layout_actions(replace(lay, objects=moved, walls=()), SPEC) == layout_actions(lay, SPEC)
+    assert layout_actions(replace(lay, objects=moved), SPEC) == layout_actions(lay, SPEC)
     scene = scene_from_text(batch[0].text, Path("x.toml"))
-    assert scene.actions == coverage_passes(scene.target_region, scene.gripper_start)
+    assert scene.actions == coverage_passes(scene.target_region, scene.gripper_start, sides=SIDES,
+                                            walls=[wall_outline(w) for w in scene.walls])
+    assert scene.replay == "guarded"
     assert scene.action_scale == 0.03 and all(abs(u) <= 1.0 for a in scene.actions for u in a)
+
+
+def _poke_directions(points: np.ndarray) -> set[tuple[int, int]]:
+    """Unit axis directions (sign x, sign y) of the moves that enter the region and come straight back."""
+    out = set()
+    for a, b, c in zip(points, points[1:], points[2:]):
+        if np.allclose(a, c) and not np.allclose(a, b):
+            out.add(tuple(int(v) for v in np.sign(np.round(b - a, 9))))
+    return out
+
+
+def test_the_rummage_pokes_from_every_open_side_to_the_middle_and_keeps_off_the_walls():
+    region, start = ((0.2, -0.2), (0.6, 0.2)), (-0.05, 0.0)
+    points = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES))
+    assert _poke_directions(points) == {(1, 0), (0, 1), (-1, 0), (0, -1)}
+    (gx0, gy0), (gx1, gy1) = GRIPPER_OUTLINE_M
+    # the side lines keep the hand the clearance off the region; the side pokes' leading edges reach its middle
+    xs, ys, c = points[:, 0], points[:, 1], SIDE_CLEARANCE_M
+    assert (ys + gy1).min() == pytest.approx(-0.2 - c) and (ys + gy0).max() == pytest.approx(0.2 + c)
+    assert (xs + gx0).max() == pytest.approx(0.6 + c)
+    assert np.isclose(ys + gy1, 0.0).any() and np.isclose(ys + gy0, 0.0).any() and np.isclose(xs + gx0, 0.4).any()
+    assert not ((ys + gy1 > 0.0 + 1e-9) & (xs > 0.2)).any() or not ((ys + gy0 < -1e-9) & (ys > 0.2)).any()
+    assert points[-1][0] == pytest.approx(points[1][0])  # back on the approach line
+    # a wall close beside the region's -y side bars that side's line and the far line, which starts on it: the front
+    # and the +y side remain, and no move of the hand comes within the clearance of the wall
+    wall = np.array([[1.0, -0.45], [1.0, -0.25], [-0.3, -0.25], [-0.3, -0.45]])
+    barred = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[wall]))
+    assert _poke_directions(barred) == {(1, 0), (0, -1)}
+    assert (barred[:, 1] + gy0).min() >= -0.25 + SIDE_CLEARANCE_M - 1e-9
+    # walls on every side: the front pokes only; the same arguments, the same waypoints
+    walls = [wall, wall * [1, -1], np.array([[0.9, -1.0], [0.9, 1.0], [0.7, 1.0], [0.7, -1.0]])]
+    front = coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=walls)
+    assert _poke_directions(np.array(front)) == {(1, 0)}
+    assert front == coverage_waypoints(region, start, lane_spacing_m=0.2)
+    again = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[wall]))
+    assert np.array_equal(again, barred)
 
 
 def test_the_pokes_reach_across_and_into_the_region_and_come_back():

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 
-from pipeline.scenes.footprint import GRIPPER_OUTLINE_M
+import numpy as np
+
+from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, separation
 from pipeline.scenes.types import DEFAULT_ACTION_SCALE
 
 __all__ = ["coverage_passes", "coverage_waypoints", "lanes", "DEFAULT_LANE_SPACING_M", "DEPTH_STEP_M", "FAR_SLACK_M"]
@@ -30,6 +32,68 @@ FAR_SLACK_M = 0.05
 _REACH_M = GRIPPER_OUTLINE_M[1][0]
 #: Decimals kept of each normalised action (a 0.03 m action is then exact to 1.5 micrometres).
 _DECIMALS = 4
+#: Clearance of the hand from the region's edges on the side lines, and from the walls, metres.
+SIDE_CLEARANCE_M = 0.02
+#: The sides a rummage may poke from: the start's (along +x), then -y (along +y), the far side (along -x), +y.
+SIDES = ("front", "right", "far", "left")
+Point = tuple[float, float]
+
+
+def _strips(lo: float, hi: float, width: float) -> list[float]:
+    """Centres of the fewest equal strips at most ``width`` wide that cut [lo, hi]."""
+    k = max(1, math.ceil((hi - lo) / width - 1e-9))
+    return [lo + (i + 0.5) * (hi - lo) / k for i in range(k)]
+
+
+def _swept_box(a: Point, b: Point) -> np.ndarray:
+    """Outline (4, 2) of the rectangle the hand covers moving straight from base ``a`` to base ``b`` (axis-aligned
+    moves: exact; others: a cover)."""
+    (gx0, gy0), (gx1, gy1) = GRIPPER_OUTLINE_M
+    x0, x1 = min(a[0], b[0]) + gx0, max(a[0], b[0]) + gx1
+    y0, y1 = min(a[1], b[1]) + gy0, max(a[1], b[1]) + gy1
+    return np.array([[x1, y0], [x1, y1], [x0, y1], [x0, y0]])
+
+
+def _side_legs(region_m, line_x: float, y_here: float, spacing: float) -> list[tuple[Point, Point, list[list[Point]]]]:
+    """The legs round the region counter-clockwise from (``line_x``, ``y_here``) on the approach line and back:
+    each (from, to, pokes), the pokes of a side leg ordered along it, each [on the line, deepest, on the line], in
+    rounds of at most ``DEPTH_STEP_M`` that reach the region's middle line."""
+    (x0, y0), (x1, y1) = region_m
+    (gx0, gy0), (gx1, gy1) = GRIPPER_OUTLINE_M
+    c = SIDE_CLEARANCE_M
+    y_right, y_left, x_far = y0 - gy1 - c, y1 - gy0 + c, x1 - gx0 + c
+    mid_x, mid_y = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+
+    def pokes(lanes_: list[float], axis: int, line: float, depth: float, sign: float) -> list[list[Point]]:
+        n = max(1, math.ceil(depth / DEPTH_STEP_M - 1e-9))
+        out = []
+        for lane in lanes_:
+            for r in range(1, n + 1):
+                deep = line + sign * depth * r / n
+                a, b = ((lane, line), (lane, deep)) if axis == 1 else ((line, lane), (deep, lane))
+                out.append([a, b, a])
+        return out
+
+    xs = [x - (gx0 + gx1) / 2.0 for x in _strips(x0, x1, gx1 - gx0)]  # bases whose hand covers each strip
+    ys = _strips(y0, y1, spacing)
+    corners = [(line_x, y_right), (x_far, y_right), (x_far, y_left), (line_x, y_left)]
+    return [((line_x, y_here), corners[0], []),
+            (corners[0], corners[1], pokes(xs, 1, y_right, mid_y - y0 + c, 1.0)),
+            (corners[1], corners[2], pokes(ys, 0, x_far, x1 - mid_x + c, -1.0)),
+            (corners[2], corners[3], pokes(xs[::-1], 1, y_left, y1 - mid_y + c, -1.0)),
+            (corners[3], (line_x, y_here), [])]
+
+
+def _walk(legs, reverse: bool) -> list[Point]:
+    """Waypoints along ``legs`` (each walked from its start, or backwards with ``reverse``), poking on the way."""
+    out: list[Point] = []
+    for a, b, pk in legs:
+        if reverse:
+            a, b, pk = b, a, pk[::-1]
+        for poke in pk:
+            out += poke
+        out.append(b)
+    return out
 
 
 def lanes(region_m, start_m, lane_spacing_m: float) -> list[float]:
@@ -48,7 +112,8 @@ def lanes(region_m, start_m, lane_spacing_m: float) -> list[float]:
 
 
 def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]], start_m: tuple[float, float], *,
-                       lane_spacing_m: float = DEFAULT_LANE_SPACING_M) -> list[tuple[float, float]]:
+                       lane_spacing_m: float = DEFAULT_LANE_SPACING_M, sides: tuple[str, ...] = ("front",),
+                       walls=()) -> list[tuple[float, float]]:
     """Gripper base positions (x, y), metres, of the pokes over ``region_m`` from ``start_m``.
 
     The approach line is x = min(start x, region x_min - reach) (the fingertips at the region's near edge, or
@@ -75,16 +140,33 @@ def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]]
     deepest = max(x1 - FAR_SLACK_M, (x0 + x1) / 2.0) - _REACH_M  # base x of the deepest pokes
     n_rounds = max(1, math.ceil((deepest - line) / DEPTH_STEP_M - 1e-9))
     points = [(sx, sy), (line, sy)]
-    for r in range(1, n_rounds + 1):
-        depth = line + (deepest - line) * r / n_rounds
-        for y in lanes(region_m, start_m, lane_spacing_m):
-            points += [(line, y), (depth, y), (line, y)]
-    return points
+    if "front" in sides:
+        for r in range(1, n_rounds + 1):
+            depth = line + (deepest - line) * r / n_rounds
+            for y in lanes(region_m, start_m, lane_spacing_m):
+                points += [(line, y), (depth, y), (line, y)]
+    if not set(sides) - {"front"}:
+        return points
+    # Round the region on lines outside it, counter-clockwise, and where a wall bars a leg, as far as it lets the
+    # hand and back, then the other way round as far as it lets the hand and back.
+    legs = _side_legs(region_m, line, points[-1][1], lane_spacing_m)
+    for k, name in ((1, "right"), (2, "far"), (3, "left")):
+        if name not in sides:
+            legs[k] = (legs[k][0], legs[k][1], [])
+    clear = [all(separation(_swept_box(a, b), w) >= SIDE_CLEARANCE_M for w in walls) for a, b, _ in legs]
+    if all(clear):
+        return points + _walk(legs, False)
+    first, last = clear.index(False), len(clear) - 1 - clear[::-1].index(False)
+    out = _walk(legs[:first], False)
+    out += _walk([(a, b, []) for a, b, _ in legs[:first]][::-1], True)
+    way = legs[last + 1:][::-1]
+    out += _walk(way, True) + _walk([(a, b, []) for a, b, _ in way][::-1], False)
+    return points + out
 
 
 def coverage_passes(region_m: tuple[tuple[float, float], tuple[float, float]], start_m: tuple[float, float], *,
-                    scale_m: float = DEFAULT_ACTION_SCALE, lane_spacing_m: float = DEFAULT_LANE_SPACING_M
-                    ) -> tuple[tuple[float, float], ...]:
+                    scale_m: float = DEFAULT_ACTION_SCALE, lane_spacing_m: float = DEFAULT_LANE_SPACING_M,
+                    sides: tuple[str, ...] = ("front",), walls=()) -> tuple[tuple[float, float], ...]:
     """Normalised actions (u_x, u_y), each in [-1, 1], that move the gripper along :func:`coverage_waypoints`.
 
     Each leg between waypoints is cut into the fewest equal actions whose displacement is at most ``scale_m`` per
@@ -102,7 +184,7 @@ def coverage_passes(region_m: tuple[tuple[float, float], tuple[float, float]], s
     """
     if not (scale_m > 0.0 and math.isfinite(scale_m)):
         raise ValueError(f"action scale {scale_m!r}: expected a positive number of metres")
-    points = coverage_waypoints(region_m, start_m, lane_spacing_m=lane_spacing_m)
+    points = coverage_waypoints(region_m, start_m, lane_spacing_m=lane_spacing_m, sides=sides, walls=walls)
     actions: list[tuple[float, float]] = []
     for (ax, ay), (bx, by) in zip(points, points[1:]):
         dx, dy = bx - ax, by - ay

@@ -7,7 +7,8 @@ byte-identical files.
 from __future__ import annotations
 
 from pipeline.scenes.catalogue import PLANE_LATERAL_FRICTION, PLANE_SPINNING_FRICTION
-from pipeline.scenes.coverage import coverage_passes
+from pipeline.scenes.coverage import SIDES, coverage_passes
+from pipeline.scenes.footprint import wall_outline
 from pipeline.scenes.generate import GeneratorSpec, Layout
 from pipeline.scenes.types import DEFAULT_ACTION_SCALE, ObjectSpec
 
@@ -22,7 +23,8 @@ _ACTIONS_PER_LINE = 6
 def layout_actions(layout: Layout, spec: GeneratorSpec) -> tuple[tuple[float, float], ...]:
     """The rummage of a layout: coverage passes over its target region from its gripper start, nothing else."""
     return coverage_passes(layout.region, layout.start, scale_m=DEFAULT_ACTION_SCALE,
-                           lane_spacing_m=spec.lane_spacing_m)
+                           lane_spacing_m=spec.lane_spacing_m, sides=SIDES,
+                           walls=[wall_outline(w) for w in layout.walls])
 
 
 def describe(layout: Layout, n_actions: int) -> str:
@@ -71,6 +73,7 @@ def layout_toml(layout: Layout, spec: GeneratorSpec) -> str:
         "",
         "[actions]",
         f"scale = {_num(DEFAULT_ACTION_SCALE)}",
+        'replay = "guarded"  # waypoints followed in closed loop, a leg given up where an object stops it',
         "sequence = [",
     ]
     for k in range(0, len(actions), _ACTIONS_PER_LINE):

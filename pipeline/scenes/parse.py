@@ -14,6 +14,7 @@ from typing import Any
 from pipeline.scenes.footprint import containment_problem
 from pipeline.scenes.types import (
     DEFAULT_ACTION_SCALE,
+    REPLAYS,
     WORKSPACE_M,
     Effects,
     ObjectSpec,
@@ -213,10 +214,10 @@ def _parse_effects(r: _Reader | None, object_names: list[str]) -> Effects:
     )
 
 
-def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] | None, float]:
+def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] | None, float, str]:
     if r is None:
-        return None, DEFAULT_ACTION_SCALE
-    r.check_keys({"scale", "sequence"})
+        return None, DEFAULT_ACTION_SCALE, "open"
+    r.check_keys({"scale", "sequence", "replay"})
     scale = r.number("scale", DEFAULT_ACTION_SCALE, positive=True, maximum=MAX_ACTION_SCALE_M)
     seq = r.get("sequence")
     if not isinstance(seq, list) or not seq or len(seq) > MAX_ACTIONS:
@@ -228,7 +229,7 @@ def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] |
         if not ok:
             raise r.fail(f"sequence[{i}]", f"expected [u_x, u_y] with each in [-1, 1], got {a!r}")
         out.append((float(a[0]), float(a[1])))
-    return tuple(out), scale
+    return tuple(out), scale, r.string("replay", "open", choices=REPLAYS)
 
 
 def _parse_walk(r: _Reader | None) -> WalkSpec | None:
@@ -311,7 +312,7 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     if dup:
         raise r.fail("objects", f"duplicate object/wall names: {', '.join(dup)}")
     effects = _parse_effects(r.sub("effects"), [o.name for o in objects])
-    actions, scale = _parse_actions(r.sub("actions"))
+    actions, scale, replay = _parse_actions(r.sub("actions"))
     walk = _parse_walk(r.sub("walk"))
     region = _parse_target_region(r.sub("target_region"), objects)
     if kind == "retrieval":
@@ -330,5 +331,6 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     if impossible:
         raise r.fail("objects", impossible)
     return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
-                 objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, walk=walk,
+                 objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, replay=replay,
+                 walk=walk,
                  target_region=region, notes=r.string("notes", ""))

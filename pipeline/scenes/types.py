@@ -21,6 +21,8 @@ __all__ = ["DEFAULT_ACTION_SCALE", "WORKSPACE_M", "SceneError", "Plane", "Object
 #: Normalised actions are multiplied by this (m) to give a displacement (the authors' MAX_PUSH_DIST; docs/simulation.md,
 #: "Scenes are data").
 DEFAULT_ACTION_SCALE = 0.03
+#: How a scripted sequence may be replayed (``[actions] replay``; :class:`Scene`).
+REPLAYS = ("open", "guarded")
 #: The table top, ((x_min, y_min), (x_max, y_max)) in metres: every shipped scene's objects, walls and walk bounds
 #: lie in it. A scene's ``[target_region]`` must lie in it, and is it when the file declares none
 #: (docs/simulation.md, "Scenes are data").
@@ -216,6 +218,10 @@ class Scene:
         The hand-made sequence in normalised units, each axis in [-1, 1].
     action_scale : float, metres
         Displacement per unit action.
+    replay : {"open", "guarded"}
+        How the scripted policy replays ``actions``: ``open`` adds each action to wherever the gripper is (the
+        paper's tasks); ``guarded`` follows the sequence's waypoints in closed loop and gives up a leg an object
+        stops (:mod:`pipeline.guarded_replay`; the generated scenes).
     walk : WalkSpec or None
     target_region : ((float, float), (float, float)), metres
         ((x_min, y_min), (x_max, y_max)): the rectangle of the plane the user knows the target lies in (prior
@@ -236,6 +242,7 @@ class Scene:
     effects: Effects
     actions: tuple[tuple[float, float], ...] | None = None
     action_scale: float = DEFAULT_ACTION_SCALE
+    replay: str = "open"
     walk: WalkSpec | None = None
     target_region: tuple[tuple[float, float], tuple[float, float]] = WORKSPACE_M
     notes: str = field(default="", compare=False)
