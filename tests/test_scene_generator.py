@@ -318,3 +318,8 @@ def test_a_scene_without_a_passing_draw_is_one_line(tmp_path, monkeypatch):
     assert r.exit_code == 1 and len(lines) == 1 and "Traceback" not in r.output, r.output
     assert "scene 0 of seed 4: no draw passed in 3 (failed the settling check x" in lines[0]
     assert not list(out.glob("*.toml"))
+
+
+def test_an_unknown_side_is_refused():
+    with pytest.raises(ValueError, match="sides"):
+        coverage_waypoints(((0.2, -0.2), (0.6, 0.2)), (0.0, 0.0), sides=("front", "back"))

@@ -1,14 +1,16 @@
-"""Pokes: a generic rummage of a rectangle, built from the rectangle and the gripper start alone.
+"""Pokes: a generic rummage of a rectangle, built from the rectangle, the gripper start and the walls alone.
 
 The generated scenes' ``[actions] sequence`` (:mod:`pipeline.scenes.generate`), and meant for exploration policies
 that know where the target may lie but nothing of the objects: :func:`coverage_passes` never sees an object pose.
 
-Like the paper's hand-typed rummages (``data/scenes/FB.toml`` ...), it pokes into the clutter from the side the
-gripper starts on and pulls back, rather than ploughing whole lanes sideways: from an approach line before the
-region, straight moves along +x into the region at several lateral offsets (lanes), each followed by a retreat
+Like the paper's hand-typed rummages (``data/scenes/FB.toml`` ...), it pokes into the clutter and pulls back,
+rather than ploughing whole lanes sideways. First from the side the gripper starts on: from an approach line before
+the region, straight moves along +x into the region at several lateral offsets (lanes), each followed by a retreat
 along the same line; the pokes of a round all reach the same depth, each round deeper than the last, so an object
 is pushed at most one round's depth step by a poke and touched again from the neighbouring lanes (the hand, 0.2 m
-wide, overlaps them) before it is pushed further.
+wide, overlaps them) before it is pushed further. Then, with more ``sides``, from lines round the region outside it
+(-y, the far side, +y) to its middle, where the walls leave the hand room (docs/scene_generator.md, "The target
+region and the rummage"): a target hidden behind the clutter from the start is often in view from another side.
 """
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ import numpy as np
 from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, separation
 from pipeline.scenes.types import DEFAULT_ACTION_SCALE
 
-__all__ = ["coverage_passes", "coverage_waypoints", "lanes", "DEFAULT_LANE_SPACING_M", "DEPTH_STEP_M", "FAR_SLACK_M"]
+__all__ = ["coverage_passes", "coverage_waypoints", "lanes", "DEFAULT_LANE_SPACING_M", "DEPTH_STEP_M", "FAR_SLACK_M",
+           "SIDES", "SIDE_CLEARANCE_M"]
 
 #: Lateral distance between two lanes, metres, at most: the hand is 0.2 m wide (y), so neighbouring pokes overlap.
 DEFAULT_LANE_SPACING_M = 0.2
@@ -120,7 +123,9 @@ def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]]
     the start's if it lies further back). The depth from the line's fingertips to ``FAR_SLACK_M`` before the
     region's far x edge is split into the fewest equal steps of at most ``DEPTH_STEP_M``; round r pokes every lane
     (:func:`lanes`) to r steps deep. A poke is: along the approach line to the lane's y, straight in along +x,
-    straight back out to the line.
+    straight back out to the line. The other ``sides`` follow, on a round of the region (:func:`_side_legs`): each
+    leg kept only where the hand's swept rectangle stays ``SIDE_CLEARANCE_M`` from every wall; with a leg barred,
+    the hand goes round as far as the first barred leg and back, then the other way as far as the last and back.
 
     Parameters
     ----------
@@ -129,7 +134,14 @@ def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]]
         Gripper base at the start.
     lane_spacing_m : float, metres
         Largest lateral distance between lanes, > 0.
+    sides : tuple of str
+        Among :data:`SIDES` ("front" only: the start's side, as before the round was added).
+    walls : sequence of ndarray, shape (4, 2)
+        Outlines of the scene's walls, metres (static geometry, known to the robot).
     """
+    unknown = sorted(set(sides) - set(SIDES))
+    if unknown:
+        raise ValueError(f"sides {unknown}: expected some of {', '.join(SIDES)}")
     (x0, y0), (x1, y1) = region_m
     if not (x0 < x1 and y0 < y1):
         raise ValueError(f"region {region_m}: expected min < max on both axes")
