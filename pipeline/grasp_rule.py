@@ -93,7 +93,7 @@ def _box_faces(world, base, approach, closing, local, hx, hy, corner_margin, ok)
                 band[k] = d >= lo and d <= hi
                 any_band = any_band or band[k]
             good = any_band
-            face = np.zeros(2)
+            face0 = face1 = 0.0
             for f in range(2):
                 sign = 1.0 if f == 0 else -1.0
                 reach = -np.inf
@@ -110,8 +110,11 @@ def _box_faces(world, base, approach, closing, local, hx, hy, corner_margin, ok)
                 y_mean = pairwise_sum(ys, 0, K) / n
                 x_mean = pairwise_sum(xs, 0, K) / n
                 good = good and reach <= OPEN and abs(y_mean) <= hy - corner_margin and abs(x_mean) >= hx - 0.002
-                face[f] = np.sign(x_mean)
-            ok[g, h] = good and face[0] != face[1]
+                if f == 0:
+                    face0 = np.sign(x_mean)
+                else:
+                    face1 = np.sign(x_mean)
+            ok[g, h] = good and face0 != face1
 
 
 def can_success(prim: Primitive, poses: np.ndarray, yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray,

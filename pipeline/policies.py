@@ -67,7 +67,9 @@ class Policy(Protocol):
 
 
 class ScriptedPolicy:
-    """The scene's action sequence with replay noise drawn once before the run (``noise_rng``)."""
+    """The scene's action sequence with replay noise (``noise_rng``): drawn once before the run and added to each
+    action (``[actions] replay = "open"``), or drawn per action as the guarded replay drives the gripper through the
+    sequence's waypoints (``"guarded"``, :class:`pipeline.guarded_replay.GuardedReplay`)."""
 
     discards = False
     goal = None

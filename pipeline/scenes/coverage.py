@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, separation
+from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, bounding_box, gripper_outline, separation
 from pipeline.scenes.types import DEFAULT_ACTION_SCALE
 
 __all__ = ["coverage_passes", "coverage_waypoints", "lanes", "DEFAULT_LANE_SPACING_M", "DEPTH_STEP_M", "FAR_SLACK_M",
@@ -51,9 +51,7 @@ def _strips(lo: float, hi: float, width: float) -> list[float]:
 def _swept_box(a: Point, b: Point) -> np.ndarray:
     """Outline (4, 2) of the rectangle the hand covers moving straight from base ``a`` to base ``b`` (axis-aligned
     moves: exact; others: a cover)."""
-    (gx0, gy0), (gx1, gy1) = GRIPPER_OUTLINE_M
-    x0, x1 = min(a[0], b[0]) + gx0, max(a[0], b[0]) + gx1
-    y0, y1 = min(a[1], b[1]) + gy0, max(a[1], b[1]) + gy1
+    (x0, y0), (x1, y1) = bounding_box([gripper_outline(a), gripper_outline(b)])
     return np.array([[x1, y0], [x1, y1], [x0, y1], [x0, y0]])
 
 
@@ -105,8 +103,8 @@ def lanes(region_m, start_m, lane_spacing_m: float) -> list[float]:
     the others towards the region's nearer y edge, then those on the other side, outward (the approach line's
     sideways moves add up to less than twice the region's width)."""
     (_, y0), (_, y1) = region_m
-    k = max(1, math.ceil((y1 - y0) / lane_spacing_m - 1e-9))
-    ys = [y0 + (i + 0.5) * (y1 - y0) / k for i in range(k)]
+    ys = _strips(y0, y1, lane_spacing_m)
+    k = len(ys)
     sy = float(start_m[1])
     near = min(range(k), key=lambda i: (abs(ys[i] - sy), i))
     if near <= k - 1 - near:  # the lower y edge is the nearer
