@@ -229,6 +229,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         after, n_first = getattr(mover, "after", None), len(rows)
         extra = None if after is None else after(world, rows, partial(summarize_action, det=det),
                                                  lambda: _build_table(scene, seed, rows), seed, root_seed)
+        # a policy that acts only in its second phase (explore: a search, then probes) says where its probes begin
+        n_first = getattr(mover, "probes_from", n_first)
     table = _build_table(scene, seed, rows, None if extra is None else n_first)
     labels = table.column("object_id").to_numpy()
     fr = np.column_stack([table.column("force_rep_x_n").to_numpy(), table.column("force_rep_y_n").to_numpy()])

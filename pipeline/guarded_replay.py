@@ -60,15 +60,22 @@ class GuardedReplay:
         Replay noise (``noise_mm`` half-width per axis, as the open-loop replay's) of each action, drawn as it is
         made.
     noise_mm : float
+    stall_actions : int
+        Consecutive stalled actions that give up a leg (:data:`STALL_ACTIONS`).
+    stall_share : float
+        An action in contact that advances less than this share of its commanded length is stalled
+        (:data:`STALL_SHARE`; infinite: every action in contact, so a leg with ``stall_actions`` 1 ends at its
+        first contact).
     """
 
     def __init__(self, actions: np.ndarray, start: np.ndarray, scale: float, noise_rng: np.random.Generator,
-                 noise_mm: float) -> None:
+                 noise_mm: float, stall_actions: int = STALL_ACTIONS, stall_share: float = STALL_SHARE) -> None:
         self.waypoints = legs(actions, start, scale)
         self.scale, self.noise_rng, self.noise_mm = scale, noise_rng, noise_mm
         self.limit = MAX_ACTIONS_FACTOR * len(np.asarray(actions).reshape(-1, 2))
         self.leg = 0
         self.stalls = 0
+        self.stall_actions, self.stall_share = int(stall_actions), float(stall_share)
         self.given_up: list[int] = []  # legs given up, in order
         self._last: tuple[np.ndarray, np.ndarray] | None = None  # (position before, displacement commanded)
 
@@ -81,8 +88,8 @@ class GuardedReplay:
             length = math.hypot(cmd[0], cmd[1])
             moved = here - before
             advance = (moved[0] * cmd[0] + moved[1] * cmd[1]) / length if length > 0.0 else 0.0
-            self.stalls = self.stalls + 1 if last_contact and advance < STALL_SHARE * length else 0
-            if self.stalls >= STALL_ACTIONS:
+            self.stalls = self.stalls + 1 if last_contact and advance < self.stall_share * length else 0
+            if self.stalls >= self.stall_actions:
                 self.given_up.append(self.leg)
                 self.leg += 1
                 self.stalls = 0

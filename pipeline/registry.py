@@ -343,6 +343,12 @@ register(PolicySpec("scripted+probe", "the scripted actions, then probes until t
                     "pipeline.probe.mover:ScriptedProbePolicy", params="pipeline.probe.policy:ProbeParams",
                     needs=(("actions", "action sequence"),), retrieval="pipeline.probe.retrieval:active_row",
                     side_files=(".probe_s.json",), save_side_files="pipeline.probe.report:save_collect_times"))
+register(PolicySpec("explore", "no action list: a guarded search of the scene's target region from the start, then "
+                               "probes until the target's pose is known, and a grasp for the whole plausible set, "
+                               "within one action budget",
+                    "pipeline.probe.explore:ExplorePolicy", params="pipeline.probe.explore:ExploreParams",
+                    retrieval="pipeline.probe.retrieval:active_row", side_files=(".probe_s.json",),
+                    save_side_files="pipeline.probe.report:save_collect_times"))
 register(PolicySpec("rummage", "the scene's action sequence played again and again from the scene's starting "
                                "state until a given number of actions end in contact (long runs for `bench scale "
                                "--contacts`)",

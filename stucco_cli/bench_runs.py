@@ -1,5 +1,5 @@
-"""`stucco bench retrieval`, `bench pushes` and `bench probe`: benchmarks over collected runs (an evaluation
-directory's, or the active protocol's)."""
+"""`stucco bench retrieval`, `bench pushes`, `bench probe` and `bench explore`: benchmarks over collected runs (an
+evaluation directory's, the active protocol's or the explore policy's)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -141,4 +141,49 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
                    f"{s['probes_mean']:.2f} | "
                    f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['moved_mm_median']:.1f} / "
                    f"{s['turned_rad_median']:.3f} | {s['wide']} |")
+    say(settings, f"-> {', '.join(str(p) for p in paths)}")
+
+
+@click.command("explore")
+@click.option("--scenes", default="FB,BC,IB,TC", show_default=True,
+              help="Comma-separated retrieval tasks, scene files or folders of scene files (each with a target "
+                   "region).")
+@click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
+@click.option("--budgets", default="100,200,400,2000", show_default=True, help="Action budgets (actions per run).")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/explore/runs"), show_default=True,
+              help="Run files of `collect --policy explore`, one folder per budget (made here when missing).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/explore"), show_default=True,
+              help="explore_budget.csv, explore_budget_summary.csv, explore_budget.png.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Where the PNG goes instead (e.g. docs/img/explore_budget.png).")
+@global_options()
+@pass_settings
+def bench_explore(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
+    """The explore policy: grasp success against its action budget and against its decision time, per task
+    and per target shape of other scenes (docs/active.md)."""
+    writable_dir("--out", out_dir)
+    from pipeline.collect import parse_seeds
+    from pipeline.evaluate.config import parse_scenes, scene_files
+    from pipeline.studies.explore_budget import budget_rows, summarise, write_outputs
+
+    names = parsed("--scenes", lambda t: parse_scenes(t, files=True), scenes)
+    files = {name: path for name, path, _ in parsed("--scenes", scene_files, scenes)}
+    seed_list = parsed("--seeds", parse_seeds, seeds)
+    budget_list = tuple(sorted(set(parse_ints("--budgets", budgets, lo=1, hi=100_000))))
+    if not budget_list:
+        raise click.BadParameter("expected at least one budget", param_hint="--budgets")
+    with user_errors("bench explore"):
+        rows = budget_rows([(files.get(sc, sc), s) for sc in names for s in seed_list], runs_dir, budget_list,
+                           settings.seed, jobs=settings.jobs, progress=run_bar(settings, "explore"))
+        summary = summarise(rows)
+        paths = write_outputs(rows, summary, out_dir, png)
+    click.echo("| group | budget | runs | GS % first attempt | GS % within the attempts | actions (median / max) | "
+               "probes | decision s (median / max) | budget spent |")
+    click.echo("|---|---|---|---|---|---|---|---|---|")
+    for s in summary:
+        click.echo(f"| {s['group']} | {s['budget']} | {s['runs']} | {s['gs_pct']:.0f} | {s['gs_any_pct']:.0f} | "
+                   f"{s['actions_median']:.0f} / {s['actions_max']} | {s['probes_mean']:.2f} | "
+                   f"{s['decision_s_median']:.3f} / {s['decision_s_max']:.3f} | {s['budget_spent']} |")
     say(settings, f"-> {', '.join(str(p) for p in paths)}")

@@ -125,3 +125,27 @@ def test_a_guarded_scene_collects_with_the_scripted_policy_and_ends_where_planne
     planned = np.asarray(scene.gripper_start) + np.sum(np.asarray(short.actions), axis=0) * short.action_scale
     end = np.array([a.column("ee_x_m")[-1].as_py(), a.column("ee_y_m")[-1].as_py()])
     assert np.hypot(*(end - planned)) < 0.002
+
+
+def test_touch_mode_gives_a_leg_up_at_its_first_contact_even_when_the_object_gives_way():
+    # the object is met at x > 0.05 and gives way (the gripper still advances): the guarded rule pushes it along the
+    # whole leg; with stall_actions 1 and an infinite stall share the leg ends at the first action in contact
+    import math
+
+    actions = [[1.0, 0.0]] * 6 + [[-1.0, 0.0]] * 6
+    touch = GuardedReplay(np.asarray(actions), np.zeros(2), SCALE, np.random.default_rng(0), 0.0,
+                          stall_actions=1, stall_share=math.inf)
+    trail = _drive(touch, (0.0, 0.0), blocked=lambda here, u: False)
+    assert trail[:, 0].max() == pytest.approx(0.18)  # nothing in contact: the whole poke
+    touch = GuardedReplay(np.asarray(actions), np.zeros(2), SCALE, np.random.default_rng(0), 0.0,
+                          stall_actions=1, stall_share=math.inf)
+    here, contact, xs = np.zeros(2), False, []
+    for _ in range(40):
+        u = touch.next(here, contact)
+        if u is None:
+            break
+        here = here + u * SCALE  # the object gives way: every action advances in full
+        contact = here[0] > 0.05 + 1e-9
+        xs.append(here[0])
+    assert max(xs) == pytest.approx(0.06) and touch.given_up == [0]
+    assert here == pytest.approx([0.0, 0.0], abs=ARRIVED_M)

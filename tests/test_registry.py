@@ -28,7 +28,7 @@ def test_builtin_names_in_report_order_with_the_default_first():
     assert registry.baseline_names() == ("birch", "dbscan", "kmeans", "gmphd")
     assert registry.estimator_names() == ("plausible", "paper", "pushtrack")
     assert registry.DEFAULT_ESTIMATOR == "plausible" and registry.estimator("paper").needs == ("every_step",)
-    assert registry.policy_names() == ("scripted", "greedy-walk", "scripted+probe", "rummage")
+    assert registry.policy_names() == ("scripted", "greedy-walk", "scripted+probe", "explore", "rummage")
     assert registry.default_policy("retrieval") == "scripted" and registry.default_policy("training") == "greedy-walk"
     assert registry.method_title("stucco") == "ours (STUCCO)"
     assert registry.method_title("unregistered") == "unregistered"

@@ -41,15 +41,15 @@ from pipeline.probe.planning import ProbePlan, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
 
-__all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "required_contacts",
-           "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]
+__all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "recorder", "run_record",
+           "required_contacts", "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]
 
 
 def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int, target: Primitive,
               start: np.ndarray, params: ProbeParams = ProbeParams(),
               grasp_path: Callable[[PoseSet], Callable[[np.ndarray], np.ndarray]] | None = None,
               grasp_share: Callable[[PoseSet], float] | None = None, mass: float = float("nan"),
-              scene=None) -> ProbeLog:
+              scene=None, action_limit: int | None = None) -> ProbeLog:
     """Probe until the plausible set agrees or the budget is spent.
 
     Parameters
@@ -81,6 +81,10 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         estimator's set after the scripted part is then the prior of every set fitted to the segment it tracked
         (:mod:`pipeline.probe.history`). Its target region (:func:`pipeline.probe.belief.declared_region`) is where
         the no-segment prior puts its hypotheses.
+    action_limit : int, optional
+        Most actions of the probes (transits, steps, back-offs), checked before each probe (a probe under way
+        ends; the return after the last probe is not counted): an explorer's action budget
+        (:mod:`pipeline.probe.explore`). None: only ``params.budget`` probes limit them.
 
     Returns
     -------
@@ -153,13 +157,14 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 log.history[-1].update(stop=bool(done), held=float(held))
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
-        plan = None if done or log.probes >= limit else next_probe(target, belief, sensing, outline, obstacles, log,
+        spent = log.probes >= limit or action_limit is not None and log.actions >= action_limit
+        plan = None if done or spent else next_probe(target, belief, sensing, outline, obstacles, log,
                                                                    short, params)
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
             if not done:
-                log.flagged = "budget_spent" if log.probes >= limit else "no_reachable_probe"
+                log.flagged = "budget_spent" if spent else "no_reachable_probe"
             if log.probes:
                 # Back through visited space to where the grasp's move to its pre-grasp point (straight lines) keeps
                 # clear of the target, else where the scripted part ended: from the far side it would sweep it.
@@ -228,18 +233,10 @@ def _quantiles(t: np.ndarray, w: np.ndarray) -> list[float]:
     return [float(v) if np.isfinite(v) else None for v in q]
 
 
-def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: Callable, table: Callable,
-               params: ProbeParams | None = None) -> tuple[dict, list]:
-    """The collect stage's hook: probe in ``world`` after the scripted actions of ``rows``.
-
-    Each probe action is simulated by ``world.act`` (no replay noise), summarised by ``summarize`` (the collect
-    stage's :func:`pipeline.collect.summarize_action`) and appended to ``rows`` with the columns the scripted
-    actions have; ``table()`` builds the run's table from ``rows``. Returns what the run file's metadata records
-    under ``probe`` (the parameters and the :class:`ProbeLog` but its wall times) and those wall times
-    (``decision_s``: a list; ``prior_s``; seconds).
-    """
-    params = params if params is not None else ProbeParams()
-    scale = scene.action_scale
+def recorder(world, scale: float, rows: list, summarize: Callable) -> Act:
+    """The ``act`` callback of a policy acting in ``world``: simulates one action (dx, dy), metres, appends its row
+    (:func:`pipeline.collect.summarize_action`'s ``summarize``, plus the commanded action with ``scale`` metres per
+    unit and the objects' poses and distances) to ``rows`` and returns it."""
 
     def act(dx: float, dy: float) -> dict:
         row = summarize(world.act(dx, dy))
@@ -249,6 +246,22 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
         rows.append(row)
         return row
 
+    return act
+
+
+def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: Callable, table: Callable,
+               params: ProbeParams | None = None, action_limit: int | None = None) -> tuple[dict, list]:
+    """The collect stage's hook: probe in ``world`` after the scripted actions of ``rows``.
+
+    Each probe action is simulated by ``world.act`` (no replay noise), summarised by ``summarize`` (the collect
+    stage's :func:`pipeline.collect.summarize_action`) and appended to ``rows`` with the columns the scripted
+    actions have; ``table()`` builds the run's table from ``rows``; ``action_limit`` is :func:`probe_run`'s.
+    Returns what the run file's metadata records under ``probe`` (the parameters and the :class:`ProbeLog` but its
+    wall times) and those wall times (``decision_s``: a list; ``prior_s``; seconds).
+    """
+    params = params if params is not None else ProbeParams()
+    scale = scene.action_scale
+    act = recorder(world, scale, rows, summarize)
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     start = np.array([rows[0]["ee_start_x_m"], rows[0]["ee_start_y_m"]])
     prim = primitive_of(scene.objects[tid])
@@ -261,8 +274,14 @@ def run_policy(world, scene, seed: int, root_seed: int, rows: list, summarize: C
         return choose_grasp(scene, prim, belief.poses, belief.weights, belief.best).share
 
     log = probe_run(act, table, f"{scene.name}/{seed}", root_seed, prim, start, params, grasp_path, grasp_share,
-                    mass=target_mass(scene), scene=scene)
+                    mass=target_mass(scene), scene=scene, action_limit=action_limit)
+    return run_record(params, log), {"decision_s": log.decision_s, "prior_s": log.prior_s}
+
+
+def run_record(params: ProbeParams, log: ProbeLog) -> dict:
+    """What a run file's metadata records under ``probe``: the parameters and the :class:`ProbeLog` but its wall
+    times, which would make the run file differ between identical runs."""
     meta = {"params": params.to_dict(), **log.to_dict()}
     for wall in ("decision_s", "prior_s"):
-        meta.pop(wall)  # wall times would make the run file differ between identical runs
-    return meta, {"decision_s": log.decision_s, "prior_s": log.prior_s}
+        meta.pop(wall)
+    return meta

@@ -78,8 +78,9 @@ SIM_RUN_COLUMNS: tuple[Column, ...] = (
                                              "(negative: penetration); NaN for bodies not built.",
            shape=(None,), nan_means_missing=True, **_POS),
     Column("probe", pa.bool_(), "", False, "The action is the probing policy's (`stucco collect --policy "
-                                           "scripted+probe`, docs/retrieval.md, \"Active retrieval\"), not the "
-                                           "scripted part's; absent from runs of the other policies.",
+                                           "scripted+probe` or `explore`, docs/retrieval.md, \"Active "
+                                           "retrieval\"), not the scripted part's (nor the explore policy's "
+                                           "search); absent from runs of the other policies.",
            required=False),
 )
 

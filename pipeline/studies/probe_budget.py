@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import schema
-from pipeline.atomic import atomic_path, together, write_csv_rows
+from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
@@ -184,7 +184,5 @@ def write_outputs(rows: list[dict], summary: list[dict], out: str | Path, png: s
     ax.set_title("Active retrieval: grasp success against probe budget")
     fig.tight_layout()
     paths[2].parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(paths[2]) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, paths[2], dpi=120)
     return paths
