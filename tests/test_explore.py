@@ -206,3 +206,40 @@ def test_evaluate_runs_the_explore_policy_end_to_end(tmp_path):
     scores = [schema.read_table(f, "scores") for f in (out / "scores").rglob("*.parquet")]
     assert sum(t.num_rows for t in scores) == 1
     assert scores[0].column("grasp_attempts")[0].as_py() >= 1
+
+
+def _without_actions(path: Path) -> Path:
+    """The scene file at ``path`` with its [actions] table removed (what the explore policy needs is left)."""
+    text = re.sub(r"\[actions\].*?\]\n(?=\n|\[)", "", path.read_text(), flags=re.S)
+    assert "[actions]" not in text
+    out = path.with_name("NOACT.toml")
+    out.write_text(text.replace('name = "TCSMALL"', 'name = "NOACT"', 1))
+    return out
+
+
+def test_a_scene_without_an_action_list_is_explored_and_refused_by_the_scripted_policy(tmp_path):
+    from click.testing import CliRunner
+
+    from stucco_cli.main import cli
+
+    path = _without_actions(_small_tc_file(tmp_path))
+    scene = load_scene(path)
+    assert scene.actions is None and scene.kind == "retrieval"
+    table, meta, _ = collect_run(scene, 0, policy="explore", policy_params=ExploreParams(action_budget=3))
+    assert table.num_rows == 3 and meta["probe"]["search"]["actions"] == 3
+    with pytest.raises(SceneError, match="'actions'"):
+        collect_run(scene, 0, policy="scripted")
+    r = CliRunner().invoke(cli, ["-q", "--seed", "0", "evaluate", "--scenes", str(path), "--seeds", "0",
+                                 "--methods", "stucco", "--estimators", "plausible", "--no-figures",
+                                 "--out", str(tmp_path / "ev")])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    last = [line for line in r.output.splitlines() if line.strip()][-1]
+    assert str(path) in last and "'actions'" in last and "--policy explore" in last
+
+
+def test_a_retrieval_scene_without_actions_needs_a_region(tmp_path):
+    path = _without_actions(_small_tc_file(tmp_path))
+    text = re.sub(r"\[target_region\][^\n]*\nmin = [^\n]*\nmax = [^\n]*\n", "", path.read_text())
+    path.write_text(text)
+    with pytest.raises(SceneError, match="target_region"):
+        load_scene(path)

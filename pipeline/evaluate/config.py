@@ -146,9 +146,10 @@ def _split(text: str) -> list[str]:
 def parse_scenes(text: str, files: bool = False) -> tuple[str, ...]:
     """``"FB,BC"`` or ``"all"`` -> scene names; ValueError (one line) for a scene that cannot be evaluated.
 
-    A scene can be evaluated when it has a scripted action sequence and a target (``kind = "retrieval"``). A
-    scene file whose content is not the shipped scene of its name is accepted only with ``files`` (callers that
-    pass :func:`scene_files` on, as ``stucco evaluate`` does): stages look scenes up by name.
+    A scene can be evaluated when it has a target (``kind = "retrieval"``; the collection policy may need more,
+    e.g. the scripted ones an action sequence, checked when the evaluation starts). A scene file whose content is
+    not the shipped scene of its name is accepted only with ``files`` (callers that pass :func:`scene_files` on, as
+    ``stucco evaluate`` does): stages look scenes up by name.
     """
     return tuple(name for name, _, _ in _scenes(text, files))
 
@@ -192,8 +193,8 @@ def _scenes(text: str, files: bool) -> list[tuple[str, str, Scene | None]]:
         except SceneError:
             raise ValueError(f"unknown scene {n!r}; expected some of {', '.join(scene_names())} "
                              f"(retrieval tasks: {', '.join(SCENES)})") from None
-        if sc.actions is None or sc.target is None:
-            raise ValueError(f"scene {n!r} is a training scene (no scripted actions or no target); "
+        if sc.target is None:
+            raise ValueError(f"scene {n!r} is a training scene (no target); "
                              f"evaluate retrieval tasks: {', '.join(SCENES)}")
         if not files and not _shipped(sc):
             raise ValueError(f"{sc.path}: is not the shipped scene {sc.name!r}; this command runs shipped scenes "

@@ -14,7 +14,7 @@ from pathlib import Path
 import pyarrow as pa
 from tqdm import tqdm
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.atomic import exclusive
 from pipeline.evaluate.config import EvalConfig, Job, check_config, config_lines
 from pipeline.evaluate.freshness import Digests, figure_stale, job_stale_stages, shared_stale_stages
@@ -116,6 +116,7 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         if scenes is None or seeds is None:
             raise ValueError("scenes and seeds are required unless runs are replayed from a directory")
         pairs = [(sc, int(s)) for sc in scenes for s in seeds]
+        _check_policy_needs(cfg, scenes)
     # One evaluation at a time per folder: two with different settings would otherwise interleave their
     # partitions and evaluation.json could describe settings the stored files were not made with.
     with exclusive(out, LOCK):
@@ -180,3 +181,15 @@ def _shared_times(job_list: Sequence[Job], paths: dict[Job, JobPaths], stale: di
             times = {s: v for s, v in stored_stage_s(siblings).items() if s in SHARED_STAGES}
         known[key] = {**times, **ran}
     return known
+
+
+def _check_policy_needs(cfg: EvalConfig, scenes: Sequence[str]) -> None:
+    """ValueError (one line) naming the first scene without a key its collection policy reads (a scene without an
+    action list under a scripted policy), before any job starts."""
+    spec = registry.policy(cfg.collect_policy)
+    for name in scenes:
+        scene = cfg.scene(name)
+        for key, what in spec.needs:
+            if getattr(scene, key, None) is None:
+                raise ValueError(f"{scene.path}: key {key!r}: the {spec.name} policy needs the scene's {what} "
+                                 "(--policy explore needs none)")

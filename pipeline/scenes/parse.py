@@ -316,8 +316,9 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     walk = _parse_walk(r.sub("walk"))
     region = _parse_target_region(r.sub("target_region"), objects)
     if kind == "retrieval":
-        if actions is None:
-            raise r.fail("actions", "a retrieval scene needs [actions] with a sequence")
+        if actions is None and r.sub("target_region") is None:
+            raise r.fail("actions", "a retrieval scene needs [actions] with a sequence, or a [target_region] to "
+                                    "search (the explore policy)")
         if start is None:
             raise r.fail("gripper.start", "a retrieval scene needs the gripper start [x, y]")
         if sum(o.target for o in objects) != 1:
