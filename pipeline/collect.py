@@ -272,13 +272,15 @@ def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 
 
 def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str | None = None, root_seed: int = 0,
             jobs: int = 1, progress: bool | None = None, max_actions: int | None = None,
-            keep_discarded: bool = False) -> list[CollectResult]:
+            keep_discarded: bool = False, policy_params=None) -> list[CollectResult]:
     """Collect runs of ``scene`` for ``seeds`` into ``out_dir``, ``jobs`` processes in parallel.
 
     Parameters
     ----------
     progress : bool or None
         tqdm's ``disable`` (True: no bar; None: bar only on a TTY).
+    policy_params : dict, dataclass instance or None
+        The policy's own parameters (:func:`collect_run`'s).
 
     Returns
     -------
@@ -289,7 +291,7 @@ def collect(scene: Scene, seeds: list[int], out_dir: str | Path, *, policy: str 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     job = partial(collect_file, root_seed=root_seed, policy=policy, max_actions=max_actions,
-                  keep_discarded=keep_discarded)
+                  keep_discarded=keep_discarded, policy_params=policy_params)
     args = [(scene, s, output_path(out_dir, scene.name, s)) for s in seeds]
     bar = tqdm(total=len(seeds), desc=f"collect {scene.name}", unit="run", disable=progress)
     try:

@@ -154,6 +154,34 @@ def parsed(param_hint: str, parse, text):
         raise click.BadParameter(str(e), param_hint=param_hint) from None
 
 
+def policy_params(values: tuple[str, ...], policy: str) -> tuple[tuple[str, object], ...]:
+    """``--policy-param NAME=VALUE`` options -> ((name, value), ...), each value read as JSON where it is JSON
+    (``400``, ``0.02``, ``["front", "far"]``) and as text otherwise (``touch``), checked against ``policy``'s
+    parameter class: click's one-line "Invalid value for '--policy-param'" otherwise."""
+    import json
+
+    from pipeline import registry
+
+    out = []
+    for item in values:
+        name, eq, text = item.partition("=")
+        if not eq or not name.strip():
+            raise click.BadParameter(f"expected NAME=VALUE, got {item!r}", param_hint="'--policy-param'")
+        try:
+            value = json.loads(text)
+        except ValueError:
+            value = text
+        out.append((name.strip(), value))
+    names = [n for n, _ in out]
+    if len(set(names)) != len(names):
+        raise click.BadParameter(f"{names[0]} given twice", param_hint="'--policy-param'")
+    try:
+        registry.build_params(registry.policy(policy), dict(out))
+    except (ValueError, TypeError) as e:
+        raise click.BadParameter(f"--policy {policy}: {e}", param_hint="'--policy-param'") from None
+    return tuple(out)
+
+
 def unique(param_hint: str, values: tuple) -> tuple:
     """``values`` unless one is given twice: click's one-line "Invalid value for PARAM_HINT" (exit code 2)."""
     twice = [v for i, v in enumerate(values) if v in values[:i]]

@@ -6,7 +6,17 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.common import JOBS, Settings, global_options, parsed, pass_settings, unique, user_errors, writable_dir
+from stucco_cli.common import (
+    JOBS,
+    Settings,
+    global_options,
+    parsed,
+    pass_settings,
+    policy_params,
+    unique,
+    user_errors,
+    writable_dir,
+)
 from stucco_cli.progress import bars_off
 
 
@@ -47,6 +57,9 @@ from stucco_cli.progress import bars_off
               help="How the retrieval scenes are collected [the retrieval default, scripted: the paper's protocol]; "
                    "scripted+probe: the active protocol, probes until the target's pose is known, then a grasp for "
                    "the whole plausible set (docs/retrieval.md, \"Active retrieval\").")
+@click.option("--policy-param", "policy_param", multiple=True, metavar="NAME=VALUE",
+              help="A parameter of the collection policy, e.g. action_budget=400 for --policy explore (repeatable; "
+                   "docs/active.md).")
 @click.option("--estimator-stream", "estimator_stream", type=click.IntRange(min=0), default=0, show_default=True,
               help="The pose estimators' random stream: 0 the default; 1, 2, ... rerun every stochastic estimator "
                    "with independent draws on the same segments, to see how much of a grasp success is its luck "
@@ -56,7 +69,7 @@ from stucco_cli.progress import bars_off
 def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods: str, out_dir: Path | None,
              jobs: int | None, quick: bool, from_runs: Path | None, max_actions: int | None, restarts: int,
              estimators: str, figures: bool, snapshot_dir: Path | None, suite: str, backend: str,
-             scheduler: str | None, policy: str | None, estimator_stream: int) -> None:
+             scheduler: str | None, policy: str | None, estimator_stream: int, policy_param: tuple[str, ...]) -> None:
     """Run collect -> isolate -> track -> segment -> retrieve -> score for every (scene, seed, method), resuming
     where a previous call stopped, and write Table II (report.md, report.csv) and figures into --out."""
     for opt, d in (("--out", out_dir), ("--snapshot", snapshot_dir)):
@@ -104,6 +117,9 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         raise click.UsageError("--scenes takes scene names with --from-runs (stored runs carry their scenes)")
     if from_runs is not None and policy is not None:
         raise click.UsageError("--policy applies to simulated runs, not to --from-runs (stored runs carry theirs)")
+    if from_runs is not None and policy_param:
+        raise click.UsageError("--policy-param applies to simulated runs, not to --from-runs")
+    params = policy_params(policy_param, policy or registry.default_policy("retrieval"))
     if from_runs is not None and max_actions is not None:
         raise click.UsageError("--max-actions applies to simulated runs, not to --from-runs")
     out_dir = out_dir or Path("out/quick" if quick else "out/evaluate")
@@ -112,7 +128,7 @@ def evaluate(settings: Settings, scenes: str | None, seeds: str | None, methods:
         cfg = EvalConfig(root_seed=settings.seed, max_actions=max_actions, restarts=restarts,
                          source=None if from_runs is None else str(from_runs),
                          estimators=estimator_list, scene_files=() if scenes is None else scene_files(scenes),
-                         policy=policy, estimator_stream=estimator_stream)
+                         policy=policy, estimator_stream=estimator_stream, policy_params=params)
     _run(settings, out_dir, scene_list, seed_list, method_list, cfg, jobs, figures, snapshot_dir, backend, scheduler)
 
 

@@ -20,6 +20,7 @@ from stucco_cli.common import (
     global_options,
     parsed,
     pass_settings,
+    policy_params,
     refuse_overwrite,
     say,
     user_errors,
@@ -78,11 +79,13 @@ def _not_shadowing(sc) -> None:
 @click.option("--noise-mm", type=FiniteFloat(min=0.0, max=MAX_NOISE_MM), default=None,
               help="Override the scene's replay noise half-width (mm); 0.075 is the authors' code value.")
 @click.option("--keep-discarded", is_flag=True, help="Also write greedy-walk runs that fail the discard rule.")
+@click.option("--policy-param", "policy_param", multiple=True, metavar="NAME=VALUE",
+              help="A parameter of the policy, e.g. action_budget=400 for --policy explore (repeatable).")
 @FORCE_OVERWRITE
 @global_options()
 @pass_settings
 def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_dir: Path, max_actions: int | None,
-            noise_mm: float | None, keep_discarded: bool, force_overwrite: bool) -> None:
+            noise_mm: float | None, keep_discarded: bool, policy_param: tuple[str, ...], force_overwrite: bool) -> None:
     """Simulate runs of a scene and record one Parquet file per seed (table `sim_run`, docs/simulation.md)."""
     writable_dir("--out", out_dir)
     from pipeline.collect import collect as run_collect
@@ -97,12 +100,14 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
             usable = [s.name for s in registry.policies() if all(getattr(sc, k, None) is not None for k, _ in s.needs)]
             raise click.ClickException(f"{sc.path}: key '{key}': scene {sc.name} has no {what}"
                                        + (f"; use --policy {' or '.join(usable)}" if usable else ""))
+    params = dict(policy_params(policy_param, policy)) or None
     if noise_mm is not None:
         sc = sc.with_effects(noise_mm=noise_mm)
     refuse_overwrite([("--out", output_path(out_dir, sc.name, s)) for s in seed_list], force_overwrite)
     with user_errors():
         results = run_collect(sc, seed_list, out_dir, policy=policy, root_seed=settings.seed, jobs=settings.jobs,
-                              progress=bars_off(settings), max_actions=max_actions, keep_discarded=keep_discarded)
+                              progress=bars_off(settings), max_actions=max_actions, keep_discarded=keep_discarded,
+                              policy_params=params)
     for r in results:
         touched = ", ".join(f"{k} x{v}" for k, v in r.touched.items()) or "nothing"
         state = f"discarded ({r.discarded})" if r.discarded else ("written" if r.path else "not written")

@@ -243,3 +243,46 @@ def test_a_retrieval_scene_without_actions_needs_a_region(tmp_path):
     path.write_text(text)
     with pytest.raises(SceneError, match="target_region"):
         load_scene(path)
+
+
+def test_policy_params_from_the_cli_reach_the_run_and_bad_ones_are_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from stucco_cli.main import cli
+
+    scene = _small_tc_file(tmp_path)
+    ok = CliRunner().invoke(cli, ["-q", "--seed", "0", "collect", "--scene", str(scene), "--seeds", "0", "--policy",
+                                  "explore", "--policy-param", "action_budget=3", "--policy-param",
+                                  'search_sides=["front", "far"]', "--out", str(tmp_path / "runs")])
+    assert ok.exit_code == 0, ok.output
+    probe = schema.read_metadata(tmp_path / "runs" / "TCSMALL-000.parquet")["params"]["probe"]
+    assert probe["params"]["action_budget"] == 3 and probe["params"]["search_sides"] == ["front", "far"]
+    assert probe["search"]["actions"] == 3
+    for bad, says in (("budgett=3", "unknown parameter"), ("action_budget=-1", "action_budget"),
+                      ("search_stop=push", "stall or touch"), ("action_budget", "NAME=VALUE")):
+        r = CliRunner().invoke(cli, ["-q", "collect", "--scene", str(scene), "--seeds", "0", "--policy", "explore",
+                                     "--policy-param", bad, "--out", str(tmp_path / "bad")])
+        assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, bad
+    scripted = CliRunner().invoke(cli, ["-q", "collect", "--scene", "TC", "--seeds", "0", "--policy-param",
+                                        "action_budget=3", "--out", str(tmp_path / "bad")])
+    assert scripted.exit_code == 2 and "takes no parameters" in scripted.output
+
+
+def test_evaluate_records_the_policy_params_and_refuses_other_ones_on_resume(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from stucco_cli.main import cli
+
+    scene = _small_tc_file(tmp_path)
+    out = tmp_path / "ev"
+    args = ["-q", "--seed", "0", "evaluate", "--policy", "explore", "--scenes", str(scene), "--seeds", "0",
+            "--methods", "stucco", "--estimators", "plausible", "--no-figures", "--out", str(out)]
+    r = CliRunner().invoke(cli, args + ["--policy-param", "action_budget=3"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "evaluation.json").read_text())["policy_params"] == [["action_budget", 3]]
+    run = next((out / "runs").rglob("TCSMALL-000.parquet"))
+    assert schema.read_run(run).num_rows == 3
+    again = CliRunner().invoke(cli, args + ["--policy-param", "action_budget=4"])
+    assert again.exit_code != 0 and "policy_params" in again.output and "Traceback" not in again.output

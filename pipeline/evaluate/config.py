@@ -63,6 +63,9 @@ class EvalConfig(Params):
         retrieval scenes (``scripted``, the paper's protocol). ``scripted+probe`` is the active protocol (probes,
         then the grasp for the plausible set; docs/active.md). Left out of
         ``evaluation.json`` when None, so folders made before it still resume.
+    policy_params : tuple of (name, value)
+        Overrides of the collection policy's own parameters (e.g. ``(("action_budget", 400),)`` for ``explore``),
+        checked against the policy's parameter class; left out of ``evaluation.json`` when empty.
     estimator_stream : int
         The estimators' random stream (:class:`pipeline.retrieve.RetrieveConfig` ``stream``): 0, the default;
         k >= 1 reruns every stochastic estimator with other draws on the same segments (docs/evaluation.md,
@@ -79,11 +82,16 @@ class EvalConfig(Params):
     scene_files: tuple[tuple[str, str, str], ...] = ()
     policy: str | None = None
     estimator_stream: int = 0
+    policy_params: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimator_stream", check_stream(self.estimator_stream, "estimator_stream"))
         if self.policy is not None:
             registry.policy(self.policy)  # ValueError naming the registered policies
+        object.__setattr__(self, "policy_params", tuple((str(k), tuple(v) if isinstance(v, list) else v)
+                                                        for k, v in self.policy_params))
+        if self.policy_params:  # ValueError naming the first unknown or bad parameter
+            registry.build_params(registry.policy(self.collect_policy), dict(self.policy_params))
         object.__setattr__(self, "estimators", tuple(self.estimators))
         object.__setattr__(self, "scene_files", tuple(tuple(f) for f in self.scene_files))
         known = registry.estimator_names()
@@ -107,6 +115,8 @@ class EvalConfig(Params):
             del out["policy"]
         if not self.estimator_stream:
             del out["estimator_stream"]
+        if not self.policy_params:
+            del out["policy_params"]
         return out
 
     @property
