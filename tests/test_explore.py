@@ -149,6 +149,8 @@ def test_the_search_is_the_generated_scenes_rummage(tmp_path):
 def test_params_refuse_a_negative_budget_and_round_trip():
     with pytest.raises(ValueError, match="action_budget"):
         ExploreParams(action_budget=-1)
+    with pytest.raises(ValueError, match="stall_actions"):
+        ExploreParams(stall_actions=0)
     p = ExploreParams(action_budget=300, budget=5)
     assert ExploreParams.from_dict(p.to_dict()) == p
 

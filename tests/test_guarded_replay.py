@@ -149,3 +149,20 @@ def test_touch_mode_gives_a_leg_up_at_its_first_contact_even_when_the_object_giv
         xs.append(here[0])
     assert max(xs) == pytest.approx(0.06) and touch.given_up == [0]
     assert here == pytest.approx([0.0, 0.0], abs=ARRIVED_M)
+
+
+@pytest.mark.parametrize("stall_actions", [1, 2, 3])
+def test_stall_actions_sets_how_many_stalled_actions_give_a_leg_up(stall_actions):
+    # a wall at x = 0.1 stops the poke: the leg is given up after exactly stall_actions actions in contact
+    actions = [[1.0, 0.0]] * 8 + [[-1.0, 0.0]] * 8
+    replay = GuardedReplay(np.asarray(actions), np.zeros(2), SCALE, np.random.default_rng(0), 0.0,
+                           stall_actions=stall_actions)
+    hits = []
+
+    def blocked(here, u):
+        hits.append(here[0] + u[0] * SCALE > 0.1 + 1e-9)
+        return hits[-1]
+
+    trail = _drive(replay, (0.0, 0.0), blocked=blocked)
+    assert replay.given_up == [0] and trail[:, 0].max() <= 0.1 + 1e-9
+    assert sum(hits) == stall_actions

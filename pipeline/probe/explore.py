@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, integer, number, rule
-from pipeline.guarded_replay import GuardedReplay
+from pipeline.guarded_replay import STALL_ACTIONS, GuardedReplay
 from pipeline.probe.belief import declared_region
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.policy import recorder, run_policy, run_record
@@ -62,19 +62,23 @@ class ExploreParams(ProbeParams):
         The sides the search pokes from, among :data:`pipeline.scenes.coverage.SIDES` (``("front",)``: the
         start's side; every side grasped fewer of the training runs, docs/experiments/explore.md).
     search_stop : str
-        When a leg of the search is given up: ``stall``, after two actions in contact that advance less than half
-        their length (the guarded replay's rule: objects that give way are pushed along the leg); ``touch``, at
-        its first action in contact.
+        When a leg of the search is given up: ``stall``, after ``stall_actions`` actions in contact that advance
+        less than half their length (the guarded replay's rule: objects that give way are pushed along the leg);
+        ``touch``, at its first action in contact.
+    stall_actions : int
+        Consecutive stalled actions that give a leg up under ``stall`` (2, the guarded replay's).
     """
 
     action_budget: int = 2000
     lane_spacing: float = DEFAULT_LANE_SPACING_M
     search_sides: tuple = ("front",)
     search_stop: str = "stall"
+    stall_actions: int = STALL_ACTIONS
 
     constraints: ClassVar[dict[str, Constraint]] = {**ProbeParams.constraints,
                                                     "action_budget": integer(0, 100_000),
                                                     "lane_spacing": number(0.02, 1.0),
+                                                    "stall_actions": integer(1, 100),
                                                     "search_sides": rule(f"a non-empty tuple of {', '.join(SIDES)}",
                                                                          lambda v: bool(v) and set(v) <= set(SIDES)),
                                                     "search_stop": rule("stall or touch",
@@ -151,7 +155,8 @@ class ExplorePolicy:
             path = search_actions(self.region, start, scene.walls, scale, params.lane_spacing, params.search_sides)
             touch = params.search_stop == "touch"
             replay = GuardedReplay(path, start, scale, self.noise_rng, scene.effects.noise_mm,
-                                   **({"stall_actions": 1, "stall_share": math.inf} if touch else {}))
+                                   **({"stall_actions": 1, "stall_share": math.inf} if touch else
+                                      {"stall_actions": params.stall_actions}))
             act = recorder(world, scale, rows, summarize)
             last = False
             while len(rows) < min(self.budget, replay.limit):
