@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from pipeline.constraints import Constraint, integer, number, rule
-from pipeline.guarded_replay import STALL_ACTIONS, GuardedReplay
+from pipeline.guarded_replay import GuardedReplay
 from pipeline.probe.belief import declared_region
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.policy import recorder, run_policy, run_record
@@ -66,14 +66,16 @@ class ExploreParams(ProbeParams):
         less than half their length (the guarded replay's rule: objects that give way are pushed along the leg);
         ``touch``, at its first action in contact.
     stall_actions : int
-        Consecutive stalled actions that give a leg up under ``stall`` (2, the guarded replay's).
+        Consecutive stalled actions that give a leg up under ``stall`` (1: the hand pushes what gives way and
+        turns back at the first object that does not; the guarded replay's 2 grasped fewer of the training runs,
+        docs/experiments/explore.md).
     """
 
     action_budget: int = 2000
     lane_spacing: float = DEFAULT_LANE_SPACING_M
     search_sides: tuple = ("front",)
     search_stop: str = "stall"
-    stall_actions: int = STALL_ACTIONS
+    stall_actions: int = 1
 
     constraints: ClassVar[dict[str, Constraint]] = {**ProbeParams.constraints,
                                                     "action_budget": integer(0, 100_000),
