@@ -192,9 +192,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     """
     policy = policy or registry.default_policy(scene.kind)
     spec = registry.policy(policy)
-    for key, what in spec.needs:
-        if getattr(scene, key, None) is None:
-            raise SceneError(f"{scene.path}: key {key!r}: the {policy} policy needs the scene's {what}")
+    if (gap := spec.missing(scene)) is not None:
+        raise SceneError(f"{scene.path}: key {gap[0]!r}: the {policy} policy needs the scene's {gap[1]}")
     t0 = time.perf_counter()
     noise_ss, policy_ss = job_seed_sequence(root_seed, scene.name, seed).spawn(2)
     noise_rng = np.random.default_rng(noise_ss)

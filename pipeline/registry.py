@@ -143,6 +143,10 @@ class PolicySpec:
         """The side files of run file ``run_file`` (:attr:`side_files`, in order; they may not exist)."""
         return tuple(side_path(run_file, suffix) for suffix in self.side_files)
 
+    def missing(self, scene) -> tuple[str, str] | None:
+        """The first (scene key, what it is) of :attr:`needs` that ``scene`` lacks, or None."""
+        return next(((key, what) for key, what in self.needs if getattr(scene, key, None) is None), None)
+
 
 def side_path(run_file: str | Path, suffix: str) -> Path:
     """The side file ``_<stem><suffix>`` beside ``run_file``: the leading ``_`` keeps it out of a Parquet

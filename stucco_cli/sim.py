@@ -95,11 +95,10 @@ def collect(settings: Settings, scene: str, seeds: str, policy: str | None, out_
     _not_shadowing(sc)
     seed_list = parsed("--seeds", parse_seeds, seeds)
     policy = policy or registry.default_policy(sc.kind)
-    for key, what in registry.policy(policy).needs:
-        if getattr(sc, key, None) is None:
-            usable = [s.name for s in registry.policies() if all(getattr(sc, k, None) is not None for k, _ in s.needs)]
-            raise click.ClickException(f"{sc.path}: key '{key}': scene {sc.name} has no {what}"
-                                       + (f"; use --policy {' or '.join(usable)}" if usable else ""))
+    if (gap := registry.policy(policy).missing(sc)) is not None:
+        usable = [s.name for s in registry.policies() if s.missing(sc) is None]
+        raise click.ClickException(f"{sc.path}: key '{gap[0]}': scene {sc.name} has no {gap[1]}"
+                                   + (f"; use --policy {' or '.join(usable)}" if usable else ""))
     params = dict(policy_params(policy_param, policy)) or None
     if noise_mm is not None:
         sc = sc.with_effects(noise_mm=noise_mm)

@@ -189,7 +189,6 @@ def _check_policy_needs(cfg: EvalConfig, scenes: Sequence[str]) -> None:
     spec = registry.policy(cfg.collect_policy)
     for name in scenes:
         scene = cfg.scene(name)
-        for key, what in spec.needs:
-            if getattr(scene, key, None) is None:
-                raise ValueError(f"{scene.path}: key {key!r}: the {spec.name} policy needs the scene's {what} "
-                                 "(--policy explore needs none)")
+        if (gap := spec.missing(scene)) is not None:
+            raise ValueError(f"{scene.path}: key {gap[0]!r}: the {spec.name} policy needs the scene's {gap[1]} "
+                             "(--policy explore needs none)")

@@ -158,8 +158,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         obstacles = np.vstack([choice.others, np.asarray([q for q, st in zip(sensing.probe_points, sensing.probe_steps)
                                                           if st in log.other_steps]).reshape(-1, 2)])
         spent = log.probes >= limit or action_limit is not None and log.actions >= action_limit
-        plan = None if done or spent else next_probe(target, belief, sensing, outline, obstacles, log,
-                                                                   short, params)
+        plan = None if done or spent else next_probe(target, belief, sensing, outline, obstacles, log, short,
+                                                     params)
         log.decision_s.append(time.perf_counter() - t0)
         log.share, log.agreed, log.segment = share, share >= params.plan.agree_share, belief.segment
         if plan is None:
