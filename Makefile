@@ -91,9 +91,10 @@ JOBS ?= 2
 quick: setup
 	$(BIN)/stucco --seed 0 evaluate --quick --jobs $(JOBS)
 
-# The paper's Table II: 4 tasks x 20 seeds x 5 methods into out/reproduce (resumes if interrupted).
+# The paper's Table II: its 4 simulated tasks and the real row's stand-in (REAL) x 20 seeds x 5 methods into
+# out/reproduce (resumes if interrupted).
 reproduce: setup
-	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC --seeds 0-19 --methods all --jobs 2 --out out/reproduce
+	$(BIN)/stucco --seed 0 evaluate --scenes FB,BC,IB,TC,REAL --seeds 0-19 --methods all --jobs 2 --out out/reproduce
 
 # The active protocol (docs/active.md): STUCCO's Table II with probing and the planned grasp, then grasp success
 # against the probe budget. One estimator: the policy's own grasp ends every run whatever the estimator, so the

@@ -97,6 +97,8 @@ def summarize_action(trace: ActionTrace, det: DetectionParams = DetectionParams(
         "true_contact_y_m": None if true_pt is None else float(true_pt[1]),
         "object_id": action_label(trace.truth_last),
         "force_rep": representative_force(trace.wrench),
+        **({} if trace.pads is None else {"pad_contact_m": trace.pads["point"], "pad_dx_m": trace.pads["dx"],
+                                          "pad_object": trace.pads["object"], "pad_force_n": trace.pads["force"]}),
     }
 
 

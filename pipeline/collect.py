@@ -24,10 +24,10 @@ import pyarrow as pa
 
 from pipeline import registry
 from pipeline.action_summary import WINDOW_STEPS, action_label, discard_reason, representative_force, summarize_action
-from pipeline.detection import DetectionParams
+from pipeline.detection import DetectionParams, scene_detection
 from pipeline.parallel import map_jobs
 from pipeline.scenes import Scene, SceneError, scene_digest, scene_hash
-from pipeline.schema import SIM_RUN, write_table
+from pipeline.schema import PAD_COLUMNS, SIM_RUN, write_table
 from pipeline.sim import STEPS_PER_ACTION, World
 
 __all__ = ["RUN_KIND", "WINDOW_STEPS", "parse_seeds", "job_seed_sequence", "run_name",
@@ -156,13 +156,16 @@ def _build_table(scene: Scene, seed: int, rows: list[dict], probe_from: int | No
     data["obj_pose"] = _body_list(np.array([r["obj_pose"] for r in rows]).reshape(n, nb, 3))
     data["obj_distance_m"] = _body_list(np.array([r["obj_distance_m"] for r in rows]).reshape(n, nb))
     assert tuple(data) == SIM_RUN.required_names
+    if n and "pad_contact_m" in rows[0]:  # the scene's fingertip sensors (docs/simulation.md)
+        for k in PAD_COLUMNS:
+            data[k] = _fixed_list(np.array([r[k] for r in rows]))
     if probe_from is not None:
         data["probe"] = pa.array(np.arange(n) >= probe_from, type=pa.bool_())
     return pa.table(data)
 
 
 def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | None = None,
-                max_actions: int | None = None, det: DetectionParams = DetectionParams(), policy_params=None
+                max_actions: int | None = None, det: DetectionParams | None = None, policy_params=None
                 ) -> tuple[pa.Table, dict, CollectResult]:
     """Simulate one run of a scene.
 
@@ -180,6 +183,9 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         Stop after this many actions (short test runs; the scripted ones of ``scripted+probe``).
     policy_params : dataclass instance, dict or None
         The policy's own parameters (e.g. :class:`pipeline.probe.policy.ProbeParams`); None: its defaults.
+    det : DetectionParams, optional
+        The contact detector of the ``in_contact`` column; None: the scene's (its ``[detection]``, else the
+        defaults).
 
     Returns
     -------
@@ -195,16 +201,19 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     if (gap := spec.missing(scene)) is not None:
         raise SceneError(f"{scene.path}: key {gap[0]!r}: the {policy} policy needs the scene's {gap[1]}")
     t0 = time.perf_counter()
-    noise_ss, policy_ss = job_seed_sequence(root_seed, scene.name, seed).spawn(2)
+    # the third child (the sensors' noise) leaves the first two, and so every run without sensors, as they were
+    noise_ss, policy_ss, sensor_ss = job_seed_sequence(root_seed, scene.name, seed).spawn(3)
     noise_rng = np.random.default_rng(noise_ss)
     policy_rng = np.random.default_rng(policy_ss)
+    if det is None:
+        det = scene_detection(scene)
     mover = registry.resolve(spec.factory)(scene, policy_rng, noise_rng, max_actions,
                                            registry.build_params(spec, policy_params))
     eff = scene.effects
     scale = scene.action_scale
     rows: list[dict] = []
     sim_s = 0.0
-    with World(scene, gripper_start=mover.gripper_start) as world:
+    with World(scene, gripper_start=mover.gripper_start, sensor_rng=np.random.default_rng(sensor_ss)) as world:
         mover.start(world)
         pos0, _ = world.gripper_pose()
         initial = {"ee_xy_m": pos0[:2].tolist(), "obj_pose": world.object_poses().tolist()}
@@ -238,7 +247,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
     params = {
         "scene": scene.name, "scene_file": scene.path.name, "kind": scene.kind, "policy": policy,
         "run_seed": int(seed), "seed_sequence": [int(root_seed), scene_hash(scene.name), int(seed)],
-        "effects": eff.as_dict(), "action_scale_m": scale, "max_actions": max_actions,
+        "effects": eff.as_dict(), **({"sensors": scene.sensors.as_dict()} if scene.sensors.any else {}),
+        "action_scale_m": scale, "max_actions": max_actions,
         "bodies": list(scene.body_names), "target": scene.target.name if scene.target else None,
         "initial": initial, "goal_xy_m": None if mover.goal is None else mover.goal.tolist(),
         "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},

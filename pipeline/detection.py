@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.constraints import Params
 from pipeline.portable import argmin_tolerant
 
-__all__ = ["DetectionParams", "IsolationParams", "TORQUE_TIE_NM", "residual", "step_in_contact",
+__all__ = ["DetectionParams", "IsolationParams", "scene_detection", "TORQUE_TIE_NM", "residual", "step_in_contact",
            "window_in_contact", "contact_window", "isolate_point", "contact_forces", "fixed_column"]
 
 #: Torque errors (N m) closer than this are a tie between surface points (the lower index wins): far above the
@@ -46,6 +46,12 @@ class DetectionParams(Params):
     sigma_inv: tuple[float, ...] = (1.0, 1.0, 1.0, 50.0, 50.0, 50.0)
     threshold: float = 1.0
     window: int = 5
+
+
+def scene_detection(scene) -> DetectionParams:
+    """The detector a scene's robot was tuned with: its ``[detection]`` (``scene.hardware.detection``) over the
+    defaults (docs/simulation.md, "Tactile fingertips and a noisy wrench")."""
+    return DetectionParams.from_dict(dict(scene.hardware.detection))
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
-from pipeline.grasp_judge import PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
+from pipeline.grasp_judge import GRASP_STEP_M, PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
            "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "PAD_FROM_BASE", "set_fingers",
@@ -312,7 +312,7 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
     target = primitive_of(scene.objects[tid])
     pre = np.asarray(pre, dtype=np.float64)
     approach = np.asarray(approach, dtype=np.float64)
-    scale = scene.action_scale
+    scale = GRASP_STEP_M
     world = restore_world(scene, np.asarray(poses, dtype=np.float64), np.asarray(ee, dtype=np.float64),
                           params.settle_steps)
     with world:

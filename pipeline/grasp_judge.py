@@ -13,11 +13,16 @@ import numpy as np
 from pipeline.constraints import Params
 from pipeline.geometry import Primitive, dot2, rot2
 
-__all__ = ["PAD_FROM_BASE", "GraspParams", "FingerContacts", "judge_box", "judge_can", "finger_problem"]
+__all__ = ["GRASP_STEP_M", "PAD_FROM_BASE", "GraspParams", "FingerContacts", "judge_box", "judge_can", "finger_problem"]
 
 #: Finger pads along the hand's approach axis (hand z), from the base: joint at 0.0584, mesh z in [0, 0.0538]
 #: (docs/simulation.md, "World, gripper, stepping"), i.e. world x in [0.0585, 0.1122] for the default orientation.
 PAD_FROM_BASE = (0.0585, 0.1122)
+
+
+#: The grasp script's step, metres: the authors' 3 cm action (MAX_PUSH_DIST), whatever step a scene's rummage takes
+#: (the paper's real robot rummaged in 2 cm steps; its grasp is the same grasp).
+GRASP_STEP_M = 0.03
 
 
 @dataclass(frozen=True)

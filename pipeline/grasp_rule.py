@@ -21,6 +21,7 @@ from numba import njit
 
 from pipeline.geometry import Primitive, outline_point, primitive_pose, rotate
 from pipeline.grasp import OPEN, PAD_FROM_BASE, GraspParams, GraspPlan, grasp_yaw, plan_for
+from pipeline.grasp_judge import GRASP_STEP_M
 from pipeline.pairwise_sum import pairwise_sum
 
 __all__ = ["CONTACT_BAND", "box_success", "can_success", "holds", "own_grasp_shares", "warm_up"]
@@ -137,8 +138,8 @@ def holds(scene, prim: Primitive, yaw: np.ndarray, centre: np.ndarray, advance: 
     plan = plan_for(scene)
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     if prim.kind == "cylinder":
-        return can_success(prim, poses, yaw, centre, advance, plan, scene.action_scale)
-    return box_success(prim, poses, yaw, centre, advance, plan, scene.action_scale, params)
+        return can_success(prim, poses, yaw, centre, advance, plan, GRASP_STEP_M)
+    return box_success(prim, poses, yaw, centre, advance, plan, GRASP_STEP_M, params)
 
 
 def own_grasp_shares(scene, prim: Primitive, poses: np.ndarray, weights: np.ndarray,

@@ -60,6 +60,8 @@ class IsolationResult:
     n_runs, n_actions, n_contact, n_unisolated : int
         Runs, actions, in-contact actions, in-contact actions where isolation found no point (recorded as
         not in contact).
+    detection : DetectionParams or None
+        The detector of every run (None: the runs were collected with different ones).
     """
 
     table: object
@@ -68,6 +70,7 @@ class IsolationResult:
     n_actions: int
     n_contact: int
     n_unisolated: int
+    detection: DetectionParams | None = None
 
     def error_summary(self) -> dict[str, float | int | None]:
         """Median and 90th percentile of the isolation error (m), and the number of errors."""
@@ -82,7 +85,7 @@ def run_files(directory: str | Path) -> list[Path]:
     return sorted(Path(directory).glob("*.parquet"))
 
 
-def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
+def isolate_runs(files: list[Path], det: DetectionParams | None = None,
                  iso: IsolationParams = IsolationParams()) -> IsolationResult:
     """Detection and isolation for collected run files -> contacts table and isolation errors.
 
@@ -91,6 +94,9 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
     files : list of Path
         Files written by :func:`pipeline.collect.collect` (any order; rows come out sorted by scene, seed,
         step).
+    det : DetectionParams, optional
+        The detector for every run; None: each run's own, as its metadata records it (the scene's
+        ``[detection]``, docs/simulation.md).
     """
     points, normals = isolation_surface(load_robot(iso.robot), iso)
     allcols: dict[str, list] | None = None
@@ -100,38 +106,54 @@ def isolate_runs(files: list[Path], det: DetectionParams = DetectionParams(),
     for path in files:
         t = schema.read_run(path)
         key = (t.column("scene")[0].as_py(), t.column("seed")[0].as_py())
-        tables.append((key, t))
-    for _, t in sorted(tables, key=lambda kt: kt[0]):
-        cols, errs, un = isolate_run(t, points, normals, det, iso)
+        tables.append((key, t, det or run_detection(path)))
+    per_run = []
+    for _, t, run_det in sorted(tables, key=lambda kt: kt[0]):
+        cols, errs, un = isolate_run(t, points, normals, run_det, iso)
         errors += errs
         unisolated += un
         n_actions += t.num_rows
+        per_run.append(cols)
+    # the sensor column when any run has fingertips (-1, the wrench, for the rows of runs without)
+    sensors = any("sensor" in cols for cols in per_run)
+    for cols in per_run:
+        if sensors and "sensor" not in cols:
+            cols["sensor"] = [-1 if inc else None for inc in cols["in_contact"]]
         if allcols is None:
             allcols = cols
         else:
             for k in allcols:
                 allcols[k] += cols[k]
     # every column of the contacts table's spec, in its order (schema.CONTACTS_COLUMNS: one list of them)
-    contacts_schema = pa.schema([(c.name, c.type) for c in schema.CONTACTS_COLUMNS])
+    contacts_schema = pa.schema([(c.name, c.type) for c in schema.CONTACTS_COLUMNS
+                                 if c.name != "sensor" or sensors])
     allcols = allcols or {name: [] for name in contacts_schema.names}
     table = pa.Table.from_pydict(allcols, schema=contacts_schema)
-    n_contact = int(np.sum(table.column("in_contact").to_numpy(zero_copy_only=False)))
+    # actions in contact (an action with two fingertip contacts has two rows)
+    n_contact = len({(r, s) for r, s, inc in zip(allcols["run"], allcols["step"], allcols["in_contact"]) if inc})
+    used = list(dict.fromkeys(d for _, _, d in tables)) or [det or DetectionParams()]
     return IsolationResult(table=table, errors=np.asarray(errors), n_runs=len(files), n_actions=n_actions,
-                           n_contact=n_contact, n_unisolated=unisolated)
+                           n_contact=n_contact, n_unisolated=unisolated, detection=used[0] if len(used) == 1 else None)
 
 
-def params_dict(det: DetectionParams, iso: IsolationParams) -> dict:
-    """Both parameter sets, JSON-friendly, for output metadata."""
-    return {"detection": det.to_dict(), "isolation": iso.to_dict()}
+def run_detection(path: str | Path) -> DetectionParams:
+    """The detector a run file was collected with (its metadata's ``detection``; the defaults if absent)."""
+    rec = (schema.read_metadata(path).get("params") or {}).get("detection") or {}
+    return DetectionParams.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in rec.items()})
 
 
-def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: DetectionParams = DetectionParams(),
+def params_dict(det: DetectionParams | None, iso: IsolationParams) -> dict:
+    """Both parameter sets, JSON-friendly, for output metadata (``detection`` "per run" when each run's own)."""
+    return {"detection": det.to_dict() if det is not None else "per run", "isolation": iso.to_dict()}
+
+
+def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: DetectionParams | None = None,
                  iso: IsolationParams = IsolationParams()) -> IsolationResult:
     """The `isolate` stage on files: detect and isolate the contacts of collected run files and write the contacts
     table (atomically), its metadata recording both parameter sets, the isolation error and the counts, and every
     run file as an input (by stem). Returns the :class:`IsolationResult`."""
     res = isolate_runs(files, det, iso)
-    params = params_dict(det, iso)
+    params = params_dict(res.detection, iso)
     params["isolation_error"] = res.error_summary()
     params["counts"] = {"runs": res.n_runs, "actions": res.n_actions, "in_contact": res.n_contact,
                         "unisolated": res.n_unisolated}

@@ -10,9 +10,9 @@ import pytest
 
 from pipeline.estimators.plausible.fit import PlausibleParams
 from pipeline.geometry import Primitive
-from pipeline.probe.belief import NO_TARGET, declared_region, pose_set, prior_set
+from pipeline.probe.belief import NO_TARGET, pose_set, prior_set
 from pipeline.robot import load_robot
-from pipeline.scenes import WORKSPACE_M, load_scene
+from pipeline.scenes import WORKSPACE_M, declared_region, load_scene
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
 REGION = ((0.2, -0.1), (0.6, 0.3))

@@ -16,7 +16,7 @@ BOR_NET = {"FB": (0.396, -0.132), "BC": (0.15, 0.0), "IB": (0.09, -0.12), "TC": 
 
 
 def test_all_expected_scenes_are_shipped():
-    assert set(ALL) == {"FB", "BC", "IB", "TC", "SELECT1", "SELECT2", "SELECT3", "SELECT4"}
+    assert set(ALL) == {"FB", "BC", "IB", "TC", "REAL", "SELECT1", "SELECT2", "SELECT3", "SELECT4"}
 
 
 @pytest.mark.parametrize("name", ALL)

@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import schema
-from pipeline.detection import contact_forces
+from pipeline.detection import contact_forces, scene_detection
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
@@ -113,7 +113,8 @@ def info_from_table(t: pa.Table, scene: Scene, path: Path | None = None, final: 
     tid, prim = target_primitive(scene)
     return RunInfo(run=t.column("run")[0].as_py(), path=path, scene=scene, seed=int(t.column("seed")[0].as_py()),
                    ee=ee, steps=np.asarray(t.column("step").to_numpy(zero_copy_only=False), dtype=np.int64),
-                   final_poses=final, target_id=tid, target=prim, policy=policy, contact_force=contact_forces(t),
+                   final_poses=final, target_id=tid, target=prim, policy=policy,
+                   contact_force=contact_forces(t, scene_detection(scene)),
                    target_mass_kg=target_mass(scene))
 
 

@@ -80,14 +80,16 @@ def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
 
 
 def run_isolate(paths: JobPaths, cfg: EvalConfig) -> float:
-    """Isolate the contacts of the job's run file (default detection and isolation); returns the wall time (s)."""
+    """Isolate the contacts of the job's run file (the detector it was collected with, default isolation); returns
+    the wall time (s)."""
     t0 = time.perf_counter()
     isolate_file(list(paths.inputs(_ISOLATE).values()), paths.outputs(_ISOLATE)["contacts"], seed=cfg.root_seed)
     return time.perf_counter() - t0
 
 
 def run_track(paths: JobPaths, method: str, cfg: EvalConfig) -> float:
-    """Track the contacts with ``method`` (default parameters) into the tracks and diagnostics partitions; the
+    """Track the contacts with ``method`` (its defaults, or the scene's ``[methods.<method>]``) into the tracks and
+    diagnostics partitions; the
     estimate after every step too when one of ``cfg.estimators`` needs it (the final estimate is the same).
     Returns the wall time (s)."""
     # Imported here: the trackers load numba's kernels (about a quarter of a second), which only the processes
@@ -96,7 +98,9 @@ def run_track(paths: JobPaths, method: str, cfg: EvalConfig) -> float:
 
     t0 = time.perf_counter()
     # An estimator that runs at every in-contact step (the paper's, online) reads the estimate after every step.
-    config = TrackConfig(method=method, robot=cfg.robot, params={}, every_step=needs_every_step(cfg.estimators))
+    # the parameters the scene's robot was tuned with (its [methods.<method>], e.g. Table I's real column)
+    config = TrackConfig(method=method, robot=cfg.robot, params=cfg.scene(paths.scene).hardware.method_params(method),
+                         every_step=needs_every_step(cfg.estimators))
     out = paths.outputs(_TRACK)
     track_file(paths.inputs(_TRACK)["contacts"], out["tracks"], config, seed=cfg.root_seed, jobs=1,
                diagnostics_path=out["diagnostics"])

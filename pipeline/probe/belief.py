@@ -44,7 +44,7 @@ from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
 __all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set",
-           "explaining", "surface_distance", "prior_set", "declared_region"]
+           "explaining", "surface_distance", "prior_set"]
 
 
 class Sensing:
@@ -68,8 +68,8 @@ class Sensing:
     method : str
         Tracking method (``stucco`` or a baseline of :mod:`pipeline.methods`).
     region : ((x_min, y_min), (x_max, y_max)), metres, optional
-        The scene's target region (:func:`declared_region`: what the user tells, not a pose): the no-segment
-        prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
+        The scene's target region (:func:`pipeline.scenes.declared_region`: what the user tells, not a pose):
+        the no-segment prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
 
     Attributes
     ----------
@@ -101,32 +101,36 @@ class Sensing:
         self.prior: Any = None
 
     def observe(self, table: pa.Table) -> None:
-        """Feed new actions (rows of a ``sim_run`` table, in order)."""
+        """Feed new actions (rows of a ``sim_run`` table, in order). An action with several contacts (fingertip
+        sensors) gives the tracker all of them in one update, as ``stucco track`` does."""
         cols, _, _ = isolate_run(table, *self.surface)
         self.forces += contact_forces(table).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
-        for i, step in enumerate(cols["step"]):
+        step = np.asarray(cols["step"], dtype=np.int64)
+        first = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
+        for a, (i, j) in enumerate(zip(first, np.r_[first[1:], len(step)])):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
             scripted = len(self.steps) < self.n_scripted
             self.ee.append(x)
-            self.steps.append(int(step))
+            self.steps.append(int(step[i]))
             inc = bool(cols["in_contact"][i])
             # Only a probe's contact leaves its object where it was, against that position; the scripted part's
             # pushes moved theirs on, and its positions are the transit's only links.
             self.touching.append(inc and not scripted)
             self.blocked.append(False)
-            p = np.array([cols["contact_x_m"][i], cols["contact_y_m"][i]], dtype=np.float64) if inc else None
-            if not scripted:
-                if inc:
-                    self.probe_points.append(p)
-                    self.probe_steps.append(int(step))
-                    self.probe_forces.append(force[i].copy())
-            elif inc:
-                self.tracker.update(x, np.array([[cols["dx_m"][i], cols["dy_m"][i]]]), p[None, :])
-                self.point_steps.append(int(step))
-            else:
-                self.tracker.update(x, None, None)
+            if not inc:
+                if scripted:
+                    self.tracker.update(x, None, None)
+                continue
+            p = np.array([cols["contact_x_m"][i:j], cols["contact_y_m"][i:j]], dtype=np.float64).T  # (K, 2)
+            if scripted:
+                self.tracker.update(x, np.array([cols["dx_m"][i:j], cols["dy_m"][i:j]], dtype=np.float64).T, p)
+                self.point_steps += [int(step[i])] * (j - i)
+                continue
+            self.probe_points += list(p)
+            self.probe_steps += [int(step[i])] * (j - i)
+            self.probe_forces += [force[a].copy() for _ in range(j - i)]
 
     @property
     def visited(self) -> np.ndarray:
@@ -357,17 +361,6 @@ def _surface_at(target: Primitive, poses: np.ndarray, point: np.ndarray):
                    inverse=True)
     sd, grad = primitive_sdf(target, local)
     return pp, local, sd, grad
-
-
-def declared_region(scene) -> tuple[tuple[float, float], tuple[float, float]] | None:
-    """The target region a scene declares (``[target_region]``, :attr:`pipeline.scenes.Scene.target_region`), or
-    None when it declares none (its region is then the whole workspace, which says nothing) or there is no scene."""
-    from pipeline.scenes.types import WORKSPACE_M
-
-    region = getattr(scene, "target_region", None)
-    if region is None or tuple(map(tuple, region)) == tuple(map(tuple, WORKSPACE_M)):
-        return None
-    return (tuple(map(float, region[0])), tuple(map(float, region[1])))
 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,

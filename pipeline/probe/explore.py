@@ -27,10 +27,9 @@ import numpy as np
 
 from pipeline.constraints import Constraint, integer, number, rule
 from pipeline.guarded_replay import GuardedReplay
-from pipeline.probe.belief import declared_region
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.policy import recorder, run_policy, run_record
-from pipeline.scenes import SceneError
+from pipeline.scenes import SceneError, declared_region
 from pipeline.scenes.coverage import DEFAULT_LANE_SPACING_M, SIDES, coverage_passes
 from pipeline.scenes.footprint import wall_outline
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from pipeline.geometry import Primitive, dot2, primitive_of
 from pipeline.grasp import OPEN, GraspParams, close_and_judge, move_to, restore_world, set_fingers
+from pipeline.grasp_judge import GRASP_STEP_M
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, held_by, plan_grasp
 
 __all__ = ["Attempt", "Attempts", "attempt_grasps", "felt_width", "NO_REACHABLE_GRASP"]
@@ -109,7 +110,7 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
     weights (H,), ``best``). The scene gives the simulation and the judge only."""
     t0 = time.perf_counter()
     out = Attempts()
-    scale = scene.action_scale
+    scale = GRASP_STEP_M
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     truth_shape = primitive_of(scene.objects[tid])
     w = np.asarray(weights, dtype=np.float64).copy()

@@ -33,13 +33,14 @@ from pipeline.probe.attribution import (
     set_from_steps,
     set_share,
 )
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, declared_region, misfit
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, misfit
 from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import ProbePlan, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
+from pipeline.scenes import declared_region
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "recorder", "run_record",
            "required_contacts", "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]
@@ -79,7 +80,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     scene : pipeline.scenes.Scene, optional
         The run's scene (its geometry, not its state); needed with ``params.history`` "pushtrack": the pushtrack
         estimator's set after the scripted part is then the prior of every set fitted to the segment it tracked
-        (:mod:`pipeline.probe.history`). Its target region (:func:`pipeline.probe.belief.declared_region`) is where
+        (:mod:`pipeline.probe.history`). Its target region (:func:`pipeline.scenes.declared_region`) is where
         the no-segment prior puts its hypotheses.
     action_limit : int, optional
         Most actions of the probes (transits, steps, back-offs), checked before each probe (a probe under way

@@ -21,13 +21,15 @@ from pipeline.estimators.run_info import RunInfo, retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
+from pipeline.grasp_judge import GRASP_STEP_M
 from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target, declared_region
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.params import ProbeParams
 from pipeline.probe.planning import PlanParams, gripper_outline
+from pipeline.scenes import declared_region
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 
@@ -161,7 +163,7 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
         g = attempts.attempts[0].grasp
     else:
         attempts = None
-        g = plan_grasp(info.target, info.scene.action_scale, belief.poses, belief.weights, belief.best, around,
+        g = plan_grasp(info.target, GRASP_STEP_M, belief.poses, belief.weights, belief.best, around,
                        planning, params)
     wide = set_share(info.target, belief, plan) < plan.agree_share and g.share < plan.agree_share
     notes = list(belief.notes) + (["wide_set"] if wide else []) + ([] if g.reachable else [NO_REACHABLE_GRASP])

@@ -12,6 +12,7 @@ import numpy as np
 
 from pipeline.geometry import Primitive, rot2
 from pipeline.grasp import GraspParams, GraspResult, grasp_with, grasp_yaw, plan_for
+from pipeline.grasp_judge import GRASP_STEP_M
 from pipeline.grasp_rule import holds
 from pipeline.probe.planning import gripper_outline
 from pipeline.probe.transit import Keepout, grasp_via
@@ -95,7 +96,7 @@ def simulate_set_grasp(scene, final_poses: np.ndarray, final_ee: np.ndarray, gra
     """Simulate the chosen grasp in the run's restored final state (:func:`pipeline.grasp.grasp_with`). With
     ``keepout`` (the target at the set's estimate, :func:`grasp_keepout`), the move to the pre-grasp point goes
     through a waypoint when the straight move would cross it (:func:`pipeline.probe.transit.grasp_via`)."""
-    via = None if keepout is None else grasp_via(final_ee, grasp.pregrasp, keepout, scene.action_scale, params=params)
+    via = None if keepout is None else grasp_via(final_ee, grasp.pregrasp, keepout, GRASP_STEP_M, params=params)
     return grasp_with(scene, final_poses, final_ee, grasp.yaw, grasp.pregrasp, grasp.approach, params,
                       grasp.advance, via)
 

@@ -5,7 +5,8 @@ built-in scenes (the retrieval tasks FB, BC, IB, TC and the training scenes SELE
 code. One role per module:
 
 * :mod:`~pipeline.scenes.types`: the frozen dataclasses (:class:`Scene`, :class:`ObjectSpec`, :class:`WallSpec`,
-  :class:`Plane`, :class:`Effects`, :class:`WalkSpec`) and :class:`SceneError`;
+  :class:`Plane`, :class:`Effects`, :class:`Sensors`, :class:`Hardware`, :class:`WalkSpec`) and :class:`SceneError`;
+* :mod:`~pipeline.scenes.sensing`: the ``[sensors]``, ``[detection]`` and ``[methods]`` tables;
 * :mod:`~pipeline.scenes.parse`: :func:`parse_scene`, a decoded TOML document validated into a :class:`Scene`;
 * :mod:`~pipeline.scenes.files`: :data:`SCENE_DIR`, finding a scene by name or path, :func:`load_scene`,
   :func:`load_all`, and :func:`scene_hash` for seeding;
@@ -31,12 +32,15 @@ from pipeline.scenes.types import (
     DEFAULT_ACTION_SCALE,
     WORKSPACE_M,
     Effects,
+    Hardware,
     ObjectSpec,
     Plane,
     Scene,
     SceneError,
+    Sensors,
     WalkSpec,
     WallSpec,
+    declared_region,
 )
 
 __all__ = [
@@ -46,6 +50,8 @@ __all__ = [
     "ObjectSpec",
     "WallSpec",
     "Effects",
+    "Sensors",
+    "Hardware",
     "WalkSpec",
     "Scene",
     "scene_names",
@@ -58,4 +64,5 @@ __all__ = [
     "parse_scene",
     "DEFAULT_ACTION_SCALE",
     "WORKSPACE_M",
+    "declared_region",
 ]

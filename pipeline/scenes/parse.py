@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.scenes.footprint import containment_problem
+from pipeline.scenes.sensing import parse_hardware, parse_sensors
 from pipeline.scenes.types import (
     DEFAULT_ACTION_SCALE,
     REPLAYS,
@@ -146,7 +147,7 @@ class _Reader:
 
 
 _TOP_KEYS = {"name", "description", "kind", "notes", "gripper", "plane", "effects", "objects", "walls", "actions",
-             "walk", "target_region"}
+             "walk", "target_region", "sensors", "detection", "methods"}
 _OBJECT_KEYS = {"name", "shape", "size", "position", "yaw", "rp", "z", "mass", "lateral_friction",
                 "spinning_friction", "rolling_friction", "shape_offset", "shape_yaw", "com_offset", "com_yaw",
                 "model", "target"}
@@ -333,5 +334,6 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
         raise r.fail("objects", impossible)
     return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
                  objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, replay=replay,
-                 walk=walk,
+                 walk=walk, sensors=parse_sensors(r.sub("sensors")),
+                 hardware=parse_hardware(r.sub("detection"), r.sub("methods")),
                  target_region=region, notes=r.string("notes", ""))

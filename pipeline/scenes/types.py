@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["DEFAULT_ACTION_SCALE", "WORKSPACE_M", "SceneError", "Plane", "ObjectSpec", "WallSpec", "Effects",
-           "WalkSpec", "Scene"]
+           "Sensors", "Hardware", "WalkSpec", "Scene", "declared_region"]
 
 #: Normalised actions are multiplied by this (m) to give a displacement (the authors' MAX_PUSH_DIST; docs/simulation.md,
 #: "Scenes are data").
@@ -184,6 +184,65 @@ class Effects:
 
 
 @dataclass(frozen=True)
+class Sensors:
+    """The robot's contact sensors beyond the wrist wrench (``[sensors]``; docs/simulation.md, "Tactile fingertips
+    and a noisy wrench"). All off by default: a scene that asks for none pays for none.
+
+    Attributes
+    ----------
+    fingertips : bool
+        A contact sensor on each finger pad (the paper's soft bubbles, §V-E): each reports one contact point per
+        action, where its pad was pressed.
+    pad_threshold_n : float, N
+        A pad fires only while the normal force on it exceeds this (the bubbles' 4 mm of deformation): its dead
+        band.
+    pad_noise_mm : float, millimetres
+        Standard deviation of the reported point, per axis (the bubbles' averaged deformed pixels).
+    wrench_noise : tuple of 6 float
+        Standard deviation of Gaussian noise added to each component of the wrist wrench at every sim step
+        (f_x, f_y, f_z in N, tau_x, tau_y, tau_z in N m): a wrench estimated from joint torques. Zeros: exact.
+    """
+
+    fingertips: bool = False
+    pad_threshold_n: float = 1.0
+    pad_noise_mm: float = 0.0
+    wrench_noise: tuple[float, ...] = (0.0,) * 6
+
+    @property
+    def any(self) -> bool:
+        """Whether the simulator has anything to add to the plain wrist wrench."""
+        return self.fingertips or any(s > 0.0 for s in self.wrench_noise)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly form for output metadata."""
+        return {"fingertips": self.fingertips, "pad_threshold_n": self.pad_threshold_n,
+                "pad_noise_mm": self.pad_noise_mm, "wrench_noise": list(self.wrench_noise)}
+
+
+@dataclass(frozen=True)
+class Hardware:
+    """Settings the scene's robot was tuned with (``[detection]`` and ``[methods.<tracker>]``; docs/simulation.md,
+    "Tactile fingertips and a noisy wrench"): the paper's Table I has one column for the simulator and one for
+    its real robot.
+
+    Attributes
+    ----------
+    detection : dict
+        Overrides of the contact detector's parameters (``threshold``, ``sigma_inv``); empty: the defaults.
+    methods : dict of str -> dict
+        Per tracking method, overrides of its parameters (e.g. ``{"stucco": {"length": 0.006}}``); a method not
+        named keeps its defaults.
+    """
+
+    detection: dict[str, Any] = field(default_factory=dict)
+    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def method_params(self, method: str) -> dict[str, Any]:
+        """The overrides for ``method`` (a copy; empty if none)."""
+        return dict(self.methods.get(method, {}))
+
+
+@dataclass(frozen=True)
 class WalkSpec:
     """Greedy controller with a random walk on contact (training scenes; docs/simulation.md, "`stucco collect`")."""
 
@@ -214,6 +273,8 @@ class Scene:
     objects : tuple of ObjectSpec
     walls : tuple of WallSpec
     effects : Effects
+    sensors : Sensors
+    hardware : Hardware
     actions : tuple of (float, float) or None
         The hand-made sequence in normalised units, each axis in [-1, 1].
     action_scale : float, metres
@@ -241,6 +302,8 @@ class Scene:
     walls: tuple[WallSpec, ...]
     effects: Effects
     actions: tuple[tuple[float, float], ...] | None = None
+    sensors: Sensors = Sensors()
+    hardware: Hardware = field(default_factory=Hardware, compare=False)
     action_scale: float = DEFAULT_ACTION_SCALE
     replay: str = "open"
     walk: WalkSpec | None = None
@@ -264,3 +327,12 @@ class Scene:
             return replace(self, effects=replace(self.effects, **changes))
         except TypeError as exc:
             raise SceneError(f"{self.path}: [effects]: {exc}") from None
+
+
+def declared_region(scene) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """The target region a scene declares (``[target_region]``, :attr:`Scene.target_region`), or None when it
+    declares none (its region is then the whole workspace, which says nothing) or there is no scene."""
+    region = getattr(scene, "target_region", None)
+    if region is None or tuple(map(tuple, region)) == tuple(map(tuple, WORKSPACE_M)):
+        return None
+    return (tuple(map(float, region[0])), tuple(map(float, region[1])))

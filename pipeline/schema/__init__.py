@@ -69,7 +69,7 @@ from pipeline.schema.io import (
     recorded_number,
     write_table,
 )
-from pipeline.schema.runs import SIM_RUN, SIM_RUN_COLUMNS
+from pipeline.schema.runs import PAD_COLUMNS, SIM_RUN, SIM_RUN_COLUMNS
 from pipeline.schema.specs import (
     CONTACTS,
     CONTACTS_COLUMNS,
@@ -101,6 +101,7 @@ __all__ = [
     "SEGMENTS",
     "DIAGNOSTICS",
     "SIM_RUN_COLUMNS",
+    "PAD_COLUMNS",
     "SIM_RUN",
     "TABLES",
     "METADATA_KEYS",

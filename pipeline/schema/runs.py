@@ -13,7 +13,7 @@ from pipeline.schema.columns import Column, ColumnViews, TableSpec
 from pipeline.schema.rules import MAX_POSITION_M, MAX_STEP_DISPLACEMENT_M
 from pipeline.schema.validate import check_steps_nondecreasing, first_row
 
-__all__ = ["SIM_RUN_COLUMNS", "SIM_RUN", "MAX_WRENCH"]
+__all__ = ["SIM_RUN_COLUMNS", "SIM_RUN", "MAX_WRENCH", "PAD_COLUMNS"]
 
 #: Bound on every wrench component (N, N m) and representative force: a gripper pushing objects on a table
 #: sees tens of newtons; beyond this the log is not a contact log (or its units are wrong).
@@ -77,6 +77,18 @@ SIM_RUN_COLUMNS: tuple[Column, ...] = (
     Column("obj_distance_m", _F, "m", False, "Every body's minimum distance to the gripper after the action "
                                              "(negative: penetration); NaN for bodies not built.",
            shape=(None,), nan_means_missing=True, **_POS),
+    Column("pad_contact_m", _F, "m", False, "Each fingertip sensor's contact point (x, y) of the action, noise "
+                                            "included (docs/simulation.md, \"Tactile fingertips and a noisy "
+                                            "wrench\"); NaN for a pad that did not fire; absent from runs of "
+                                            "scenes without fingertips.", shape=(None, 2), nan_means_missing=True,
+           required=False, **_POS),
+    Column("pad_dx_m", _F, "m", False, "The gripper's displacement summed over the sim steps each pad fired; NaN "
+                                       "for a pad that did not fire.", shape=(None, 2), nan_means_missing=True,
+           required=False, **_STEP),
+    Column("pad_object", _I, "", False, "Ground truth: the object pressing each pad at its reported point (-1: "
+                                        "none).", shape=(None,), minimum=-1, required=False),
+    Column("pad_force_n", _F, "N", False, "Largest normal force on each pad over the action.", shape=(None,),
+           required=False, finite=True, minimum=0.0, maximum=MAX_WRENCH),
     Column("probe", pa.bool_(), "", False, "The action is the probing policy's (`stucco collect --policy "
                                            "scripted+probe` or `explore`, docs/retrieval.md, \"Active "
                                            "retrieval\"), not the scripted part's (nor the explore policy's "
@@ -103,6 +115,10 @@ def _check_sim_run(cols: ColumnViews) -> None:
     wrench = cols.values["win_wrench"]
     if (r := first_row(np.isnan(wrench).any(axis=(1, 2)) & inc)) is not None:
         cols.fail("win_wrench", r, "has NaN while in_contact is true; the detector needs the wrench")
+
+
+#: The fingertip sensors' columns, written together or not at all.
+PAD_COLUMNS = ("pad_contact_m", "pad_dx_m", "pad_object", "pad_force_n")
 
 
 SIM_RUN = TableSpec(

@@ -65,6 +65,9 @@ CONTACTS_COLUMNS: tuple[Column, ...] = (
     Column("force_n", pa.float64(), "N", True, "The contact force the step met (largest in-plane wrench over "
            "the isolation window); null: none detected, or not measured.", required=False, finite=True,
            minimum=0.0),
+    Column("sensor", pa.int64(), "", True, "Which sensor gave the contact: -1 isolation from the wrist wrench, 0, "
+           "1, ... a fingertip sensor (docs/simulation.md, \"Tactile fingertips and a noisy wrench\"); null in "
+           "free space. Written for runs with fingertip sensors.", required=False, minimum=-1),
 )
 
 TRACKS_COLUMNS: tuple[Column, ...] = (

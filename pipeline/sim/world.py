@@ -24,7 +24,7 @@ import pybullet as p
 
 from pipeline.geometry import quat_yaw
 from pipeline.scenes import Effects, ObjectSpec, Scene, WallSpec
-from pipeline.sim.effects import read_contacts
+from pipeline.sim.effects import PADS, read_contacts, summarize_pads, wrench_noise
 from pipeline.sim.gripper import GRIPPER_Z, Gripper, create_gripper
 
 __all__ = ["World", "ActionTrace", "TIME_STEP", "GRAVITY", "MINI_STEPS", "STEPS_PER_MINI", "STEPS_PER_ACTION",
@@ -93,6 +93,9 @@ class ActionTrace:
         True contact point (on the gripper) of the first object in contact; NaN without contact/truth.
     truth_first, truth_last : ndarray, shape (S,), int64
         Lowest / highest object id in contact (NO_CONTACT = -1 without contact or truth).
+    pads : dict or None
+        What the fingertip sensors report of the action (:func:`pipeline.sim.effects.summarize_pads`); None when
+        the scene has none.
     """
 
     start: np.ndarray
@@ -103,6 +106,7 @@ class ActionTrace:
     truth_xy: np.ndarray
     truth_first: np.ndarray
     truth_last: np.ndarray
+    pads: dict | None = None
 
 
 class World:
@@ -118,6 +122,10 @@ class World:
     maximal_coordinates : bool
         Build the plane, objects and walls as maximal-coordinate rigid bodies (default; ~3x faster to solve)
         instead of btMultiBody as the authors' URDFs were (kept for comparison; trajectories differ).
+    sensor_rng : numpy.random.Generator, optional
+        Draws the noise of the scene's ``[sensors]`` (the fingertips' points, the wrench's noise). The sensors are
+        simulated only when it is given (collection gives it; a world built only to reach a state, as the grasp's,
+        needs no sensing).
 
     Attributes
     ----------
@@ -132,8 +140,10 @@ class World:
     """
 
     def __init__(self, scene: Scene, effects: Effects | None = None,
-                 gripper_start: tuple[float, float] | None = None, *, maximal_coordinates: bool = True) -> None:
+                 gripper_start: tuple[float, float] | None = None, *, maximal_coordinates: bool = True,
+                 sensor_rng: np.random.Generator | None = None) -> None:
         self.scene = scene
+        self._sensor_rng = sensor_rng if scene.sensors.any else None
         self._maximal = bool(maximal_coordinates)
         self.effects = effects if effects is not None else scene.effects
         self.client = _connect()
@@ -258,23 +268,38 @@ class World:
         gb = self.gripper.body
         eff = self.effects
         want_w, want_t = eff.wrench, eff.contact_truth
+        sensors, rng = self.scene.sensors, self._sensor_rng
+        want_p = rng is not None and sensors.fingertips
         id_of = self.id_of
         pose = p.getBasePositionAndOrientation
         (sx, sy, sz), _ = pose(gb, physicsClientId=c)
-        pos, quat, wr, txy, tf, tl = [], [], [], [], [], []
+        pos, quat, wr, txy, tf, tl, pads = [], [], [], [], [], [], []
         nan6 = (math.nan,) * 6
         for _ in self._steps(sx, sy, dx, dy):
             bp, bq = pose(gb, physicsClientId=c)
-            w, cx, cy, first, last = read_contacts(c, gb, bp, id_of, want_w, want_t)
+            w, cx, cy, first, last, pad = read_contacts(c, gb, bp, id_of, want_w, want_t, want_p)
             pos.append(bp)
             quat.append(bq)
             wr.append(w if w is not None else nan6)
             txy.append((cx, cy))
             tf.append(first)
             tl.append(last)
-        return ActionTrace(start=np.array((sx, sy, sz)), target=np.array((sx + dx, sy + dy)), pos=np.array(pos),
-                           quat=np.array(quat), wrench=np.array(wr, dtype=np.float64), truth_xy=np.array(txy),
-                           truth_first=np.array(tf, dtype=np.int64), truth_last=np.array(tl, dtype=np.int64))
+            pads.append(pad)
+        wrench = np.array(wr, dtype=np.float64)
+        start, pos_a = np.array((sx, sy, sz)), np.array(pos)
+        pad_report = None
+        if rng is not None:
+            # one draw per action, in a fixed order (wrench, then pads), so the draws never depend on the contacts
+            if want_w and any(s > 0.0 for s in sensors.wrench_noise):
+                wrench = wrench + wrench_noise(rng, len(wrench), sensors.wrench_noise)
+            if want_p:
+                readings = np.array(pads, dtype=np.float64).reshape(len(pads), len(PADS), 4)
+                pad_report = summarize_pads(readings, start, pos_a, sensors.pad_threshold_n,
+                                            sensors.pad_noise_mm * 1e-3, rng)
+        return ActionTrace(start=start, target=np.array((sx + dx, sy + dy)), pos=pos_a,
+                           quat=np.array(quat), wrench=wrench, truth_xy=np.array(txy),
+                           truth_first=np.array(tf, dtype=np.int64), truth_last=np.array(tl, dtype=np.int64),
+                           pads=pad_report)
 
     def advance(self, dx: float, dy: float) -> None:
         """:meth:`act` without observing: the same targets and sim steps (reading the pose and contacts does not

@@ -22,6 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.contact_isolation import isolate_run, isolation_surface
+from pipeline.detection import scene_detection
 from pipeline.estimators.estimate import Segment, estimate_plausible, paper_segment
 from pipeline.estimators.paper.choice import Estimate, confidence_notes
 from pipeline.estimators.params import RetrievalParams
@@ -50,18 +51,36 @@ __all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "
 PLAUSIBLE_SET = 64
 
 
-def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None) -> tuple[np.ndarray, np.ndarray]:
+def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None, near: Segment | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Contact point (K, 2) at the end of every action (NaN without) and the gripper's in-contact displacement
-    (K, 2) (0 without), metres, re-isolated with the isolate stage's defaults from ``table`` (the run's
-    ``sim_run`` rows; the run file's when None), or as a robot's log recorded them (``info.observed``)."""
+    (K, 2) (0 without), metres, re-isolated with the scene's detector from ``table`` (the run's
+    ``sim_run`` rows; the run file's when None), or as a robot's log recorded them (``info.observed``).
+
+    An action with several contacts (fingertip sensors, docs/simulation.md) keeps one: the one nearest to the
+    points of ``near`` (the tracked segment) observed at that action, else its first (the pushes' model moves the
+    target by one contact per action)."""
     if table is None and info.observed is not None:  # a robot's log: its contacts as it recorded them
         return info.observed[0].copy(), info.observed[1].copy()
     rows = pq.read_table(regular_file(info.path, "the run file")) if table is None else table
-    cols, _, _ = isolate_run(rows, *isolation_surface(sdf))
+    cols, _, _ = isolate_run(rows, *isolation_surface(sdf), scene_detection(info.scene))
     inc = np.asarray(cols["in_contact"], dtype=bool)
     f = lambda k: np.array([v if v is not None else np.nan for v in cols[k]], dtype=np.float64)  # noqa: E731
     contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
     push = np.where(inc[:, None], np.column_stack([f("dx_m"), f("dy_m")]), 0.0)
+    step = np.asarray(cols["step"], dtype=np.int64)
+    keep = np.r_[True, step[1:] != step[:-1]]
+    if not keep.all():  # several contacts in some actions: one row per action, the one nearest the segment
+        first = np.flatnonzero(keep)
+        pick = first.copy()
+        seg_steps = np.zeros(0, np.int64) if near is None else np.asarray(near.steps, np.int64)
+        for a in np.flatnonzero(np.diff(np.r_[first, len(step)]) > 1):  # the few multi-contact actions
+            rows_a = np.arange(first[a], first[a + 1] if a + 1 < len(first) else len(step))
+            mine = near.points[seg_steps == step[first[a]]] if near is not None else np.zeros((0, 2))
+            if len(mine) and inc[rows_a].all():
+                d = np.min(np.hypot(*(contact[rows_a, None, :] - mine[None, :, :]).transpose(2, 0, 1)), axis=1)
+                pick[a] = rows_a[int(np.argmin(d))]
+        contact, push = contact[pick], push[pick]
     return contact, np.nan_to_num(push)
 
 
@@ -292,7 +311,7 @@ def track_segment(segments: Sequence[Segment], info: RunInfo, sdf, rngs: Sequenc
     if seg is None:
         return paper, None
     target = info.target
-    contact, push = observed_actions(info, sdf, table)
+    contact, push = observed_actions(info, sdf, table, seg)
     if seg.observed is not None:  # the contacts given where they were observed (the ladder's ideal ones)
         # (the other actions keep their isolated contacts: another segment's contact may push the target)
         contact[np.searchsorted(info.steps, np.asarray(seg.steps))] = np.asarray(seg.observed, dtype=np.float64)
