@@ -27,7 +27,7 @@ from stucco_cli.progress import bars_off
 def bench() -> None:
     """Benchmarks: what accuracy costs in time.
 
-    Commands: track, accuracy, sim (here and in stucco_cli/sim.py), retrieval, pushes, probe
+    Commands: track, contacts, accuracy, sim (here and in stucco_cli/sim.py), retrieval, pushes, probe
     (stucco_cli/bench_runs.py), scale (stucco_cli/bench_scale.py)."""
 
 
@@ -99,6 +99,39 @@ def bench_track(settings, streams, t_list, n_list, repeats, accuracy_seeds, meth
                           methods=method_list, echo=click.echo)
     if json_path:
         write_text(json_path, json.dumps(res, indent=1))  # atomically, like every other output
+        say(settings, f"-> {json_path}")
+
+
+@bench.command("contacts")
+@click.option("--streams", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="Folder of stream_T*.npz files [data/anchors].")
+@click.option("--T", "t_list", default="50,100,200", show_default=True, help="Contact steps of the streams.")
+@click.option("--K", "k_list", default="1,2,3", show_default=True, help="Contacts per step.")
+@click.option("--N", "n_particles", type=click.IntRange(1, 100_000), default=100, show_default=True,
+              help="STUCCO's particles.")
+@click.option("--methods", default="stucco", show_default=True, help="Comma-separated tracking methods.")
+@click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True)
+@click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also save every figure.")
+@global_options(jobs=ONE_PROCESS, seed="it replays fixed streams with tracker seed 0")
+@pass_settings
+def bench_contacts(settings, streams, t_list, k_list, n_particles, methods, repeats, json_path) -> None:
+    """Several contacts per step: CPU time per contact point against one contact per step."""
+    ts, ks, method_list = parse_ints("--T", t_list), parse_ints("--K", k_list, hi=16), parse_methods(methods)
+    for name, values in (("--T", ts), ("--K", ks)):
+        if not values:
+            raise click.BadParameter("expected at least one value", param_hint=name)
+    from pipeline.studies.anchors import ANCHOR_DIR, check_streams
+
+    check_paths({"--streams": streams or ANCHOR_DIR}, {"--json": json_path})
+    from pipeline.atomic import write_text
+    from pipeline.studies.multi_contact import contacts_bench
+
+    with user_errors("bench contacts"):
+        check_streams(sorted({*ts, 50}), streams)
+        rows = contacts_bench(ts, ks, n_particles=n_particles, methods=method_list, repeats=repeats,
+                              streams=streams, echo=click.echo)
+    if json_path:
+        write_text(json_path, json.dumps(rows, indent=1))
         say(settings, f"-> {json_path}")
 
 
