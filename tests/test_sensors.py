@@ -247,3 +247,15 @@ def test_the_grasp_keeps_its_3_cm_steps_whatever_step_the_rummage_takes():
     b = grasp_at(dataclasses.replace(fb, action_scale=0.02), poses, ee, poses[0])
     assert a.success and (a.success, a.outcome) == (b.success, b.outcome)
     np.testing.assert_array_equal(a.target_pose, b.target_pose)
+
+
+def test_the_active_protocol_senses_with_the_scenes_robot_and_takes_every_contact(tmp_path):
+    from pipeline.probe.belief import Sensing
+
+    real = load_scene("REAL")
+    sensing = Sensing("REAL/0", 0, np.zeros(2), 10, scene=real)
+    assert sensing.detection.threshold == 5.0 and sensing.tracker.params.length == 0.006
+    assert sensing.region == real.target_region
+    table, params, result = collect_run(real, 0, policy="scripted+probe", max_actions=ACTIONS)
+    assert table.column("probe").to_pylist()[:ACTIONS] == [False] * ACTIONS
+    assert params["probe"]["probes"] >= 0 and result.n_actions == table.num_rows

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from pipeline.detection import DetectionParams, scene_detection
 from pipeline.estimators.estimate import Segment
 from pipeline.estimators.paper.choice import estimate_run
 from pipeline.estimators.params import RetrievalParams
@@ -40,6 +41,7 @@ from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isola
 from pipeline.labels import canonical_labels
 from pipeline.portable import exp
 from pipeline.robot import load_robot
+from pipeline.scenes import declared_region
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
@@ -70,6 +72,8 @@ class Sensing:
     region : ((x_min, y_min), (x_max, y_max)), metres, optional
         The scene's target region (:func:`pipeline.scenes.declared_region`: what the user tells, not a pose):
         the no-segment prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
+    scene : pipeline.scenes.Scene, optional
+        The scene's robot's detector and tracker parameters, and ``region`` when None (else the defaults).
 
     Attributes
     ----------
@@ -80,10 +84,13 @@ class Sensing:
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
-                 robot: str = "panda", region=None) -> None:
+                 robot: str = "panda", region=None, scene=None) -> None:
         self.sdf = load_robot(robot)
-        self.region = region
-        config = TrackConfig(method=method, robot=robot)
+        self.region = region if region is not None or scene is None else declared_region(scene)
+        # the scene's robot as tuned (its [detection] and [methods.<method>]), as evaluate isolates and tracks it
+        self.detection = DetectionParams() if scene is None else scene_detection(scene)
+        params = {} if scene is None else scene.hardware.method_params(method)
+        config = TrackConfig(method=method, robot=robot, params=params)
         warm_up(config, self.sdf)
         self.method = method
         self.n_scripted = int(n_scripted)
@@ -103,8 +110,8 @@ class Sensing:
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order). An action with several contacts (fingertip
         sensors) gives the tracker all of them in one update, as ``stucco track`` does."""
-        cols, _, _ = isolate_run(table, *self.surface)
-        self.forces += contact_forces(table).tolist()
+        cols, _, _ = isolate_run(table, *self.surface, self.detection)
+        self.forces += contact_forces(table, self.detection).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
         step = np.asarray(cols["step"], dtype=np.int64)

@@ -40,7 +40,6 @@ from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import ProbePlan, choose_probe, gripper_outline
 from pipeline.probe.set_grasp import choose_grasp
 from pipeline.probe.transit import grasp_transit
-from pipeline.scenes import declared_region
 
 __all__ = ["ProbeParams", "ProbeLog", "probe_run", "next_probe", "run_policy", "recorder", "run_record",
            "required_contacts", "give_way_at_budget", "bunched", "guarded_move", "retrace", "prior_for"]
@@ -92,7 +91,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     ProbeLog
     """
     rows = table()
-    sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, region=declared_region(scene))
+    sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, scene=scene)
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()

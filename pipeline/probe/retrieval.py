@@ -29,7 +29,6 @@ from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings
 from pipeline.probe.history import HistoryPrior, history_prior
 from pipeline.probe.params import ProbeParams
 from pipeline.probe.planning import PlanParams, gripper_outline
-from pipeline.scenes import declared_region
 
 __all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
 
@@ -95,7 +94,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     history = meta.get("history") or []
     state = history[min(decision, len(history) - 1)] if decision is not None and history else \
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
-    sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, region=declared_region(info.scene))
+    sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, scene=info.scene)
     sensing.observe(table.slice(0, int(state["rows"])))
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
