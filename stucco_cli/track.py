@@ -88,6 +88,9 @@ def _check_options(method: str, name: str) -> None:
               help="Resample when ESS/N is below this [0.8].")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Any other tracker parameter (e.g. baselines: --set eps=0.05).")
+@click.option("--scene", "scene_name", default=None, metavar="NAME|FILE",
+              help="Start from the parameters the scene's robot was tuned with (its [methods.<method>], e.g. "
+                   "REAL's Table I real column), as `stucco evaluate` does; options and --set override them.")
 @click.option("--every-step", is_flag=True, help="Also write the estimate after every step.")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads of STUCCO's particle loops [1, or $STUCCO_THREADS]; results do not depend on it. "
@@ -96,7 +99,8 @@ def _check_options(method: str, name: str) -> None:
 @global_options()
 @pass_settings
 def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | None, method: str, robot: str,
-          sets: tuple[str, ...], every_step: bool, threads: int | None, force_overwrite: bool, **stucco_opts) -> None:
+          sets: tuple[str, ...], scene_name: str | None, every_step: bool, threads: int | None, force_overwrite: bool,
+          **stucco_opts) -> None:
     """Track contact points of every run of a contacts table (STUCCO soft tracking or a baseline)."""
     from pipeline.track.stage import TrackConfig, default_diagnostics_path, track_file
 
@@ -107,6 +111,11 @@ def track(settings: Settings, in_path: Path, out_path: Path, diag_path: Path | N
     params = {k: v for k, v in stucco_opts.items() if v is not None}
     if params:
         _check_options(method, next(iter(params)))
+    if scene_name is not None:
+        from pipeline.scenes import load_scene
+
+        with user_errors("--scene"):
+            params = {**load_scene(scene_name).hardware.method_params(method), **params}
     params.update(_parse_sets(sets))
     diag_path = diag_path or default_diagnostics_path(out_path)
     check_paths({"--in": in_path}, {"--out": out_path, "--diagnostics": diag_path})

@@ -231,6 +231,12 @@ def test_evaluate_tracks_with_the_scenes_settings_and_reports_the_real_row(tmp_p
     report = (out / "report.md").read_text()
     assert "100 (5 runs)" in report  # the paper's real row, beside ours
     assert "best baseline" in report and "short by" not in report  # the real row's claim, not the 65 % one
+    # the stage alone, told the scene, tracks exactly as the evaluation did
+    alone = tmp_path / "alone.parquet"
+    res = CliRunner().invoke(cli, ["-q", "track", "--in", str(partition(out, "contacts", "REAL", 0)), "--out",
+                                   str(alone), "--scene", "REAL"])
+    assert res.exit_code == 0, res.output
+    assert schema.read_tracks(alone).equals(schema.read_tracks(partition(out, "tracks", "REAL", 0, "stucco")))
 
 
 def test_the_grasp_keeps_its_3_cm_steps_whatever_step_the_rummage_takes():
