@@ -251,7 +251,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         "action_scale_m": scale, "max_actions": max_actions,
         "bodies": list(scene.body_names), "target": scene.target.name if scene.target else None,
         "initial": initial, "goal_xy_m": None if mover.goal is None else mover.goal.tolist(),
-        "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window},
+        "detection": {"sigma_inv": list(det.sigma_inv), "threshold": det.threshold, "window": det.window,
+                      **({"min_force_n": det.min_force_n} if det.min_force_n else {})},
         "steps_per_action": STEPS_PER_ACTION, "discarded": discarded,
         # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.estimators.run_info)
         "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),

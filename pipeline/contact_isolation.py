@@ -84,7 +84,9 @@ def isolate_run(table, points: np.ndarray, normals: np.ndarray, det: DetectionPa
                               int(j)))
         flags = flags_all[i]
         idx = contact_window(flags, iso.max_wrenches, det.window) if not found else ()
-        if len(idx):
+        if len(idx) and not force[i] >= det.min_force_n:  # too weak to place against the wrench's noise
+            unisolated += 1
+        elif len(idx):
             last = idx[-1]
             yaw = gripper_yaw(pose[i, last, 3:])
             # express the forces in the gripper's frame (world axes when the gripper is not turned)

@@ -41,11 +41,16 @@ class DetectionParams(Params):
         A sim step is in contact if the residual exceeds it.
     window : int
         An action is in contact if any of its last ``window`` sim steps is.
+    min_force_n : float, N
+        A detected contact whose in-plane force stays under this over the isolation window is not isolated (as a
+        contact no surface point explains): too weak to be placed against a noisy wrench. 0 (the simulator's
+        exact wrench): every detected contact is isolated.
     """
 
     sigma_inv: tuple[float, ...] = (1.0, 1.0, 1.0, 50.0, 50.0, 50.0)
     threshold: float = 1.0
     window: int = 5
+    min_force_n: float = 0.0
 
 
 def scene_detection(scene) -> DetectionParams:

@@ -265,3 +265,17 @@ def test_the_active_protocol_senses_with_the_scenes_robot_and_takes_every_contac
     table, params, result = collect_run(real, 0, policy="scripted+probe", max_actions=ACTIONS)
     assert table.column("probe").to_pylist()[:ACTIONS] == [False] * ACTIONS
     assert params["probe"]["probes"] >= 0 and result.n_actions == table.num_rows
+
+
+def test_a_force_floor_leaves_the_weak_wrench_contacts_unisolated(real_run):
+    plain = isolate_runs([real_run])
+    det = dataclasses.replace(plain.detection, min_force_n=5.0)
+    floored = isolate_runs([real_run], det)
+    a, b = plain.table.to_pydict(), floored.table.to_pydict()
+    weak = [i for i, s in enumerate(a["sensor"]) if s == -1 and a["force_n"][i] < 5.0]
+    assert weak, "the noisy wrench detects weak contacts"
+    assert floored.n_unisolated == plain.n_unisolated + len(weak)
+    kept = [(s, st) for s, st, f in zip(a["sensor"], a["step"], a["force_n"]) if s is not None and not
+            (s == -1 and f < 5.0)]
+    assert [(s, st) for s, st in zip(b["sensor"], b["step"]) if s is not None] == kept  # the pads untouched
+    assert all(f >= 5.0 for s, f in zip(b["sensor"], b["force_n"]) if s == -1)

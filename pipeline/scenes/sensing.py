@@ -18,7 +18,7 @@ MAX_PAD_NOISE_MM = 50.0
 MAX_PAD_THRESHOLD_N = 1000.0
 MAX_WRENCH_NOISE = 100.0
 #: Detector keys a scene may override (pipeline.detection.DetectionParams).
-_DETECTION_KEYS = {"threshold", "sigma_inv"}
+_DETECTION_KEYS = {"threshold", "sigma_inv", "min_force_n"}
 
 
 def parse_sensors(r: Any) -> Sensors:
@@ -51,6 +51,8 @@ def parse_hardware(detection: Any, methods: Any) -> Hardware:
             if any(s < 0 for s in sig):
                 raise detection.fail("sigma_inv", f"expected non-negative weights, got {list(sig)}")
             det["sigma_inv"] = tuple(sig)
+        if "min_force_n" in detection.table:
+            det["min_force_n"] = detection.number("min_force_n", nonneg=True, maximum=1e4)
     out: dict[str, dict[str, Any]] = {}
     if methods is not None:
         for name in methods.table:
