@@ -279,3 +279,19 @@ def test_a_force_floor_leaves_the_weak_wrench_contacts_unisolated(real_run):
             (s == -1 and f < 5.0)]
     assert [(s, st) for s, st in zip(b["sensor"], b["step"]) if s is not None] == kept  # the pads untouched
     assert all(f >= 5.0 for s, f in zip(b["sensor"], b["force_n"]) if s == -1)
+
+
+def test_without_contact_truth_the_pads_record_no_object():
+    real = load_scene("REAL")
+    table, _, _ = collect_run(real.with_effects(contact_truth=False), 0, max_actions=ACTIONS)
+    point = np.asarray(table.column("pad_contact_m").to_pylist(), dtype=float)
+    assert np.isfinite(point).any()  # the pads still sense
+    assert set(np.asarray(table.column("pad_object").to_pylist()).ravel().tolist()) == {NO_CONTACT}
+
+
+def test_bench_sim_times_the_sensors_only_for_a_scene_that_has_them():
+    from pipeline.studies.sim_effects import effect_costs
+
+    names = [r["variant"] for r in effect_costs(load_scene("REAL"), n_actions=2, repeat=1)]
+    assert "no sensors" in names
+    assert "no sensors" not in [r["variant"] for r in effect_costs(load_scene("TC"), n_actions=2, repeat=1)]

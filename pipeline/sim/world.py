@@ -24,7 +24,7 @@ import pybullet as p
 
 from pipeline.geometry import quat_yaw
 from pipeline.scenes import Effects, ObjectSpec, Scene, WallSpec
-from pipeline.sim.effects import PADS, read_contacts, summarize_pads, wrench_noise
+from pipeline.sim.effects import NO_CONTACT, PADS, read_contacts, summarize_pads, wrench_noise
 from pipeline.sim.gripper import GRIPPER_Z, Gripper, create_gripper
 
 __all__ = ["World", "ActionTrace", "TIME_STEP", "GRAVITY", "MINI_STEPS", "STEPS_PER_MINI", "STEPS_PER_ACTION",
@@ -296,6 +296,8 @@ class World:
                 readings = np.array(pads, dtype=np.float64).reshape(len(pads), len(PADS), 4)
                 pad_report = summarize_pads(readings, start, pos_a, sensors.pad_threshold_n,
                                             sensors.pad_noise_mm * 1e-3, rng)
+                if not want_t:  # the pads' object is ground truth: recorded only with the contact_truth effect
+                    pad_report["object"][:] = NO_CONTACT
         return ActionTrace(start=start, target=np.array((sx + dx, sy + dy)), pos=pos_a,
                            quat=np.array(quat), wrench=wrench, truth_xy=np.array(txy),
                            truth_first=np.array(tf, dtype=np.int64), truth_last=np.array(tl, dtype=np.int64),

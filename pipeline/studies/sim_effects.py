@@ -28,16 +28,19 @@ VARIANTS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
     ("no wrench, no truth", {"wrench": False, "contact_truth": False}, {}),
     ("no walls", {"walls": False}, {}),
     ("multibody objects", {}, {"maximal_coordinates": False}),
+    ("no sensors", {}, {"sensors": False}),  # only for a scene with [sensors]
 )
 
 
-def time_run(scene: Scene, n_actions: int | None = None, **world_kw: Any) -> dict[str, float]:
-    """Seconds spent building the world, settling, and executing the scripted actions (seed-0 noise)."""
+def time_run(scene: Scene, n_actions: int | None = None, sensors: bool = True, **world_kw: Any) -> dict[str, float]:
+    """Seconds spent building the world, settling, and executing the scripted actions (seed-0 noise), the scene's
+    ``[sensors]`` simulated unless ``sensors`` is off."""
     eff = scene.effects
     seq = np.asarray(scene.actions, dtype=np.float64)[:n_actions]
     u = np.clip(seq + action_noise(np.random.default_rng(0), len(seq), eff.noise_mm, scene.action_scale), -1, 1)
     t0 = time.perf_counter()
-    world = World(scene.with_effects(settle_steps=0), **world_kw)
+    world = World(scene.with_effects(settle_steps=0), sensor_rng=np.random.default_rng(0) if sensors else None,
+                  **world_kw)
     t1 = time.perf_counter()
     try:
         world.settle(eff.settle_steps)
@@ -62,10 +65,11 @@ def effect_costs(scene: Scene, n_actions: int | None = None, repeat: int = 3) ->
     if scene.actions is None:
         raise ValueError(f"{scene.path}: key 'actions': sim-bench needs a scene with a scripted sequence")
     best: dict[str, dict[str, float]] = {}
+    variants = [v for v in VARIANTS if v[0] != "no sensors" or scene.sensors.any]
     for _ in range(repeat):
-        for name, changes, kw in VARIANTS:
+        for name, changes, kw in variants:
             t = time_run(scene.with_effects(**changes), n_actions, **kw)
             if name not in best or t["total_s"] < best[name]["total_s"]:
                 best[name] = t
     base = best["all effects"]["total_s"]
-    return [{"variant": name, **best[name], "delta_s": best[name]["total_s"] - base} for name, _, _ in VARIANTS]
+    return [{"variant": name, **best[name], "delta_s": best[name]["total_s"] - base} for name, _, _ in variants]
