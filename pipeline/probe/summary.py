@@ -18,20 +18,26 @@ from pipeline.layout import partition
 from pipeline.probe.report import run_stats
 from pipeline.report import PAPER_TABLE_II
 
-__all__ = ["active_rows", "active_markdown"]
+__all__ = ["active_rows", "active_markdown", "group_of"]
 
 #: The paper's tasks (Table II's rows, the real row's stand-in included), reported one row each; every other scene is
 #: grouped by its target's shape.
 PAPER_TASKS = tuple(PAPER_TABLE_II)
 
 
+def group_of(scene: str, shape: str) -> str:
+    """The row a run of ``scene`` is reported in: a paper task by name, any other scene by its target's ``shape``
+    ("box" or "cylinder", reported as a box or a can target)."""
+    return scene if scene in PAPER_TASKS else f"other scenes, {'can' if shape == 'cylinder' else 'box'} target"
+
+
 def _run_facts(run_path: Path) -> tuple[str, int, float]:
-    """(the target's shape, "box" or "can"; the run's actions; how far the target's centre moved from after the
+    """(the target's shape, "box" or "cylinder"; the run's actions; how far the target's centre moved from after the
     first action to the end of the run, m) of a run file."""
     info = load_run(run_path)  # the scene recorded in the run file, its target, the final poses
     first = np.asarray(schema.read_run(run_path).column("obj_pose")[0].as_py(), dtype=np.float64).reshape(-1, 3)
     moved = math.hypot(*(info.true_pose[:2] - first[info.target_id, :2]))
-    return ("can" if info.target.kind == "cylinder" else "box"), len(info.steps), moved
+    return info.target.kind, len(info.steps), moved
 
 
 def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) -> list[dict]:
@@ -53,8 +59,7 @@ def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) ->
         if r.get("grasp_attempts") is None or not path.is_file():
             continue
         shape, actions, pushed = _run_facts(path)
-        group = scene if scene in PAPER_TASKS else f"other scenes, {shape} target"
-        groups.setdefault(group, []).append((r, run_stats(path), actions, pushed))
+        groups.setdefault(group_of(scene, shape), []).append((r, run_stats(path), actions, pushed))
     out_rows = []
     order = {name: i for i, name in enumerate(PAPER_TASKS)}
     for name in sorted(groups, key=lambda g: (order.get(g, len(order)), g)):

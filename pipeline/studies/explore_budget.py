@@ -23,7 +23,7 @@ from pipeline.parallel import run_calls
 from pipeline.probe.explore import ExploreParams
 from pipeline.probe.report import run_stats, save_times
 from pipeline.probe.retrieval import active_grasp
-from pipeline.probe.summary import PAPER_TASKS
+from pipeline.probe.summary import group_of
 from pipeline.scenes import load_scene
 
 __all__ = ["BUDGETS", "FIELDS", "budget_rows", "summarise", "write_outputs"]
@@ -32,12 +32,6 @@ __all__ = ["BUDGETS", "FIELDS", "budget_rows", "summarise", "write_outputs"]
 BUDGETS = (100, 200, 400, 2000)
 FIELDS = ("scene", "group", "seed", "budget", "actions", "search_actions", "probes", "success", "success_any",
           "attempts", "position_error_m", "yaw_error_rad", "decision_s_median", "decision_s_max", "flagged")
-
-
-def _group(scene) -> str:
-    """A paper task by name; any other scene by its target's shape."""
-    return scene.name if scene.name in PAPER_TASKS else \
-        f"other scenes, {'can' if scene.target.shape == 'cylinder' else 'box'} target"
 
 
 def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, params: ExploreParams) -> dict:
@@ -59,7 +53,8 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
     pe, ye = pose_error(info.target, r.pose, info.true_pose)
     probe = schema.probe_record(path)
     dec = np.asarray(run_stats(path)["decision_s"], dtype=np.float64)
-    return dict(scene=scene.name, group=_group(scene), seed=seed, budget=budget, actions=len(info.steps),
+    return dict(scene=scene.name, group=group_of(scene.name, scene.target.shape), seed=seed, budget=budget,
+                actions=len(info.steps),
                 search_actions=int(probe["search"]["actions"]), probes=r.probes,
                 success=bool(r.result.first_success), success_any=bool(r.result.success),
                 attempts=len(r.result.attempts), position_error_m=pe, yaw_error_rad=ye,
