@@ -42,6 +42,7 @@ from pipeline.labels import canonical_labels
 from pipeline.portable import exp
 from pipeline.robot import load_robot
 from pipeline.scenes import declared_region
+from pipeline.schema import step_bounds
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
@@ -115,8 +116,7 @@ class Sensing:
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
         step = np.asarray(cols["step"], dtype=np.int64)
-        first = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
-        for a, (i, j) in enumerate(zip(first, np.r_[first[1:], len(step)])):
+        for a, (i, j) in enumerate(zip(*step_bounds(step))):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
             scripted = len(self.steps) < self.n_scripted
             self.ee.append(x)

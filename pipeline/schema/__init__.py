@@ -50,7 +50,7 @@ This package re-exports the public names; import them from here (``from pipeline
 from __future__ import annotations
 
 from pipeline.schema.columns import Column, TableSpec
-from pipeline.schema.contacts import RunContacts, contacts_by_run
+from pipeline.schema.contacts import RunContacts, contacts_by_run, step_bounds
 from pipeline.schema.docs import columns_markdown, table_markdown
 from pipeline.schema.errors import SchemaError
 from pipeline.schema.io import (
@@ -126,6 +126,7 @@ __all__ = [
     "recorded_number",
     "RunContacts",
     "contacts_by_run",
+    "step_bounds",
     "columns_markdown",
     "table_markdown",
 ]

@@ -12,7 +12,7 @@ import pyarrow as pa
 from pipeline.schema.specs import validate_contacts
 from pipeline.schema.validate import encode_runs
 
-__all__ = ["RunContacts", "contacts_by_run"]
+__all__ = ["RunContacts", "contacts_by_run", "step_bounds"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,6 +73,14 @@ class RunContacts:
         return self.ee[s], self.dx[r], self.contact[r]
 
 
+def step_bounds(step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``starts[k]:ends[k]`` of each step among one run's rows in order, both (K,): consecutive rows with the
+    same ``step`` are that step's simultaneous contacts (several sensors)."""
+    step = np.asarray(step)
+    starts = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
+    return starts, np.r_[starts[1:], len(step)]
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.setflags(write=False)
@@ -111,8 +119,8 @@ def contacts_by_run(table: pa.Table) -> list[tuple[str, RunContacts]]:
     for c, name in enumerate(names):
         rows = order[bounds[c]:bounds[c + 1]]
         s = step[rows]
-        starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
-        counts = np.diff(np.r_[starts, rows.size])
+        starts, ends = step_bounds(s)
+        counts = ends - starts
         head = rows[starts]
         out.append((name, RunContacts(
             run=name,

@@ -41,6 +41,7 @@ from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, p
 from pipeline.grasp_rule import own_grasp_shares
 from pipeline.portable import argmin_tolerant, exp, logsumexp, tie_key
 from pipeline.safe_open import regular_file
+from pipeline.schema import step_bounds
 from pipeline.schema.retrieval import run_candidates
 
 __all__ = ["pushtrack_estimator", "pushtrack_set", "track_segment", "Tracked", "observed_actions", "free_space_of",
@@ -69,13 +70,12 @@ def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None, near: Se
     contact = np.column_stack([f("contact_x_m"), f("contact_y_m")])
     push = np.where(inc[:, None], np.column_stack([f("dx_m"), f("dy_m")]), 0.0)
     step = np.asarray(cols["step"], dtype=np.int64)
-    keep = np.r_[True, step[1:] != step[:-1]]
-    if not keep.all():  # several contacts in some actions: one row per action, the one nearest the segment
-        first = np.flatnonzero(keep)
+    first, ends = step_bounds(step)
+    if len(first) < len(step):  # several contacts in some actions: one row per action, the one nearest the segment
         pick = first.copy()
         seg_steps = np.zeros(0, np.int64) if near is None else np.asarray(near.steps, np.int64)
-        for a in np.flatnonzero(np.diff(np.r_[first, len(step)]) > 1):  # the few multi-contact actions
-            rows_a = np.arange(first[a], first[a + 1] if a + 1 < len(first) else len(step))
+        for a in np.flatnonzero(ends - first > 1):  # the few multi-contact actions
+            rows_a = np.arange(first[a], ends[a])
             mine = near.points[seg_steps == step[first[a]]] if near is not None else np.zeros((0, 2))
             if len(mine) and inc[rows_a].all():
                 d = np.min(np.hypot(*(contact[rows_a, None, :] - mine[None, :, :]).transpose(2, 0, 1)), axis=1)
