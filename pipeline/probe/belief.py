@@ -70,14 +70,14 @@ class Sensing:
         Actions of the scripted part.
     method : str
         Tracking method (``stucco`` or a baseline of :mod:`pipeline.methods`).
-    region : ((x_min, y_min), (x_max, y_max)), metres, optional
-        The scene's target region (:func:`pipeline.scenes.declared_region`: what the user tells, not a pose):
-        the no-segment prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
     scene : pipeline.scenes.Scene, optional
-        The scene's robot's detector and tracker parameters, and ``region`` when None (else the defaults).
+        Its robot's detector and tracker parameters (else the defaults), and :attr:`region`.
 
     Attributes
     ----------
+    region : ((x_min, y_min), (x_max, y_max)), metres, or None
+        The scene's target region (:func:`pipeline.scenes.declared_region`: what the user tells, not a pose): the
+        no-segment prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
     prior : pipeline.probe.history.HistoryPrior or None
         The prior the scripted part's pushes put on the target's pose, set once the scripted part is observed: its
         ``segment`` (the one it tracked) and ``cost(target, poses)``; the sets fitted to that segment from this
@@ -85,9 +85,9 @@ class Sensing:
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
-                 robot: str = "panda", region=None, scene=None) -> None:
+                 robot: str = "panda", scene=None) -> None:
         self.sdf = load_robot(robot)
-        self.region = region if region is not None or scene is None else declared_region(scene)
+        self.region = declared_region(scene)
         # the scene's robot as tuned (its [detection] and [methods.<method>]), as evaluate isolates and tracks it
         self.detection = DetectionParams() if scene is None else scene_detection(scene)
         params = {} if scene is None else scene.hardware.method_params(method)
