@@ -37,7 +37,8 @@ from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 from pipeline.grasp_judge import GRASP_STEP_M, PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
-           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "PAD_FROM_BASE", "set_fingers",
+           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "CENTRED_BOX", "CENTRED_OFFSET",
+           "PAD_FROM_BASE", "set_fingers",
            "finger_contacts", "body_pose", "move_to", "close_and_judge"]
 
 OPEN = 0.055  # m per finger (OPEN_ANGLE)
@@ -72,14 +73,26 @@ PLANS: dict[str, GraspPlan] = {
 }
 
 
+#: Pre-grasp offset (m) that centres the pads' span on the target once the script has advanced: the fingers then
+#: close across the middle of a box's long faces, and its palm meets the box's near end first (pushing it a little)
+#: whatever the estimate's error along the approach (docs/retrieval.md, "Grasp in simulation"). TC's 0.2 m is
+#: this offset to 5 mm; FB's 0.25 m closes the pads 4.5 cm short of the box's centre, 2.4 cm from the end of the
+#: part of the face where a grasp holds.
+CENTRED_OFFSET = GraspParams().approach_steps * GRASP_STEP_M + (PAD_FROM_BASE[0] + PAD_FROM_BASE[1]) / 2.0
+
+#: The plan of a box target in a scene without a paper plan: FB's yaw range, the pads centred on the box.
+CENTRED_BOX = GraspPlan(CENTRED_OFFSET, (-math.pi / 2, math.pi / 2))
+
+
 def plan_for(scene) -> GraspPlan:
-    """The scene's plan, or by target shape for other scenes (box: FB's, cylinder: TC's)."""
+    """The scene's plan (the paper's four tasks), or by target shape for other scenes (a box: :data:`CENTRED_BOX`,
+    a cylinder: TC's)."""
     if scene.name in PLANS:
         return PLANS[scene.name]
     tgt = scene.target
     if tgt is None:
         raise ValueError(f"{scene.path}: scene {scene.name} has no target to grasp")
-    return PLANS["TC"] if tgt.shape == "cylinder" else PLANS["FB"]
+    return PLANS["TC"] if tgt.shape == "cylinder" else CENTRED_BOX
 
 
 @dataclass

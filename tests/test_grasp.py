@@ -125,6 +125,21 @@ def test_plans_follow_the_reference_grasp_offsets():
     assert plan_for(load_scene("IB")) is PLANS["IB"]
 
 
+def test_a_box_scene_without_a_paper_plan_centres_the_pads_on_the_box():
+    from pipeline.grasp import CENTRED_BOX, PAD_FROM_BASE
+
+    real = load_scene("REAL")
+    assert plan_for(real) is CENTRED_BOX and CENTRED_BOX.yaw_range == PLANS["FB"].yaw_range
+    assert all(plan_for(load_scene(name)) is PLANS[name] for name in PLANS)  # the paper's tasks keep theirs
+    # after the script's advance the pads' span is centred on the estimate's centre
+    box = _box()
+    est = np.array([0.4, -0.1, 0.3])
+    _, pre, approach = pregrasp(plan_for(real), box, est)
+    base = pre + GraspParams().approach_steps * 0.03 * approach
+    near, far = (float(np.dot(box.centre_world(est) - (base + d * approach), approach)) for d in PAD_FROM_BASE)
+    assert near == pytest.approx(-far, abs=1e-12) and near > 0.0
+
+
 # ------------------------------------------------------------------------------------------------ simulation
 
 

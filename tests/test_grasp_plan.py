@@ -23,6 +23,12 @@ RING = np.array([[0.0, 0.0], [0.0, 0.0]])  # a gripper of two coincident outline
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
 
 
+def grasp_plan_set(poses, weights, best):
+    """A stand-in for a plausible set: what :func:`attempt_grasps` reads of one (poses, weights, best)."""
+    return dataclasses.make_dataclass("Set", ["poses", "weights", "best"])(np.asarray(poses, dtype=np.float64),
+                                                                           np.asarray(weights), best)
+
+
 def _around(here, visited=None, obstacles=(), walls=()):
     here = np.asarray(here, dtype=np.float64)
     visited = here[None, :] if visited is None else np.asarray(visited, dtype=np.float64)
@@ -152,6 +158,50 @@ def test_a_grasp_that_lands_on_a_corner_or_on_nothing_is_felt_and_retried(ib_run
     first = r.attempts[0]
     assert not first.success and not first.felt_ok  # the robot felt the miss without reading the judge
     assert len(r.attempts) >= 2 and r.success
+
+
+def _sure_elsewhere(info) -> np.ndarray:
+    """A set of one hypothesis 15 cm beside the true pose (-x), in free space: a grasp there reaches its
+    pre-grasp point and closes on nothing."""
+    true = np.asarray(info.true_pose, dtype=np.float64)
+    return np.r_[true[:2] + [-0.15, 0.0], true[2]][None, :]
+
+
+def test_a_sure_set_that_finds_no_target_turns_to_the_next_segment(ib_run):
+    info = ib_run
+    asked = []
+
+    def next_set(k):
+        asked.append(k)
+        belief = grasp_plan_set(info.true_pose[None, :], np.ones(1), 0)
+        return (belief, _open_space(info)) if k == 1 else None
+
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, _sure_elsewhere(info),
+                       np.ones(1), 0, _open_space(info), next_set=next_set)
+    assert asked == [1]  # asked once, after the first attempt's felt miss
+    assert not r.attempts[0].felt_ok and not r.first_success
+    assert len(r.attempts) == 2 and r.success
+
+
+def test_a_set_that_was_not_sure_keeps_its_segment(ib_run):
+    info = ib_run
+    asked = []
+    # the first grasp holds 60 % of the set (a hypothesis in free space), under switch_share: its miss moves the
+    # weight to the set's other hypothesis, not to another segment (the last attempt asks for nothing)
+    beside = np.r_[info.true_pose[:2] + [0.1, -0.15], info.true_pose[2]]
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target,
+                       np.vstack([beside, info.true_pose]), np.array([0.6, 0.4]), 0, _open_space(info),
+                       PlanningParams(attempts=2), next_set=lambda k: asked.append(k))
+    assert asked == [] and len(r.attempts) == 2
+    assert r.attempts[0].reached and not r.attempts[0].felt_ok
+    assert np.hypot(*(r.attempts[1].grasp.centre - info.true_pose[:2])) < 0.02  # the set's other hypothesis
+
+
+def test_no_next_segment_falls_back_to_the_set_itself(ib_run):
+    info = ib_run
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, _sure_elsewhere(info),
+                       np.ones(1), 0, _open_space(info), next_set=lambda k: None)
+    assert not r.success and 1 <= len(r.attempts) <= PlanningParams().attempts
 
 
 def test_an_unreachable_target_ends_with_a_note(ib_run):

@@ -5,15 +5,19 @@ In the run's restored final state (:func:`pipeline.grasp.restore_world`) the rob
 closes, and feels the result with what a robot feels: its own position (a move that stops short met something)
 and the fingers' opening after closing (nothing between them, or not the width the target's shape gives). A felt
 failure re-plans: an object met on the way becomes a sensed obstacle, the hypotheses the failed grasp should
-have held lose their weight, and the hand backs out along its lane. Up to ``PlanningParams.attempts`` attempts.
+have held lose their weight, and the hand backs out along its lane. When the failed grasp held nearly all of the
+set (``PlanningParams.switch_share``), the set was sure and wrong: its segment is not the target's, and the next
+attempt is planned on the next-ranked segment's set. Up to ``PlanningParams.attempts`` attempts.
 
 The simulated success rule (:func:`pipeline.grasp.judge_box`, :func:`pipeline.grasp.judge_can`) judges every
 attempt for the report; the robot never reads it, nor any object's pose.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,10 +108,13 @@ def _extent(outline: np.ndarray, direction: np.ndarray) -> float:
 
 def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: Primitive, poses: np.ndarray,
                    weights: np.ndarray, best: int, surroundings: Surroundings,
-                   planning: PlanningParams = PlanningParams(), params: GraspParams = GraspParams()) -> Attempts:
+                   planning: PlanningParams = PlanningParams(), params: GraspParams = GraspParams(),
+                   next_set: Callable[[int], tuple | None] | None = None) -> Attempts:
     """Plan, attempt, feel and re-plan, up to ``planning.attempts`` times, in the run's final state (objects'
     (x, y, yaw) ``final_poses`` (B, 3), gripper at ``final_ee`` (2,)), for the plausible set (COM poses (H, 3),
-    weights (H,), ``best``). The scene gives the simulation and the judge only."""
+    weights (H,), ``best``). ``next_set(k)`` gives the set and surroundings of the ``k``-th segment ranked after
+    the set's, or None (:class:`pipeline.probe.retrieval.ActiveState`). The scene gives the simulation and the
+    judge only."""
     t0 = time.perf_counter()
     out = Attempts()
     scale = GRASP_STEP_M
@@ -116,6 +123,8 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
     w = np.asarray(weights, dtype=np.float64).copy()
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     s = surroundings
+    felt: list[np.ndarray] = []  # obstacles the attempts met, kept when the set changes
+    switched = 0
     world = restore_world(scene, np.asarray(final_poses, dtype=np.float64), np.asarray(final_ee, dtype=np.float64),
                           params.settle_steps)
     with world:
@@ -139,7 +148,8 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
                 at = trail[-1]
                 heading = point - at
                 heading = heading / max(math.hypot(*heading), 1e-9)
-                s = s.moved(at, trail).with_obstacle(at + (_extent(s.outline, heading) + 0.005) * heading)
+                felt.append(at + (_extent(s.outline, heading) + 0.005) * heading)
+                s = s.moved(at, trail).with_obstacle(felt[-1])
                 out.attempts.append(Attempt(g, False, math.nan, False, False, "pre-grasp point not reached"))
                 continue
             # the judge reads the truth for the report; the robot feels only the fingers' opening
@@ -148,12 +158,21 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
             narrower, wider = WIDTH_TOLERANCE[prim.kind]
             felt_ok = -narrower <= width - felt_width(prim) <= wider
             out.attempts.append(Attempt(g, True, width, felt_ok, ok, why))
-            if felt_ok:
+            if felt_ok or len(out.attempts) == planning.attempts:
                 break
             # Felt a miss: what this grasp should have held is not where the set put it; back out along the lane.
             held = held_by(prim, scale, np.array([g.yaw]), g.centre[None, :], np.array([float(g.advance)]),
                            g.offset, poses, params)[0]
-            if np.any(~held & (w > 0)):
+            other = next_set(switched + 1) if next_set is not None and \
+                float(np.sum(w[held])) >= planning.switch_share * float(np.sum(w)) else None
+            if other is not None:
+                # the set was sure and found no target: its segment is another object's; take the next one's set
+                switched += 1
+                belief, around = other
+                poses, w, best = belief.poses, np.asarray(belief.weights, dtype=np.float64).copy(), belief.best
+                s = dataclasses.replace(around, here=s.here, visited=s.visited, tried=s.tried,
+                                        obstacles=np.vstack([around.obstacles, *[f[None, :] for f in felt]]))
+            elif np.any(~held & (w > 0)):
                 w = np.where(held, w * CONTRADICTED_WEIGHT, w)
                 best = int(np.argmax(w))
             set_fingers(world, OPEN)

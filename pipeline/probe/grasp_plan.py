@@ -64,6 +64,9 @@ class PlanningParams:
         first wins (3 actions stop the fingers near the box's end, where the rule is optimistic).
     attempts : int
         Grasp attempts allowed (each after re-planning with what the last one sensed).
+    switch_share : float
+        A felt miss of a grasp that held at least this share of the set's weight says the set's segment is not
+        the target's: the next attempt is planned on the next-ranked segment's set (when there is one).
     """
 
     cell: float = 0.01
@@ -78,6 +81,7 @@ class PlanningParams:
     can_directions: int = 16
     advances: tuple[int, ...] = (4, 3, 5)
     attempts: int = 3
+    switch_share: float = 0.9
 
 
 @dataclass

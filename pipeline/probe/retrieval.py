@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -22,15 +23,16 @@ from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
 from pipeline.grasp_judge import GRASP_STEP_M
-from pipeline.probe.attribution import give_way_at_budget, set_from_steps, set_share
+from pipeline.probe.attribution import current_set, give_way_at_budget, set_from_steps, set_share
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
-from pipeline.probe.params import ProbeParams
+from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, gripper_outline
 
-__all__ = ["ActiveResult", "active_set", "active_grasp", "active_row", "recorded_prior"]
+__all__ = ["ActiveResult", "ActiveState", "active_set", "active_state", "active_grasp", "active_row",
+           "recorded_prior"]
 
 
 @dataclass
@@ -66,15 +68,45 @@ def _probe_meta(info: RunInfo) -> dict:
     return schema.probe_record(info.path)
 
 
+class ActiveState(NamedTuple):
+    """What the active protocol holds when it grasps (:func:`active_state`).
+
+    Attributes
+    ----------
+    belief : PoseSet
+        The plausible set.
+    meta : dict
+        The run's ``probe`` metadata ({} if it has none).
+    around : Surroundings
+        What the robot sensed around the target (:func:`surroundings_of`).
+    next_set : callable
+        ``next_set(k)``: (set, surroundings) of the ``k``-th segment ranked after the set's (k >= 1), its probe
+        contacts attributed afresh against it, or None when there is no such segment; the grasp's attempts turn
+        to it when a grasp the set was sure of finds no target (:func:`pipeline.probe.grasp_attempts.attempt_grasps`).
+    """
+
+    belief: PoseSet
+    meta: dict
+    around: Surroundings
+    next_set: Callable[[int], tuple[PoseSet, Surroundings] | None]
+
+
 def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
                budget_end: ProbeParams | None = None) -> tuple[PoseSet, dict]:
     """The policy's last plausible set and the run's ``probe`` metadata (:func:`active_state`)."""
-    belief, meta, _ = active_state(info, root_seed, method, decision, budget_end)
-    return belief, meta
+    state = active_state(info, root_seed, method, decision, budget_end)
+    return state.belief, state.meta
+
+
+def _recorded_params(meta: dict) -> ProbeParams:
+    """The probing policy's parameters the run recorded (its scalar ones; the defaults for the rest)."""
+    recorded = meta.get("params") or {}
+    names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
+    return ProbeParams(**{k: recorded[k] for k in names if k in recorded})
 
 
 def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
-                 budget_end: ProbeParams | None = None) -> tuple[PoseSet, dict, Surroundings]:
+                 budget_end: ProbeParams | None = None) -> ActiveState:
     """The policy's last plausible set for a run file, or the one of its ``decision``-th decision (0: after the
     scripted part, before any probe), and the run's ``probe`` metadata ({} if it has none).
 
@@ -84,7 +116,8 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     With a tracking method other than the policy's, the segments are that method's and the probes' contacts
     are attributed as the policy attributed them, to the best-ranked segment.
 
-    Also returns what the robot sensed around the target then (:func:`surroundings_of`), for the planned grasp."""
+    Also returns what the robot sensed around the target then (:func:`surroundings_of`), for the planned grasp, and
+    the sets of the segments ranked after the one taken (:class:`ActiveState`)."""
     table = schema.read_run(info.path)
     meta = _probe_meta(info)
     n_scripted = table.num_rows
@@ -106,12 +139,25 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
     choice = next((c for c in choices if c.segment == segment), NO_TARGET)
     belief = set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"])
+    steps = state["target_steps"]
     if budget_end is not None and decision is not None:
         given = give_way_at_budget(choices, choice, belief, info.target, sensing, root_seed, info.run,
                                    state["target_steps"], budget_end)
         if given is not None:
-            return given[3], meta, surroundings_of(sensing, given[0], given[1], info.scene)
-    return belief, meta, surroundings_of(sensing, choice, state["target_steps"], info.scene)
+            choice, steps, belief = given[0], given[1], given[3]
+    rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), -1)
+    later = choices[rank + 1:]
+    params = _recorded_params(meta)
+
+    def next_set(k: int) -> tuple[PoseSet, Surroundings] | None:
+        if not 1 <= k <= len(later):
+            return None
+        nxt, fresh = later[k - 1], ProbeLog()
+        found = current_set(nxt, info.target, sensing, root_seed, info.run, fresh,
+                            set_from_steps(nxt, info.target, sensing, root_seed, info.run, []), params)
+        return found, surroundings_of(sensing, nxt, fresh.target_steps, info.scene)
+
+    return ActiveState(belief, meta, surroundings_of(sensing, choice, steps, info.scene), next_set)
 
 
 def surroundings_of(sensing: Sensing, choice: TargetChoice, target_steps, scene) -> Surroundings:
@@ -155,10 +201,10 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
                  planning: PlanningParams = PlanningParams()) -> ActiveResult:
     """The set of :func:`active_set`, the grasp planned for it as sensed (:func:`plan_grasp`) and, with
     ``grasp``, its attempts in the run's final state, re-planned after each felt miss (:func:`attempt_grasps`)."""
-    belief, meta, around = active_state(info, root_seed, method)
+    belief, meta, around, next_set = active_state(info, root_seed, method)
     if grasp:
         attempts = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, belief.poses,
-                                  belief.weights, belief.best, around, planning, params)
+                                  belief.weights, belief.best, around, planning, params, next_set=next_set)
         g = attempts.attempts[0].grasp
     else:
         attempts = None

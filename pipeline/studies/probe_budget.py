@@ -57,15 +57,15 @@ def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: boo
     """(the planned grasp's attempts, position error, yaw error) of the set the policy holds at decision ``k``
     (with ``budget_end``, the set a policy whose budget ends there grasps), attempted as the active protocol ends
     its runs (:func:`pipeline.probe.grasp_attempts.attempt_grasps`), in the state after those probes."""
-    belief, _, around = active_state(info, root_seed, params.method, None if last else k,
-                                     params if budget_end else None)
+    belief, _, around, next_set = active_state(info, root_seed, params.method, None if last else k,
+                                               params if budget_end else None)
     t = schema.read_run(path)
     poses = info.final_poses if last else np.asarray(t.column("obj_pose")[rows - 1].as_py()).reshape(-1, 3)
     n0 = int(history[0]["rows"])
     ee = info.final_ee if last else info.ee[n0]
     # a cut run's gripper stands back at the end of the scripted part (the return is simulated for the uncut run)
     res = attempt_grasps(scene, poses, ee, info.target, belief.poses, belief.weights, belief.best,
-                         around if last else around.moved(ee))
+                         around if last else around.moved(ee), next_set=next_set)
     pose = info.target.canonical(belief.poses[belief.best])
     pe, ye = pose_error(info.target, pose, poses[info.target_id])
     return res, pe, ye
