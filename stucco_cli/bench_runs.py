@@ -101,18 +101,25 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
     say(settings, f"-> {', '.join(str(p) for p in paths)}")
 
 
+def _budget_outputs(name: str, runs_help: str):
+    """The ``--runs``, ``--out`` and ``--png`` options of a budget bench (``probe``, ``explore``): its run files
+    under out/bench/NAME/runs, its tables and figure NAME_budget.* under out/bench/NAME."""
+    def wrap(f):
+        f = click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+                         help=f"Where the PNG goes instead (e.g. docs/img/{name}_budget.png).")(f)
+        f = click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+                         default=Path(f"out/bench/{name}"), show_default=True,
+                         help=f"{name}_budget.csv, {name}_budget_summary.csv, {name}_budget.png.")(f)
+        return click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
+                            default=Path(f"out/bench/{name}/runs"), show_default=True, help=runs_help)(f)
+    return wrap
+
+
 @click.command("probe")
 @click.option("--scenes", default="FB,BC,IB,TC", show_default=True, help="Comma-separated retrieval tasks.")
 @click.option("--seeds", default="100-119", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
 @click.option("--budgets", default="0,1,2,4,8,12", show_default=True, help="Probe budgets.")
-@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/probe/runs"), show_default=True,
-              help="Run files of `collect --policy scripted+probe` (made here when missing).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/probe"), show_default=True,
-              help="probe_budget.csv, probe_budget_summary.csv, probe_budget.png.")
-@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Where the PNG goes instead (e.g. docs/img/probe_budget.png).")
+@_budget_outputs("probe", "Run files of `collect --policy scripted+probe` (made here when missing).")
 @global_options()
 @pass_settings
 def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
@@ -150,14 +157,7 @@ def bench_probe(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> Non
                    "region).")
 @click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
 @click.option("--budgets", default="100,200,400,2000", show_default=True, help="Action budgets (actions per run).")
-@click.option("--runs", "runs_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/explore/runs"), show_default=True,
-              help="Run files of `collect --policy explore`, one folder per budget (made here when missing).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/explore"), show_default=True,
-              help="explore_budget.csv, explore_budget_summary.csv, explore_budget.png.")
-@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Where the PNG goes instead (e.g. docs/img/explore_budget.png).")
+@_budget_outputs("explore", "Run files of `collect --policy explore`, one folder per budget (made here when missing).")
 @global_options()
 @pass_settings
 def bench_explore(settings, scenes, seeds, budgets, runs_dir, out_dir, png) -> None:
