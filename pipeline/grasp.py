@@ -37,7 +37,7 @@ from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
 from pipeline.grasp_judge import GRASP_STEP_M, PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
-           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "CENTRED_BOX", "CENTRED_OFFSET",
+           "judge_box", "judge_can", "restore_world", "FingerContacts", "PLANS", "DEEP_BOX", "DEEP_OFFSET",
            "PAD_FROM_BASE", "set_fingers",
            "finger_contacts", "body_pose", "move_to", "close_and_judge"]
 
@@ -73,26 +73,26 @@ PLANS: dict[str, GraspPlan] = {
 }
 
 
-#: Pre-grasp offset (m) that centres the pads' span on the target once the script has advanced: the fingers then
-#: close across the middle of a box's long faces, and its palm meets the box's near end first (pushing it a little)
-#: whatever the estimate's error along the approach (docs/retrieval.md, "Grasp in simulation"). TC's 0.2 m is
-#: this offset to 5 mm; FB's 0.25 m closes the pads 4.5 cm short of the box's centre, 2.4 cm from the end of the
-#: part of the face where a grasp holds.
-CENTRED_OFFSET = GraspParams().approach_steps * GRASP_STEP_M + (PAD_FROM_BASE[0] + PAD_FROM_BASE[1]) / 2.0
+#: Pre-grasp offset (m) of a box target in a scene without a paper plan: the one that would centre the pads' span on
+#: the estimate after the script's advance if nothing stopped the hand, 4.5 cm deeper than FB's 0.25 m. The hand's
+#: palm meets the box's near end before that and stops against it, so the fingers close at a fixed distance from
+#: that end; going deeper lets it reach the end when the estimate lies short along the approach (docs/retrieval.md,
+#: "Grasp in simulation"). TC's 0.2 m for a can is this offset to 5 mm.
+DEEP_OFFSET = GraspParams().approach_steps * GRASP_STEP_M + (PAD_FROM_BASE[0] + PAD_FROM_BASE[1]) / 2.0
 
-#: The plan of a box target in a scene without a paper plan: FB's yaw range, the pads centred on the box.
-CENTRED_BOX = GraspPlan(CENTRED_OFFSET, (-math.pi / 2, math.pi / 2))
+#: The plan of a box target in a scene without a paper plan: FB's yaw range, :data:`DEEP_OFFSET`.
+DEEP_BOX = GraspPlan(DEEP_OFFSET, (-math.pi / 2, math.pi / 2))
 
 
 def plan_for(scene) -> GraspPlan:
-    """The scene's plan (the paper's four tasks), or by target shape for other scenes (a box: :data:`CENTRED_BOX`,
+    """The scene's plan (the paper's four tasks), or by target shape for other scenes (a box: :data:`DEEP_BOX`,
     a cylinder: TC's)."""
     if scene.name in PLANS:
         return PLANS[scene.name]
     tgt = scene.target
     if tgt is None:
         raise ValueError(f"{scene.path}: scene {scene.name} has no target to grasp")
-    return PLANS["TC"] if tgt.shape == "cylinder" else CENTRED_BOX
+    return PLANS["TC"] if tgt.shape == "cylinder" else DEEP_BOX
 
 
 @dataclass

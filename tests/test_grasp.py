@@ -125,22 +125,32 @@ def test_plans_follow_the_reference_grasp_offsets():
     assert plan_for(load_scene("IB")) is PLANS["IB"]
 
 
-def test_a_box_scene_without_a_paper_plan_centres_the_pads_on_the_box():
-    from pipeline.grasp import CENTRED_BOX, PAD_FROM_BASE
+def test_a_box_scene_without_a_paper_plan_approaches_deeper():
+    from pipeline.grasp import DEEP_BOX, DEEP_OFFSET, PAD_FROM_BASE
 
-    real = load_scene("REAL")
-    assert plan_for(real) is CENTRED_BOX and CENTRED_BOX.yaw_range == PLANS["FB"].yaw_range
+    assert plan_for(load_scene("REAL")) is DEEP_BOX and DEEP_BOX.yaw_range == PLANS["FB"].yaw_range
     assert all(plan_for(load_scene(name)) is PLANS[name] for name in PLANS)  # the paper's tasks keep theirs
-    # after the script's advance the pads' span is centred on the estimate's centre
-    box = _box()
-    est = np.array([0.4, -0.1, 0.3])
-    _, pre, approach = pregrasp(plan_for(real), box, est)
-    base = pre + GraspParams().approach_steps * 0.03 * approach
-    near, far = (float(np.dot(box.centre_world(est) - (base + d * approach), approach)) for d in PAD_FROM_BASE)
-    assert near == pytest.approx(-far, abs=1e-12) and near > 0.0
+    # the offset that would centre the pads' span on the estimate after the script's advance
+    assert DEEP_OFFSET == pytest.approx(GraspParams().approach_steps * 0.03 + sum(PAD_FROM_BASE) / 2, abs=1e-12)
+    assert DEEP_OFFSET < PLANS["FB"].offset
 
 
 # ------------------------------------------------------------------------------------------------ simulation
+
+
+def test_the_deeper_approach_still_reaches_a_box_further_than_estimated(fb_run):
+    """The palm stops at the box's near end: a deeper command reaches it when the estimate lies 5.5 cm short along
+    the approach, where FB's offset closes on the box's end (docs/retrieval.md, "Grasp in simulation")."""
+    from pipeline.grasp import DEEP_BOX, grasp_with
+
+    true = np.asarray(fb_run.true_pose, dtype=np.float64)
+    _, _, approach = pregrasp(PLANS["FB"], _box(), true)
+    short = np.r_[true[:2] - 0.055 * approach, true[2]]
+    held = {}
+    for name, plan in (("FB", PLANS["FB"]), ("deep", DEEP_BOX)):
+        yaw, pre, app = pregrasp(plan, _box(), short)
+        held[name] = grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, app).success
+    assert held == {"FB": False, "deep": True}
 
 
 def test_restore_world_puts_objects_at_their_recorded_final_poses(fb_run):

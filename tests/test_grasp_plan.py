@@ -199,9 +199,13 @@ def test_a_set_that_was_not_sure_keeps_its_segment(ib_run):
 
 def test_no_next_segment_falls_back_to_the_set_itself(ib_run):
     info = ib_run
-    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, _sure_elsewhere(info),
-                       np.ones(1), 0, _open_space(info), next_set=lambda k: None)
-    assert not r.success and 1 <= len(r.attempts) <= PlanningParams().attempts
+    asked = []
+    wrong = _sure_elsewhere(info)
+    r = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, wrong, np.ones(1), 0,
+                       _open_space(info), PlanningParams(attempts=2), next_set=lambda k: asked.append(k))
+    # asked for the first next segment after the first miss, got none, and tried its own set again
+    assert asked == [1] and len(r.attempts) == 2 and not r.success
+    assert all(np.hypot(*(a.grasp.centre - wrong[0, :2])) < 0.05 for a in r.attempts)
 
 
 def test_an_unreachable_target_ends_with_a_note(ib_run):

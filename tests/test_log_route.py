@@ -170,6 +170,14 @@ def test_an_object_that_is_not_the_scenes_target_takes_the_plan_of_its_shape():
     assert parse_target("FB:cracker_box")[2].name == "FB"
 
 
+def test_a_shape_spec_takes_the_plan_any_scene_of_its_own_gets():
+    from pipeline.grasp import DEEP_BOX, PLANS, plan_for
+
+    assert plan_for(parse_target("box:0.0616x0.1575")[2]) is DEEP_BOX
+    assert plan_for(parse_target("cylinder:0.04")[2]) is PLANS["TC"]
+    assert plan_for(parse_target("REAL:mustard")[2]) is DEEP_BOX  # a box that is not REAL's target
+
+
 def test_grasp_is_refused_for_a_log(routes, tmp_path):
     last = _fails("retrieve", "--segments", routes / "log-segments.parquet", "--contacts", routes / "log.parquet",
                   "--target", "FB:cracker_box", "--grasp", "--out", tmp_path / "r.parquet")

@@ -40,6 +40,11 @@ def _size(text: str, value: str, what: str) -> float:
     return v
 
 
+#: A shipped scene whose target's grasp plan is the one :func:`pipeline.grasp.plan_for` gives a scene of its own, by
+#: target shape (tested in tests/test_log_route.py).
+_PLAN_SCENE = {"box": "REAL", "cylinder": "TC"}
+
+
 def parse_target(text: str) -> tuple[Primitive, float, object]:
     """(primitive, mass kg or NaN, the scene whose grasp plan stands for the log's) of a target spec.
 
@@ -48,8 +53,8 @@ def parse_target(text: str) -> tuple[Primitive, float, object]:
     * either with ``@M``: its known mass M, kg (the segment choice by resistance needs it);
     * ``SCENE:OBJECT``: object OBJECT of a shipped scene or of a scene file, with its mass.
 
-    The grasp plan's scene is the spec's scene, or the paper's task of the shape (a box: FB, a can: TC), as
-    :func:`pipeline.grasp.plan_for` takes for a scene of its own.
+    The grasp plan's scene is the spec's scene, or one whose plan :func:`pipeline.grasp.plan_for` gives any scene
+    of its own with a target of that shape (a box: REAL's, the deeper approach; a can: TC's).
 
     ValueError (one line naming the spec) for anything else."""
     from pipeline.scenes import SceneError, load_scene
@@ -62,13 +67,13 @@ def parse_target(text: str) -> tuple[Primitive, float, object]:
             raise ValueError(f"--target {text!r}: the width {w} m is the short side; give it first (box:WxL, W <= L)")
         mass = float(m.group(3)) if m.group(3) else math.nan
         box = Primitive(kind="box", half=(w / 2, length / 2), centre=np.zeros(2), yaw=0.0, name="target")
-        return box, mass, load_scene("FB")
+        return box, mass, load_scene(_PLAN_SCENE["box"])
     m = _CYLINDER.fullmatch(text)
     if m:
         r = _size(text, m.group(1), "radius")
         mass = float(m.group(2)) if m.group(2) else math.nan
         can = Primitive(kind="cylinder", half=(r,), centre=np.zeros(2), yaw=0.0, name="target")
-        return can, mass, load_scene("TC")
+        return can, mass, load_scene(_PLAN_SCENE["cylinder"])
     scene_name, sep, obj = text.rpartition(":")
     # A size after the colon is a shape spec gone wrong (sphere:1, box:-1x2), not an object of a scene.
     if sep and scene_name and obj and not re.fullmatch(r"[-+0-9.eEx@]+", obj):
@@ -81,7 +86,7 @@ def parse_target(text: str) -> tuple[Primitive, float, object]:
             raise ValueError(f"--target {text!r}: scene {scene.name} has no object {obj!r} "
                              f"(objects: {', '.join(o.name for o in scene.objects)})")
         # the grasp plan of the scene is its target's: another object takes the paper's task of its shape
-        plan_scene = scene if spec.target else load_scene("TC" if spec.shape == "cylinder" else "FB")
+        plan_scene = scene if spec.target else load_scene(_PLAN_SCENE[spec.shape])
         return primitive_of(spec), float(spec.mass), plan_scene
     raise ValueError(f"--target {text!r}: expected box:WxL or cylinder:R (metres, optionally @MASS_KG), or "
                      "SCENE:OBJECT")

@@ -145,8 +145,9 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
                                    state["target_steps"], budget_end)
         if given is not None:
             choice, steps, belief = given[0], given[1], given[3]
-    rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), -1)
-    later = choices[rank + 1:]
+    # none after a set of no segment, or of one the ranking does not hold (the policy moved past its last one)
+    rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
+    later = choices[rank + 1:] if choice.segment >= 0 else []
     params = _recorded_params(meta)
 
     def next_set(k: int) -> tuple[PoseSet, Surroundings] | None:
