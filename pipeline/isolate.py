@@ -139,7 +139,7 @@ def isolate_runs(files: list[Path], det: DetectionParams | None = None,
 def run_detection(path: str | Path) -> DetectionParams:
     """The detector a run file was collected with (its metadata's ``detection``; the defaults if absent)."""
     rec = (schema.read_metadata(path).get("params") or {}).get("detection") or {}
-    return DetectionParams.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in rec.items()})
+    return DetectionParams.from_dict(rec)  # (a JSON list becomes the tuple field it was)
 
 
 def params_dict(det: DetectionParams | None, iso: IsolationParams) -> dict:

@@ -171,7 +171,7 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
                 belief, around = other
                 poses, w, best = belief.poses, np.asarray(belief.weights, dtype=np.float64).copy(), belief.best
                 s = dataclasses.replace(around, here=s.here, visited=s.visited, tried=s.tried,
-                                        obstacles=np.vstack([around.obstacles, *[f[None, :] for f in felt]]))
+                                        obstacles=np.vstack([around.obstacles, *felt]))
             elif np.any(~held & (w > 0)):
                 w = np.where(held, w * CONTRADICTED_WEIGHT, w)
                 best = int(np.argmax(w))

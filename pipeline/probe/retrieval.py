@@ -98,9 +98,9 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
     return state.belief, state.meta
 
 
-def _recorded_params(meta: dict) -> ProbeParams:
-    """The probing policy's parameters the run recorded (its scalar ones; the defaults for the rest)."""
-    recorded = meta.get("params") or {}
+def _recorded_params(recorded: dict) -> ProbeParams:
+    """The probing policy's parameters a run recorded (its ``probe.params``: the scalar ones; the defaults for the
+    rest, and for a key a run file written before it existed)."""
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
     return ProbeParams(**{k: recorded[k] for k in names if k in recorded})
 
@@ -148,7 +148,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     # none after a set of no segment, or of one the ranking does not hold (the policy moved past its last one)
     rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
     later = choices[rank + 1:] if choice.segment >= 0 else []
-    params = _recorded_params(meta)
+    params = _recorded_params(meta.get("params") or {})
 
     def next_set(k: int) -> tuple[PoseSet, Surroundings] | None:
         if not 1 <= k <= len(later):
@@ -187,8 +187,7 @@ def recorded_prior(info: RunInfo, scripted: pa.Table, segments: Sequence[Segment
     through the same policy) it is the prior that method's own segments give, as for the rest of its set."""
     if recorded.get("history", "off") != "pushtrack":
         return None
-    names = [f.name for f in fields(ProbeParams) if f.name.startswith("history")]
-    params = ProbeParams(**{k: recorded[k] for k in names if k in recorded})
+    params = _recorded_params(recorded)  # (the prior reads its history_* fields)
     digest = hashlib.sha256(Path(info.path).read_bytes()).digest() if info.path is not None else None
     key = (str(info.path), digest, scripted.num_rows, method, root_seed, params)
     if not (_LAST_PRIOR and _LAST_PRIOR[0][0] == key):

@@ -59,7 +59,7 @@ def parse_hardware(detection: Any, methods: Any) -> Hardware:
             sub = methods.sub(name)
             params: dict[str, Any] = {}
             for k, v in sub.table.items():
-                if isinstance(v, bool) or isinstance(v, (int, str)):
+                if isinstance(v, (bool, int, str)):
                     params[k] = v
                 else:
                     params[k] = sub.number(k)

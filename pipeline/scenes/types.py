@@ -228,7 +228,8 @@ class Hardware:
     Attributes
     ----------
     detection : dict
-        Overrides of the contact detector's parameters (``threshold``, ``sigma_inv``); empty: the defaults.
+        Overrides of the contact detector's parameters (``threshold``, ``sigma_inv``, ``min_force_n``); empty: the
+        defaults.
     methods : dict of str -> dict
         Per tracking method, overrides of its parameters (e.g. ``{"stucco": {"length": 0.006}}``); a method not
         named keeps its defaults.
