@@ -39,6 +39,7 @@ __all__ = [
     "isolate_run",
     "isolate_runs",
     "isolate_file",
+    "detection_of",
     "IsolationResult",
 ]
 
@@ -104,9 +105,9 @@ def isolate_runs(files: list[Path], det: DetectionParams | None = None,
     unisolated = n_actions = 0
     tables = []
     for path in files:
-        t = schema.read_run(path)
+        t, meta = schema.read_run_and_metadata(path)
         key = (t.column("scene")[0].as_py(), t.column("seed")[0].as_py())
-        tables.append((key, t, det or run_detection(path)))
+        tables.append((key, t, det or detection_of(meta)))
     per_run = []
     for _, t, run_det in sorted(tables, key=lambda kt: kt[0]):
         cols, errs, un = isolate_run(t, points, normals, run_det, iso)
@@ -136,9 +137,10 @@ def isolate_runs(files: list[Path], det: DetectionParams | None = None,
                            n_contact=n_contact, n_unisolated=unisolated, detection=used[0] if len(used) == 1 else None)
 
 
-def run_detection(path: str | Path) -> DetectionParams:
-    """The detector a run file was collected with (its metadata's ``detection``; the defaults if absent)."""
-    rec = (schema.read_metadata(path).get("params") or {}).get("detection") or {}
+def detection_of(meta: dict) -> DetectionParams:
+    """The detector a run file's decoded metadata (:func:`pipeline.schema.read_metadata`) records; the defaults
+    if absent."""
+    rec = (meta.get("params") or {}).get("detection") or {}
     return DetectionParams.from_dict(rec)  # (a JSON list becomes the tuple field it was)
 
 

@@ -516,6 +516,33 @@ def test_cli_retrieve_empty_segmentation_run_gets_a_flagged_row(tmp_path, stage_
     assert math.isfinite(row["x_m"]) and row["icp_rmse_m"] is None
 
 
+def test_cli_retrieve_takes_only_the_runs_the_segments_were_tracked_from(tmp_path, stage_inputs):
+    # Another run in the same folder was never tracked into these segments: it gets no row (not a no_points row
+    # claiming it had no contact); segments that record no runs still take every run file.
+    tmp, _, runs = stage_inputs
+    shutil.copy(REGRESSION.with_name("TC-000.parquet"), runs / "TC-000.parquet")
+    empty = _segments_table("FB/0", np.zeros((0, 2)), np.zeros(0))
+    recorded, bare = tmp / "recorded.parquet", tmp / "bare.parquet"
+    write_table(empty, recorded, stage="segment", params={}, seed=0, kind="segments",
+                inputs={"run": runs / REGRESSION.name})
+    write_table(empty, bare, stage="segment", params={}, seed=0, kind="segments")
+    assert read_metadata(recorded)["runs"].keys() == {"FB/0"}
+    rows = {}
+    for seg in (recorded, bare):
+        out = tmp / f"r-{seg.stem}.parquet"
+        r = _invoke(["-q", "retrieve", "--segments", str(seg), "--runs", str(runs), "--out", str(out), "--no-grasp"])
+        assert r.exit_code == 0, r.output
+        rows[seg.stem] = read_retrieval(out).column("run").to_pylist()
+    assert rows == {"recorded": ["FB/0"], "bare": ["FB/0", "TC/0"]}
+    # a recorded run whose file is not there is refused, naming it
+    alone = tmp / "alone"
+    alone.mkdir()
+    shutil.copy(runs / "TC-000.parquet", alone / "TC-000.parquet")
+    r = _invoke(["-q", "retrieve", "--segments", str(recorded), "--runs", str(alone), "--out", str(tmp / "y.parquet"),
+                 "--no-grasp"])
+    assert r.exit_code != 0 and "'FB/0' has no collected run file" in r.output
+
+
 @pytest.mark.parametrize("case, pattern", [
     ("missing_segments", r"segments-nope\.parquet: file not found"),
     ("runs_not_dir", r"not a directory of collected runs"),

@@ -87,8 +87,7 @@ class RunInfo:
 def load_run(path: str | Path) -> RunInfo:
     """Read a collected run file (one (scene, seed)); SchemaError naming the file and column on problems."""
     path = Path(path)
-    t = schema.read_run(path)
-    meta = schema.read_metadata(path)
+    t, meta = schema.read_run_and_metadata(path)
     params = meta.get("params") or {}
     scene = run_scene(path, params)
     bodies = params.get("bodies")

@@ -96,9 +96,9 @@ def run_stats(path: str | Path, rows: int | None = None) -> dict:
         ``moved_m`` (target's centre of mass moved between the end of the scripted part and ``rows``),
         ``turned_rad`` (|yaw change| over the same).
     """
-    t = schema.read_run(path)
-    meta = schema.probe_record(path)
-    params = schema.read_metadata(path).get("params") or {}
+    t, run_meta = schema.read_run_and_metadata(path)
+    params = run_meta.get("params") or {}
+    meta = schema.probe_log(run_meta)
     bodies, target = params.get("bodies"), params.get("target")
     if not isinstance(bodies, list) or target not in bodies:
         raise schema.SchemaError(path, None, None, f"metadata stucco.params.target {target!r} is not one of its "

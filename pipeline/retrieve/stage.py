@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -172,12 +172,14 @@ def retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, roo
 
 def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | None = None, *,
              root_seed: int = 0, jobs: int = 1, progress: Callable | None = None,
-             segments_path: str = "<segments>") -> tuple[pa.Table, pa.Table]:
+             segments_path: str = "<segments>", runs: Collection[str] | None = None) -> tuple[pa.Table, pa.Table]:
     """The ``retrieve`` stage: a segments table and the collected runs in, retrieval and candidates tables out.
 
-    Every run file in ``run_dir`` (or the one run file it names) gets one row: a run absent from the segments
-    table had no tracked contact (an empty segmentation) and is estimated as such (flagged ``no_points``). A run
-    of the segments table without a run file is an error.
+    Every run of ``runs`` (the runs the segments were tracked from, as their file records them; None: every run
+    file in ``run_dir``, or the one run file it names) gets one row: a run absent from the segments table had no
+    tracked contact (an empty segmentation) and is estimated as such (flagged ``no_points``). Run files of
+    ``run_dir`` outside ``runs`` were not tracked into these segments and get no row. A run of the segments table
+    or of ``runs`` without a run file is an error.
 
     Parameters
     ----------
@@ -205,11 +207,14 @@ def retrieve(segments: pa.Table, run_dir: str | Path, config: RetrieveConfig | N
         config = dataclasses.replace(config, method=registry.tracker_names()[0])
     files = run_files_by_name(run_dir)
     by_run = final_segments_by_run(segments)
-    missing = [r for r in by_run if r not in files]
+    wanted = list(files) if runs is None else list(dict.fromkeys([*runs, *by_run]))
+    missing = [r for r in [*by_run, *wanted] if r not in files]
     if missing:
         raise ValueError(f"{segments_path}: run {missing[0]!r} has no collected run file in {run_dir} "
                          f"({len(files)} run file(s) there)")
-    return retrieve_runs([load_run(files[r]) for r in files], segments, config, root_seed, jobs, progress)
+    order = {r: k for k, r in enumerate(files)}  # the run files' order, as without ``runs``
+    return retrieve_runs([load_run(files[r]) for r in sorted(wanted, key=order.__getitem__)], segments, config,
+                         root_seed, jobs, progress)
 
 
 def retrieve_runs(infos: list[RunInfo], segments: pa.Table, config: RetrieveConfig, root_seed: int, jobs: int,
@@ -241,8 +246,10 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     """
     segments, config = read_segments_for(segments_path, config)
     check_runs(segments_path, segments, run_files_by_name(run_dir))
+    # the runs the segments were tracked from, when the file records them (provenance): no other run of run_dir
+    recorded = schema.read_metadata(segments_path).get("runs") or None
     table, candidates = retrieve(segments, run_dir, config, root_seed=seed, jobs=jobs, progress=progress,
-                                 segments_path=str(segments_path))
+                                 segments_path=str(segments_path), runs=None if recorded is None else list(recorded))
     write_retrieval_tables(table, candidates, out_path, candidates_path, config.metadata(), seed,
                            {"segments": str(segments_path)})
     return table, candidates

@@ -142,16 +142,28 @@ def read_run(path: str | os.PathLike) -> pa.Table:
     """Read and validate a collected run file (``sim_run``, the output of ``stucco collect``), its rows against
     its metadata too (:func:`pipeline.schema.run_meta.check_run_metadata`: run, scene and seed; the ``probe``
     column and the probing policy's log)."""
+    return read_run_and_metadata(path)[0]
+
+
+def read_run_and_metadata(path: str | os.PathLike) -> tuple[pa.Table, dict[str, Any]]:
+    """:func:`read_run`, and the run file's decoded metadata (:func:`read_metadata`) it was checked against: one
+    read of each for callers that need both."""
     table = read_table(path, "sim_run")
-    check_run_metadata(table, read_metadata(path), path)
-    return table
+    meta = read_metadata(path)
+    check_run_metadata(table, meta, path)
+    return table, meta
 
 
 def probe_record(path: str | os.PathLike) -> dict:
     """The probing policy's log of a run file (its metadata's ``params.probe``), checked against the run's rows
     (:func:`read_run`); ``{}`` for a run of another policy. Every reader of the log goes through here."""
-    read_run(path)
-    return (read_metadata(path).get("params") or {}).get("probe") or {}
+    return probe_log(read_run_and_metadata(path)[1])
+
+
+def probe_log(meta: dict[str, Any]) -> dict:
+    """The probing policy's log in a run file's metadata as :func:`read_run_and_metadata` returned it (checked
+    against the run's rows there); ``{}`` for a run of another policy."""
+    return (meta.get("params") or {}).get("probe") or {}
 
 
 # --------------------------------------------------------------------------------------------------------
