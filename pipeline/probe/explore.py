@@ -68,9 +68,6 @@ class ExploreParams(ProbeParams):
         Consecutive stalled actions that give a leg up under ``stall`` (1: the hand pushes what gives way and
         turns back at the first object that does not; the guarded replay's 2 grasped fewer of the training runs,
         docs/experiments/explore.md).
-    search_stalls : int
-        The search ends once this many of its legs were given up (something that did not give way was met: the
-        target is heavier than the clutter) and the probes begin; 0: the search runs its whole path.
     """
 
     action_budget: int = 2000
@@ -78,13 +75,11 @@ class ExploreParams(ProbeParams):
     search_sides: tuple = ("front",)
     search_stop: str = "stall"
     stall_actions: int = 1
-    search_stalls: int = 0
 
     constraints: ClassVar[dict[str, Constraint]] = {**ProbeParams.constraints,
                                                     "action_budget": integer(0, 100_000),
                                                     "lane_spacing": number(0.02, 1.0),
                                                     "stall_actions": integer(1, 100),
-                                                    "search_stalls": integer(0, 10_000),
                                                     "search_sides": rule(f"a non-empty tuple of {', '.join(SIDES)}",
                                                                          lambda v: bool(v) and set(v) <= set(SIDES)),
                                                     "search_stop": rule("stall or touch",
@@ -170,8 +165,6 @@ class ExplorePolicy:
                 if u is None:
                     break
                 last = bool(act(float(u[0] * scale), float(u[1] * scale))["in_contact"])
-                if params.search_stalls and len(replay.given_up) >= params.search_stalls:
-                    break  # something heavy met: the probes take over
             search.update(planned_actions=len(path), actions=len(rows), legs=len(replay.waypoints),
                           legs_given_up=list(replay.given_up), completed=replay.leg >= len(replay.waypoints))
         self.probes_from = len(rows)
