@@ -34,7 +34,7 @@ from pipeline.metrics import fmi
 from pipeline.retrieve import check_runs, load_run, read_retrieval, run_files_by_name
 from pipeline.scenes.files import scene_digest
 from pipeline.schema.results import SCORES, SCORES_COLUMNS
-from pipeline.segment import final_estimates
+from pipeline.segment import final_estimates, tracking_record
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
            "validate_scores", "read_scores", "diagnostics_beside", "summary_lines", "check_score_inputs",
@@ -211,7 +211,8 @@ def check_score_inputs(retrieval_path: str | Path, segments_path: str | Path, se
                        diagnostics: pa.Table | None = None, diagnostics_path: str | Path | None = None) -> None:
     """Refuse (:class:`pipeline.schema.SchemaError` naming the file) inputs that do not belong together: a segments
     file other than the one the retrieval recorded (its SHA-256 in the ``stucco.inputs`` metadata,
-    docs/tables.md), or diagnostics that lack a run of the segments table. Scoring them would pair FMI and timings
+    docs/tables.md), or diagnostics that lack a run of the segments table or come from another tracking than the
+    segments' (the parameters, seed and contacts the segments record of it). Scoring them would pair FMI and timings
     with the wrong run."""
     recorded = (schema.read_metadata(retrieval_path).get("inputs") or {}).get("segments") or {}
     digest = recorded.get("sha256")
@@ -225,6 +226,16 @@ def check_score_inputs(retrieval_path: str | Path, segments_path: str | Path, se
             raise schema.SchemaError(diagnostics_path, None, None,
                                      f"no diagnostics for run {missing[0]!r} of {segments_path} "
                                      f"({len(missing)} run(s) missing); pass the diagnostics of the same tracking")
+        # the tracking the segments record (pipeline.segment.tracking_record) against the diagnostics' own
+        tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking")
+        if tracking:
+            own = tracking_record(schema.read_metadata(diagnostics_path))
+            differs = [k for k in ("params", "seed", "contacts_sha256")
+                       if tracking.get(k) is not None and own.get(k) is not None and tracking[k] != own[k]]
+            if differs:
+                raise schema.SchemaError(diagnostics_path, None, None,
+                                         f"not the tracking {segments_path} was segmented from (its {differs[0]} "
+                                         "differs); pass the diagnostics written beside those tracks")
 
 
 def score_file(retrieval_path: str | Path, segments_path: str | Path, run_dir: str | Path, out_path: str | Path,

@@ -48,11 +48,7 @@ def segment_table(tracks, *, length: float, alpha: float, by: str = "auto", meth
     pyarrow.Table
         The input rows, in order, plus ``segment`` (int64, 0..k-1 per estimate in order of first appearance).
     """
-    if by not in SEGMENT_BY:
-        raise ValueError(f"by must be one of {', '.join(SEGMENT_BY)}, got {by!r}")
-    known = method in registry.tracker_names()
-    use_components = by == "components" or (by == "auto" and known and registry.tracker(method).segment_by
-                                            == "components")
+    use_components = resolved_by(by, method) == "components"
     run = np.asarray(tracks.column("run").to_pylist(), dtype=object)
     est = tracks.column("estimate_step").to_numpy()
     xy = np.column_stack([tracks.column("x_m").to_numpy(), tracks.column("y_m").to_numpy()])
@@ -152,6 +148,27 @@ def plot_segments(segments, path, max_runs: int = 6, image_format: str | None = 
     save_figure(fig, path, dpi=110, image_format=image_format)
 
 
+def resolved_by(by: str, method: str) -> str:
+    """What ``by`` (:data:`SEGMENT_BY`) means for a table tracked by ``method``: "components" or "tracker" ("auto":
+    the method's registry entry; an unregistered method's own labels)."""
+    if by not in SEGMENT_BY:
+        raise ValueError(f"by must be one of {', '.join(SEGMENT_BY)}, got {by!r}")
+    if by != "auto":
+        return by
+    known = method in registry.tracker_names()
+    return "components" if known and registry.tracker(method).segment_by == "components" else "tracker"
+
+
+def tracking_record(tracks_meta: dict) -> dict:
+    """What a segments table keeps of the tracking behind it (``params.tracking``), from the tracks table's decoded
+    metadata: its parameters, root seed and the SHA-256 of its contacts table (None where not recorded). The
+    later stages check their other inputs against it: the robot whose trail is free space, a diagnostics file's
+    timings, a log's contacts table."""
+    contacts = (tracks_meta.get("inputs") or {}).get("contacts") or {}
+    return {"params": tracks_meta.get("params") or {}, "seed": tracks_meta.get("seed"),
+            "contacts_sha256": contacts.get("sha256")}
+
+
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,
                  by: str = "auto", plot_path=None):
     """The `segment` stage on files: segment a tracks table and write the segments table (and, with
@@ -166,16 +183,22 @@ def segment_file(in_path, out_path, *, seed: int, length: float | None = None, a
             plot_segments(segments, plot_tmp, image_format=Path(plot_path).suffix.lstrip(".") or "png")
         return segments
     tracks = schema.read_tracks(in_path)
-    tparams = schema.read_metadata(in_path).get("params") or {}
+    tmeta = schema.read_metadata(in_path)
+    tparams = tmeta.get("params") or {}
     length = float(length if length is not None else
                    schema.recorded_number(in_path, tparams, "length", DEFAULT_LENGTH, above=0.0))
     alpha = float(alpha if alpha is not None else
                   schema.recorded_number(in_path, tparams, "alpha", DEFAULT_ALPHA, above=0.0, below=1.0))
     method = str(tparams.get("method", "stucco"))
     segments = segment_table(tracks, length=length, alpha=alpha, by=by, method=method)
+    # What was used, as used: Alg. 3's length and alpha only when it ran (the tracker's labels need neither).
+    used = resolved_by(by, method)
+    params = dict(by=used, method=method, **(dict(length=length, alpha=alpha) if used == "components" else {}))
     # every_step: the tracks hold an estimate after every step, which the online estimator needs (docs/tables.md)
-    schema.write_table(segments, out_path, stage="segment", params=dict(length=length, alpha=alpha, by=by,
-                                                                        method=method,
-                                                                        every_step=bool(tparams.get("every_step"))),
-                       seed=seed, inputs={"tracks": str(in_path)}, kind="segments")
+    params.update(every_step=bool(tparams.get("every_step")), tracking=tracking_record(tmeta))
+    # Segmenting draws nothing: the table's seed is the tracks' (the root seed of their runs), not this command's.
+    tseed = tmeta.get("seed")
+    schema.write_table(segments, out_path, stage="segment", params=params,
+                       seed=tseed if isinstance(tseed, int) else seed, inputs={"tracks": str(in_path)},
+                       kind="segments")
     return segments

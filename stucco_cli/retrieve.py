@@ -45,8 +45,9 @@ def _side_path(out_path: Path, suffix: str) -> Path:
                                                                      registry.estimators())
               + " (pipeline/registry.py, docs/retrieval.md).")
 @click.option("--restarts", type=click.IntRange(2, 1000), default=None, help="ICP restarts per segment [30].")
-@click.option("--robot", default="panda", show_default=True,
-              help="The gripper whose trail is free space: 'panda' or 'disc:RADIUS' (metres), as `stucco track`.")
+@click.option("--robot", default=None,
+              help="The gripper whose trail is free space: 'panda' or 'disc:RADIUS' (metres), as `stucco track` "
+                   "[the one the segments were tracked with; panda when they record none].")
 @click.option("--hypotheses", type=click.IntRange(1, 4096), default=None,
               help="Pose hypotheses of the plausible estimator [32].")
 @click.option("--method", default=None, help="Tracking method to record [from the segments metadata].")
@@ -77,7 +78,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, cont
         raise click.UsageError("--grasp needs a simulated run (--runs): a robot's log has no scene to grasp in")
     grasp = grasp if grasp is not None else run_dir is not None
     from pipeline.grasp import GraspParams
-    from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file
+    from pipeline.retrieve import RetrievalParams, RetrieveConfig, retrieve_file, tracking_robot
 
     def known(m: str) -> str:
         try:
@@ -94,6 +95,7 @@ def retrieve(settings: Settings, segments_path: Path, run_dir: Path | None, cont
     check_paths(inputs, {"--out": out_path, "--candidates": cand_path})
     refuse_overwrite({"--out": out_path, "--candidates": cand_path}, force_overwrite)
     with user_errors("retrieve"):  # without --method, the one the segments file records (retrieve_file)
+        robot = robot or tracking_robot(segments_path) or "panda"
         params = RetrievalParams(robot=robot, **({} if restarts is None else {"n_restarts": restarts}))
         # --hypotheses sets the estimator's own n_hypotheses (the plausible one's); other estimators ignore it.
         fields = getattr(registry.resolve(registry.estimator(estimator).params), "__dataclass_fields__", {})

@@ -15,7 +15,9 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
+from pipeline import schema
 from pipeline.estimators.log_run import parse_target
+from pipeline.schema import read_metadata, write_table
 from stucco_cli.main import cli
 
 REGRESSION = Path(__file__).resolve().parents[1] / "data" / "regression"
@@ -32,6 +34,15 @@ def _fails(*args) -> str:
     assert r.exit_code != 0 and "Traceback" not in r.output, r.output
     lines = [line for line in r.output.splitlines() if line.strip()]
     return lines[-1]
+
+
+def _untracked_copy(src, dst):
+    """A copy of a segments file that does not record its tracking (as made before it did, or by another tool):
+    the log's own checks must still catch a log that does not fit it."""
+    meta = read_metadata(src)
+    params = {k: v for k, v in meta["params"].items() if k != "tracking"}
+    write_table(schema.read_segments(src), dst, stage="segment", params=params, seed=meta["seed"], kind="segments")
+    return dst
 
 
 @pytest.fixture(scope="module")
@@ -123,6 +134,10 @@ def test_a_log_needs_its_target_and_segments_of_its_own_runs(routes, tmp_path):
     pq.write_table(other, tmp_path / "other.parquet")
     last = _fails("retrieve", "--segments", d / "log-segments.parquet", "--contacts", tmp_path / "other.parquet",
                   "--target", "FB:cracker_box", "--out", tmp_path / "r.parquet")
+    assert "not the contacts table" in last and "was tracked from" in last
+    bare = _untracked_copy(d / "log-segments.parquet", tmp_path / "bare-segments.parquet")
+    last = _fails("retrieve", "--segments", bare, "--contacts", tmp_path / "other.parquet",
+                  "--target", "FB:cracker_box", "--out", tmp_path / "r.parquet")
     assert "run 'FB/0' is not in the contacts table" in last
     assert not (tmp_path / "r.parquet").exists()
 
@@ -159,7 +174,8 @@ def test_a_log_with_an_unlogged_move_is_refused(routes, tmp_path):
     xs[5] += 0.05  # step 5 starts 5 cm from where step 4 ended
     pq.write_table(log.set_column(log.column_names.index("ee_start_x_m"), "ee_start_x_m", pa.array(xs)),
                    tmp_path / "gap.parquet")
-    last = _fails("retrieve", "--segments", routes / "log-segments.parquet", "--contacts", tmp_path / "gap.parquet",
+    bare = _untracked_copy(routes / "log-segments.parquet", tmp_path / "bare-segments.parquet")
+    last = _fails("retrieve", "--segments", bare, "--contacts", tmp_path / "gap.parquet",
                   "--target", "FB:cracker_box", "--out", tmp_path / "r.parquet")
     assert "step 5: starts 50.0 mm from where step 4 ended" in last and "contiguous" in last
 

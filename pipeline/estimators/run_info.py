@@ -146,10 +146,12 @@ def run_scene(path: Path, params: dict) -> Scene:
 def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, Path]) -> None:
     """Refuse (SchemaError naming the run file) a run file that is not the one ``segments`` were made from.
 
-    Checked for every run of ``segments`` found in ``files`` (run name -> file): its root seed (``stucco.seed``)
-    is the one the segments were made with; its last step is not before the step of the segments' final estimate
-    (a truncated run, or a shorter run filed under this name, ends before it); and it is byte for byte the run
-    the segments derive from, when they record it (its SHA-256 in ``stucco.runs``, carried from the contacts).
+    Checked for every run of ``segments``, and every run they record they derive from (``stucco.runs``: a run
+    tracked without any contact has no segment row), found in ``files`` (run name -> file): its root seed
+    (``stucco.seed``) is the one the segments were made with; its last step is not before the step of the
+    segments' final estimate (a truncated run, or a shorter run filed under this name, ends before it); and it is
+    byte for byte the run the segments derive from, when they record it (its SHA-256 in ``stucco.runs``, carried
+    from the contacts).
     """
     segments_path = Path(segments_path)
     seg_meta = schema.read_metadata(segments_path)
@@ -158,7 +160,7 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
     steps = np.asarray(segments.column("step").to_numpy(zero_copy_only=False), dtype=np.int64)
     estimate = np.asarray(segments.column("estimate_step").to_numpy(zero_copy_only=False), dtype=np.int64)
     names = np.asarray(runs, dtype=object)
-    for name in dict.fromkeys(runs):
+    for name in dict.fromkeys([*runs, *recorded]):
         path = files.get(name)
         if path is None:
             continue  # a missing run is the stage's own error
@@ -171,8 +173,10 @@ def check_runs(segments_path: str | Path, segments: pa.Table, files: dict[str, P
         if entry is not None and schema.file_digest(path) != entry:
             raise schema.SchemaError(path, None, None, f"not the run {name} that {segments_path.name} derives from "
                                                        f"(it recorded SHA-256 {entry[:12]}…, this file differs)")
-        run_steps = np.asarray(pq.read_table(path, columns=["step"]).column("step").to_numpy(), dtype=np.int64)
         mine = names == name
+        if not mine.any():
+            continue  # no segment row: no step to reach
+        run_steps = np.asarray(pq.read_table(path, columns=["step"]).column("step").to_numpy(), dtype=np.int64)
         last = int(max(estimate[mine].max(), steps[mine].max()))
         if not len(run_steps) or int(run_steps.max()) < last:
             raise schema.SchemaError(path, "step", None, f"run {name} ends at step "

@@ -33,7 +33,7 @@ from pipeline.estimators.target_model import (
     target_primitive,
 )
 from pipeline.geometry import Primitive, apply_pose, primitive_of, rot2, rots2, wrap_angle
-from pipeline.retrieve.stage import RetrieveConfig, final_segments_by_run, retrieve, retrieve_file
+from pipeline.retrieve.stage import RetrieveConfig, final_segments_by_run, retrieve, retrieve_file, tracking_robot
 from pipeline.schema.retrieval import (
     CANDIDATES,
     CANDIDATES_COLUMNS,
@@ -54,6 +54,7 @@ __all__ = [
     "confidence_notes", "estimate_run", "min_clearance", "RetrievalParams", "PlausibleParams", "SegmentFit",
     "fit_segment", "RunInfo", "load_run", "retrieval_rng", "run_files_by_name", "check_runs", "RetrieveConfig",
     "final_segments_by_run", "retrieve",
-    "retrieve_file", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS", "candidates_table",
+    "retrieve_file", "tracking_robot", "CANDIDATES", "CANDIDATES_COLUMNS", "RETRIEVAL", "RETRIEVAL_COLUMNS",
+    "candidates_table",
     "read_retrieval", "retrieval_table", "validate_candidates", "validate_retrieval",
 ]

@@ -67,6 +67,12 @@ def retrieve_log_file(segments_path: str | Path, contacts_path: str | Path, targ
     tables both or neither, with the target spec, the segments and the contacts as provenance."""
     segments, config = read_segments_for(segments_path, config)
     contacts = schema.read_contacts(contacts_path)
+    # the contacts table the segments were tracked from, byte for byte, when they record it (params.tracking)
+    tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking") or {}
+    digest = tracking.get("contacts_sha256")
+    if digest and schema.file_digest(contacts_path) != digest:
+        raise ValueError(f"{contacts_path}: not the contacts table {segments_path} was tracked from (it recorded "
+                         f"SHA-256 {digest[:12]}…, this file differs)")
     config = dataclasses.replace(config, grasp=False)
     table, candidates = retrieve_log(segments, contacts, target, config, root_seed=seed, jobs=jobs, progress=progress,
                                      segments_path=str(segments_path), contacts_path=str(contacts_path))

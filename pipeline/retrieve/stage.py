@@ -255,17 +255,33 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
     return table, candidates
 
 
+def tracking_robot(segments_path: str | Path) -> str | None:
+    """The robot a segments file's points were tracked with (its ``params.tracking``, docs/tables.md), or None
+    when it does not record one."""
+    tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking") or {}
+    robot = (tracking.get("params") or {}).get("robot")
+    return str(robot) if robot is not None else None
+
+
 def read_segments_for(segments_path: str | Path, config: RetrieveConfig) -> tuple[pa.Table, RetrieveConfig]:
     """A validated segments table and ``config`` with its tracking method (the one the file records when
     ``config.method`` is None); ValueError (one line) when the method is not registered or the estimator needs
     every step and the file holds only the final estimate."""
     segments = schema.read_segments(segments_path)
     params = schema.read_metadata(segments_path).get("params") or {}
+    recorded = params.get("method")
     if config.method is None:
         try:
-            config = dataclasses.replace(config, method=str(params.get("method") or registry.tracker_names()[0]))
+            config = dataclasses.replace(config, method=str(recorded or registry.tracker_names()[0]))
         except ValueError as e:
             raise ValueError(f"{segments_path}: the tracking method it records: {e}; pass --method") from None
+    elif recorded and str(recorded) != config.method:
+        raise ValueError(f"{segments_path}: tracked by method {recorded!r}, not {config.method!r} (--method): its "
+                         f"rows would be reported as another method's")
+    robot = tracking_robot(segments_path)
+    if robot is not None and robot != config.params.robot:
+        raise ValueError(f"{segments_path}: its points were tracked with robot {robot!r}, not {config.params.robot!r} "
+                         f"(--robot): the free space is the trail of the gripper that made them")
     if needs_every_step([config.estimator]) and not params.get("every_step"):
         raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
                          f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "

@@ -139,7 +139,7 @@ def test_track_dbscan_end_to_end(tmp_path, contacts_file):
     seg = tmp_path / "s.parquet"
     ok(invoke("segment", "--in", out, "--out", seg))
     meta = schema.read_metadata(seg)
-    assert meta["params"]["method"] == "dbscan" and meta["params"]["by"] == "auto"
+    assert meta["params"]["method"] == "dbscan" and meta["params"]["by"] == "tracker" and "length" not in meta["params"]
     segs = schema.read_segments(seg)
     # auto: the baseline's own clusters are its segmentation
     from pipeline.segment import canonical_labels
@@ -183,8 +183,14 @@ def test_segment_writes_segment_column_and_prints_a_summary(tmp_path, contacts_f
     assert segs.column_names[-1] == "segment" and segs.num_rows == 13
     assert segs.drop_columns(["segment"]).equals(schema.read_tracks(tracks))
     meta = schema.read_metadata(seg)
-    assert meta["stage"] == "segment" and meta["params"] == dict(length=0.02, alpha=0.4, by="auto", method="stucco",
-                                                                 every_step=False)
+    tracking = meta["params"].pop("tracking")
+    assert meta["stage"] == "segment" and meta["params"] == dict(length=0.02, alpha=0.4, by="components",
+                                                                 method="stucco", every_step=False)
+    # what the segments keep of the tracking behind them: its parameters, seed and contacts
+    tmeta = schema.read_metadata(tracks)
+    assert tracking == {"params": tmeta["params"], "seed": tmeta["seed"],
+                        "contacts_sha256": tmeta["inputs"]["contacts"]["sha256"]}
+    assert meta["seed"] == tmeta["seed"]
     lines = res.stdout.strip().splitlines()
     assert lines[0].split() == ["run", "segment", "points", "centroid_x_m", "centroid_y_m", "run_FMI"]
     n_seg = len(set(segs.column("segment").to_pylist()))
