@@ -271,12 +271,20 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
 def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 0, policy: str | None = None,
                  max_actions: int | None = None, keep_discarded: bool = True, policy_params=None) -> CollectResult:
     """The `collect` stage on a file: simulate one run (:func:`collect_run`) and write its ``sim_run`` table to
-    ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``."""
+    ``path`` (atomically, with its metadata), unless it is discarded and not ``keep_discarded``, then the side
+    files its policy declares (:attr:`pipeline.registry.PolicySpec.save_side_files`, e.g. the probing policy's
+    wall times). A side file of an earlier run at ``path`` (any policy's) is removed first: it never outlives its
+    run, whatever the new run's policy writes."""
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions,
                                         policy_params=policy_params)
     if result.discarded is None or keep_discarded:
+        for suffix in dict.fromkeys(s for spec in registry.policies() for s in spec.side_files):
+            registry.side_path(path, suffix).unlink(missing_ok=True)
         write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
         result.path = Path(path)
+        save = registry.policy(policy or registry.default_policy(scene.kind)).save_side_files
+        if save is not None:
+            registry.resolve(save)(path, result)
     return result
 
 

@@ -52,3 +52,24 @@ def test_a_stored_run_is_copied_with_its_side_files_and_no_wall_time(tmp_path):
     assert run_collect(paths, EvalConfig(source=str(source))) is None
     assert paths["runs"].read_bytes() == (source / "FB-000.parquet").read_bytes()
     assert times_path(paths["runs"]).read_text() == '{"decision_s": [0.5], "prior_s": 0.25}'
+
+
+def test_stucco_collect_writes_the_policys_side_file_and_never_leaves_a_stale_one(tmp_path):
+    # `stucco collect --policy scripted+probe` writes the run's times beside it, as evaluate does; a run collected
+    # again over it with another policy (--force-overwrite) takes the old run's side file away with it
+    from click.testing import CliRunner
+
+    from stucco_cli.main import cli
+
+    def collect(*extra):
+        r = CliRunner().invoke(cli, ["-q", "collect", "--scene", "TC", "--seeds", "104", "--max-actions", "20",
+                                     "--out", str(tmp_path), *extra])
+        assert r.exit_code == 0, r.output
+
+    run = tmp_path / "TC-104.parquet"
+    collect("--policy", "scripted+probe", "--policy-param", "budget=1")
+    times = json.loads(times_path(run).read_text())
+    assert set(times) == {"decision_s", "prior_s"} and times["decision_s"]
+    collect("--force-overwrite")  # the scene's own policy, scripted: no side file of its own
+    assert run.is_file() and not times_path(run).exists()
+    assert run_stats(run)["decision_s"] == []

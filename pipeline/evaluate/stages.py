@@ -70,12 +70,8 @@ def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
             for (from_, _), tmp in zip([(src, dest), *sides], tmps):
                 shutil.copyfile(regular_file(from_, "the stored run"), tmp)
         return None
-    res = collect_file(cfg.scene(scene), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
-                       max_actions=cfg.max_actions, keep_discarded=True,
-                       policy_params=dict(cfg.policy_params) or None)
-    save = registry.policy(cfg.collect_policy).save_side_files
-    if save is not None:
-        registry.resolve(save)(dest, res)
+    collect_file(cfg.scene(scene), seed, dest, root_seed=cfg.root_seed, policy=cfg.collect_policy,
+                 max_actions=cfg.max_actions, keep_discarded=True, policy_params=dict(cfg.policy_params) or None)
     return time.perf_counter() - t0
 
 

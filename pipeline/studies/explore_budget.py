@@ -21,7 +21,7 @@ from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
 from pipeline.parallel import run_calls
 from pipeline.probe.explore import ExploreParams
-from pipeline.probe.report import run_stats, save_times
+from pipeline.probe.report import run_stats
 from pipeline.probe.retrieval import active_grasp
 from pipeline.probe.summary import group_of
 from pipeline.scenes import load_scene
@@ -40,8 +40,7 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
     params = dataclasses.replace(params, action_budget=budget)
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
-        save_times(path, collect_file(scene, seed, path, root_seed=root_seed, policy="explore",
-                                      policy_params=params).probe_s)
+        collect_file(scene, seed, path, root_seed=root_seed, policy="explore", policy_params=params)
     meta = schema.read_metadata(path)
     recorded = meta.get("params") or {}
     if recorded.get("policy") != "explore" or (recorded.get("probe") or {}).get("params", {}).get(

@@ -22,7 +22,7 @@ from pipeline.estimators.target_model import pose_error
 from pipeline.parallel import run_calls
 from pipeline.probe.grasp_attempts import attempt_grasps
 from pipeline.probe.policy import ProbeParams, required_contacts
-from pipeline.probe.report import run_stats, save_times
+from pipeline.probe.report import run_stats
 from pipeline.probe.retrieval import active_state
 from pipeline.scenes import load_scene
 
@@ -76,8 +76,7 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     scene = load_scene(scene_name)
     path = output_path(runs, scene.name, seed)
     if not path.is_file():
-        save_times(path, collect_file(scene, seed, path, root_seed=root_seed, policy="scripted+probe",
-                                      policy_params=params).probe_s)
+        collect_file(scene, seed, path, root_seed=root_seed, policy="scripted+probe", policy_params=params)
     info = load_run(path)
     meta = schema.probe_record(path)  # checked against the run's rows: a history of one entry per decision
     if not meta:
