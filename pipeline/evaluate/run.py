@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from pipeline import registry, schema
 from pipeline.atomic import exclusive
+from pipeline.collect import output_path
 from pipeline.evaluate.config import EvalConfig, Job, check_config, config_lines
 from pipeline.evaluate.freshness import Digests, figure_stale, job_stale_stages, shared_stale_stages
 from pipeline.evaluate.jobs import JobResult, PreparedRun, prepare_one, run_job
@@ -55,7 +56,8 @@ class Evaluation:
 
 def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
     """(scene, seed) of every stored run file in ``source``; ValueError naming a run collected with another root
-    seed (its later stages would be made with ``root_seed``, and retrieval refuses such a run)."""
+    seed (its later stages would be made with ``root_seed``, and retrieval refuses such a run), or a run file whose
+    name is not its run's (each job copies the file named after its scene and seed)."""
     pairs = []
     for _, path in sorted(run_files_by_name(source).items()):
         info = load_run(path)
@@ -64,6 +66,9 @@ def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
         if isinstance(recorded, int) and recorded != root_seed:
             raise ValueError(f"{path}: collected with root seed {recorded}; replay it with `stucco --seed {recorded} "
                              f"evaluate`")
+        named = output_path(source, info.scene.name, info.seed)
+        if Path(path).name != named.name:  # each job copies its stored run by this name
+            raise ValueError(f"{path}: holds run {info.run}, which evaluate reads from {named.name}; rename it")
         pairs.append((info.scene.name, info.seed))
     if not pairs:
         raise ValueError(f"{source}: no collected run files (*.parquet written by `stucco collect`)")

@@ -229,3 +229,16 @@ def test_bench_track_refuses_bad_input_before_measuring(tmp_path, line, culprit)
     last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
     assert last.startswith("Error:") and culprit in last, r.output
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_stored_run_filed_under_another_runs_name_is_refused(tmp_path):
+    # each job copies the stored run named after its scene and seed: a file holding another run under that name
+    # would be evaluated as the run its name says
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    shutil.copy(REGRESSION / "FB-000.parquet", runs / "FB-001.parquet")
+    r = CliRunner().invoke(cli, ["-q", "evaluate", "--from-runs", str(runs), "--methods", "stucco", "--no-figures",
+                                 "--out", str(tmp_path / "ev")])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "FB-001.parquet: holds run FB/0, which evaluate reads from FB-000.parquet" in r.output.splitlines()[-1]
+    assert not (tmp_path / "ev" / "scores").exists()
