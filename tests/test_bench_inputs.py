@@ -60,3 +60,15 @@ def test_bench_probe_refuses_a_run_of_another_root_seed(tmp_path):
                                  str(runs), "--budgets", "0", "--out", str(tmp_path / "out")])
     assert r.exit_code != 0 and "Traceback" not in r.output
     assert "collected with root seed 1" in r.output.splitlines()[-1]
+
+
+def test_bench_probe_refuses_a_stored_run_it_would_not_have_collected(tmp_path):
+    # a run cut short (or of an edited scene, other effects or policy parameters) is not the run the bench stands
+    # for: it was reported as the scene's before
+    runs = tmp_path / "runs"
+    _ok("--seed", "0", "collect", "--scene", "TC", "--seeds", "0", "--policy", "scripted+probe", "--max-actions", "20",
+        "--out", runs)
+    r = CliRunner().invoke(cli, ["-q", "--seed", "0", "bench", "probe", "--scenes", "TC", "--seeds", "0", "--runs",
+                                 str(runs), "--budgets", "0", "--out", str(tmp_path / "out")])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "TC-000.parquet: collected with max_actions 20, not None" in r.output.splitlines()[-1]

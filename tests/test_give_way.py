@@ -181,5 +181,6 @@ def test_a_budget_larger_than_a_spent_collected_one_is_refused(tmp_path, monkeyp
                                   "history": [{"rows": 40, "share": 0.1, "target_steps": [], "stop": False}] * 3}}}
     monkeypatch.setattr(bench_mod.schema, "read_metadata", lambda p: spent)
     monkeypatch.setattr(bench_mod.schema, "probe_record", lambda p: spent["params"]["probe"])
+    monkeypatch.setattr(bench_mod, "check_run_settings", lambda *a, **k: None)  # (a fake run: its budget alone)
     with pytest.raises(ValueError, match="collected with a probe budget of 2, spent"):
         bench_mod._one("TC", 0, tmp_path, (0, 4), 0, ProbeParams(budget=4))

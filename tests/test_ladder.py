@@ -120,6 +120,18 @@ def evaluation(tmp_path_factory):
     return out
 
 
+def test_cli_refuses_the_runs_of_another_root_seed(evaluation, tmp_path):
+    # the evaluation's runs were collected with root seed 0: a ladder drawn with seed 5 is no ladder of them
+    from stucco_cli.main import cli
+
+    r = CliRunner().invoke(cli, ["-q", "--seed", "5", "bench", "retrieval", "--runs-from", str(evaluation),
+                                 "--scenes", "FB", "--seeds", "0", "--estimators", "paper", "--out",
+                                 str(tmp_path / "lad")])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "collected with root seed 0" in r.output.splitlines()[-1]
+    assert not (tmp_path / "lad" / "ladder.csv").exists()
+
+
 def test_cli_writes_the_ladder(evaluation, tmp_path):
     from stucco_cli.main import cli
 

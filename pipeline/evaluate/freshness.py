@@ -15,16 +15,18 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from pipeline import schema
+from pipeline import registry, schema
 from pipeline.collect import output_path
+from pipeline.constraints import plain
 from pipeline.estimators.estimate import needs_every_step
-from pipeline.evaluate.config import Job
+from pipeline.evaluate.config import EvalConfig, Job
 from pipeline.layout import STAGE_SPECS, STAGES, JobPaths, job_paths, run_paths, stage_spec
 from pipeline.registry import DEFAULT_ESTIMATOR
 from pipeline.safe_open import optional_file
+from pipeline.scenes import scene_digest
 
 __all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
-           "figure_stale"]
+           "check_run_settings", "figure_stale"]
 
 def file_digest(path: Path) -> str:
     """SHA-256 (hex) of a file's bytes (:func:`pipeline.schema.file_digest`): every digest the freshness check
@@ -107,19 +109,22 @@ def _every_step(path: Path) -> bool:
 
 
 def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests, source: Path | None = None,
-                        root_seed: int | None = None) -> tuple[str, ...]:
+                        root_seed: int | None = None, cfg: EvalConfig | None = None) -> tuple[str, ...]:
     """The stages of a (scene, seed) shared by its methods to (re)run: ``("collect", "isolate")`` when the run
     file is missing, or differs from the stored run ``source`` it was copied from (``--from-runs``: the stored
     run was collected again since), ``("isolate",)`` when the contacts are not up to date with it, else ``()``.
 
-    A run file that is not the run of ``scene`` and ``seed`` (a run of another seed placed there), or was
-    collected with another root seed than ``root_seed``, is refused (ValueError naming it): its results would be
+    A run file that is not the run of ``scene`` and ``seed`` (a run of another seed placed there), was collected
+    with another root seed than ``root_seed``, or (collected here, ``cfg`` given without ``source``) not the way
+    ``cfg`` collects it (:func:`check_run_settings`), is refused (ValueError naming it): its results would be
     reported as this seed's."""
     paths = run_paths(out, scene, seed)
     run = paths["runs"]
     if optional_file(run, "the run file") is None:
         return "collect", "isolate"
     check_run_identity(run, scene, seed, root_seed)
+    if cfg is not None and source is None:
+        check_run_settings(run, cfg.scene(scene), cfg.collect_policy, cfg.max_actions, dict(cfg.policy_params) or None)
     if source is not None and digest(run) != digest(output_path(source, scene, seed)):
         return "collect", "isolate"
     isolate = stage_spec("isolate")
@@ -140,6 +145,36 @@ def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None)
     if root_seed is not None and isinstance(recorded, int) and recorded != root_seed:
         raise ValueError(f"{path}: collected with root seed {recorded}, this evaluation's is {root_seed}; use "
                          "another --out")
+
+
+def check_run_settings(path: Path, scene, policy: str | None, max_actions: int | None, policy_params,
+                       ignore: tuple[str, ...] = ()) -> None:
+    """ValueError (one line naming ``path`` and the setting) unless the run file was collected as
+    :func:`pipeline.collect.collect_file` collects ``scene`` (a :class:`pipeline.scenes.Scene`) with ``policy``
+    (None: the scene's default), ``max_actions`` and ``policy_params`` (the policy's overrides): the scene file's
+    digest (when recorded), its effects, the policy, the action limit and the policy's parameters as recorded
+    (but those named in ``ignore``)."""
+    params = schema.read_metadata(path).get("params") or {}
+    policy = policy or registry.default_policy(scene.kind)
+    spec = registry.policy(policy)
+    own = registry.build_params(spec, policy_params)
+    drop = lambda d: None if d is None else {k: v for k, v in d.items() if k not in ignore}  # noqa: E731
+    expected = {"policy": policy, "max_actions": max_actions, "effects": scene.effects.as_dict(),
+                "scene_sha256": scene_digest(scene.source),
+                "policy parameters": None if own is None else drop(own.to_dict())}
+    recorded = {**{k: params.get(k) for k in ("policy", "max_actions", "effects", "scene_sha256")},
+                "policy parameters": drop((params.get("probe") or {}).get("params")) if own is not None else None}
+    for key, want in expected.items():
+        if key == "scene_sha256" and recorded[key] is None:
+            continue  # a run file written before runs carried their scene
+        if plain(recorded[key]) != plain(want):  # (JSON kept tuples as lists)
+            raise ValueError(f"{path}: collected with {key} {_short(recorded[key])}, not {_short(want)} as asked "
+                             "here; remove it to collect it again, or use another folder")
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def figure_stale(png: Path, inputs: Iterable[Path]) -> bool:

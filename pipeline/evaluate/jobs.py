@@ -56,7 +56,7 @@ class PreparedRun:
 def _prepare(out: Path, scene: str, seed: int, cfg: EvalConfig, todo: Sequence[str] | None) -> PreparedRun:
     out = Path(out)
     if todo is None:
-        todo = shared_stale_stages(out, scene, seed, Digests(), cfg.source, cfg.root_seed)
+        todo = shared_stale_stages(out, scene, seed, Digests(), cfg.source, cfg.root_seed, cfg)
     paths = run_paths(out, scene, seed)
     times: StageTimes = {}
     if "collect" in todo:

@@ -131,7 +131,7 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         # One pass over the files: every digest taken once (the prepare phase writes only files not hashed
         # yet: a missing run, and contacts, which are checked as outputs here), the stale stages handed on.
         digest = Digests()
-        shared_todo = {(sc, s): shared_stale_stages(out, sc, s, digest, cfg.source, cfg.root_seed)
+        shared_todo = {(sc, s): shared_stale_stages(out, sc, s, digest, cfg.source, cfg.root_seed, cfg)
                        for sc, s in pairs}
         need = [(out, sc, s, cfg, todo) for (sc, s), todo in shared_todo.items() if todo]
         with tqdm(total=len(need), desc="collect+isolate", unit="run", disable=progress or not need) as bar:

@@ -155,14 +155,18 @@ def with_stage_times(table: pa.Table, walls: Mapping[str, float | None]) -> pa.T
 
 
 def stored_stage_s(scores_files: Iterable[Path]) -> StageTimes:
-    """Stage -> wall time (s) recorded in the first existing file of ``scores_files`` (its ``stage_<name>_s``
-    columns, first row); the stages it has no finite value for are left out; {} when none exists."""
+    """Stage -> wall time (s) recorded in the first existing, readable file of ``scores_files`` (its
+    ``stage_<name>_s`` columns, first row); the stages it has no finite value for are left out; {} when none is
+    there. A file that is not Parquet (a damaged output the resume rebuilds anyway) lends no time."""
     for path in scores_files:
         if optional_file(path, "the scores file") is None:
             continue
-        names = set(pq.read_schema(path).names)
-        cols = [c for c in STAGE_COLUMNS if c in names]
-        row = pq.read_table(path, columns=cols).slice(0, 1).to_pylist()
+        try:
+            names = set(pq.read_schema(path).names)
+            cols = [c for c in STAGE_COLUMNS if c in names]
+            row = pq.read_table(path, columns=cols).slice(0, 1).to_pylist()
+        except (pa.ArrowInvalid, OSError):
+            continue
         if not row:
             continue
         return {s: float(v) for s, c in zip(STAGES, STAGE_COLUMNS)

@@ -19,6 +19,7 @@ from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
+from pipeline.evaluate.freshness import check_run_settings
 from pipeline.parallel import run_calls
 from pipeline.probe.explore import ExploreParams
 from pipeline.probe.report import run_stats
@@ -47,6 +48,7 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
             "action_budget") != budget or meta.get("seed") != root_seed:
         raise ValueError(f"{path}: not a run of the explore policy with an action budget of {budget} and root seed "
                          f"{root_seed}; use another --runs directory")
+    check_run_settings(path, scene, "explore", None, params)  # the scene, its effects, the whole run, every parameter
     info = load_run(path)
     r = active_grasp(info, root_seed)
     pe, ye = pose_error(info.target, r.pose, info.true_pose)

@@ -19,6 +19,7 @@ from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
+from pipeline.evaluate.freshness import check_run_settings
 from pipeline.parallel import run_calls
 from pipeline.probe.grasp_attempts import attempt_grasps
 from pipeline.probe.policy import ProbeParams, required_contacts
@@ -87,6 +88,9 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
     if isinstance(recorded, int) and recorded != root_seed:
         raise ValueError(f"{path}: collected with root seed {recorded}; run `stucco --seed {recorded} bench probe` "
                          "or use another --runs directory")
+    # the scene, its effects, the whole run and the policy's parameters this bench would collect it with (the
+    # budget aside: a run stands for the smaller budgets, checked below)
+    check_run_settings(path, scene, "scripted+probe", None, params, ignore=("budget",))
     collected = int(meta["params"].get("budget", params.budget))
     history = meta["history"]
     need = required_contacts(info.target, params)

@@ -327,6 +327,10 @@ def _run_pair(out: Path, scene: str, seed: int, estimators: Sequence[str], metho
     runs = partition(out, "runs", scene, seed)
     if not runs.is_file():
         raise FileNotFoundError(f"{runs}: no collected run for {scene} seed {seed}; run `stucco evaluate` first")
+    recorded = schema.read_metadata(runs).get("seed")
+    if isinstance(recorded, int) and recorded != root_seed:  # its ladder would draw from another stream
+        raise ValueError(f"{runs}: collected with root seed {recorded}; run `stucco --seed {recorded} bench "
+                         "retrieval` on it")
     seg = partition(out, "segments", scene, seed, method)
     if seg.is_file():
         check_segments_of_run(seg, runs, f"{scene}/{seed}")

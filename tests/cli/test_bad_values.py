@@ -6,9 +6,11 @@ every input byte-identical afterwards. Numbers must be finite and within their p
 """
 from __future__ import annotations
 
+import io
 import shutil
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
@@ -242,3 +244,43 @@ def test_a_stored_run_filed_under_another_runs_name_is_refused(tmp_path):
     assert r.exit_code != 0 and "Traceback" not in r.output
     assert "FB-001.parquet: holds run FB/0, which evaluate reads from FB-000.parquet" in r.output.splitlines()[-1]
     assert not (tmp_path / "ev" / "scores").exists()
+
+
+@pytest.mark.parametrize("collect_args, setting", [
+    (["--max-actions", "5"], "max_actions 5"),
+    (["--max-actions", "10", "--noise-mm", "20"], "effects"),
+    (["--max-actions", "10", "--policy", "scripted+probe", "--policy-param", "budget=1"], "policy 'scripted+probe'"),
+])
+def test_a_run_collected_otherwise_in_an_evaluation_folder_is_refused(tmp_path, collect_args, setting):
+    # evaluate reuses the run file of its folder: one collected with other settings (placed there by hand) would be
+    # evaluated as this evaluation's run
+    def stucco(*args):
+        return CliRunner().invoke(cli, ["-q", "--seed", "0", *args])
+
+    grid = ["evaluate", "--scenes", "FB", "--seeds", "0", "--methods", "stucco", "--estimators", "plausible",
+            "--no-figures", "--max-actions", "10", "--out", str(tmp_path / "ev")]
+    assert stucco(*grid).exit_code == 0
+    r = stucco("collect", "--scene", "FB", "--seeds", "0", "--out", str(tmp_path / "ev" / "runs"), "--force-overwrite",
+               *collect_args)
+    assert r.exit_code == 0, r.output
+    r = stucco(*grid)
+    last = r.output.splitlines()[-1]
+    assert r.exit_code != 0 and "FB-000.parquet: collected with " + setting in last, r.output
+    assert "not" in last and "remove it to collect it again" in last
+
+
+def test_a_damaged_scores_file_is_rebuilt_on_resume(tmp_path):
+    # the resume rebuilds a damaged output; the stage times it borrows from earlier scores must not trip on it
+    def stucco(*args):
+        return CliRunner().invoke(cli, ["-q", "--seed", "0", *args])
+
+    grid = ["evaluate", "--scenes", "FB", "--seeds", "0", "--methods", "stucco", "--estimators", "plausible",
+            "--no-figures", "--max-actions", "10", "--out", str(tmp_path / "ev")]
+    assert stucco(*grid).exit_code == 0
+    scores = tmp_path / "ev" / "scores" / "FB-000-stucco-plausible.parquet"
+    good = scores.read_bytes()
+    scores.write_text("garbage")
+    r = stucco(*grid)
+    assert r.exit_code == 0, r.output
+    assert pq.read_table(scores).drop_columns([c for c in pq.read_schema(scores).names if c.endswith("_s")]).equals(
+        pq.read_table(io.BytesIO(good)).drop_columns([c for c in pq.read_schema(scores).names if c.endswith("_s")]))
