@@ -288,3 +288,12 @@ def test_evaluate_records_the_policy_params_and_refuses_other_ones_on_resume(tmp
     assert schema.read_run(run).num_rows == 3
     again = CliRunner().invoke(cli, args + ["--policy-param", "action_budget=4"])
     assert again.exit_code != 0 and "policy_params" in again.output and "Traceback" not in again.output
+
+
+def test_an_edited_scene_under_a_tasks_name_is_reported_with_other_scenes():
+    from pipeline.probe.summary import group_of
+
+    text = load_scene("FB").source
+    assert group_of("FB", "box", text) == "FB" == group_of("FB", "box")
+    assert group_of("FB", "box", text.replace("mass = ", "mass = 1")) == "other scenes, box target"
+    assert group_of("GEN_00001", "cylinder", "anything") == "other scenes, can target"

@@ -168,3 +168,28 @@ def test_cli_bad_options_fail_with_one_line(evaluation, tmp_path, args, match):
     last = [ln for ln in r.output.splitlines() if ln.strip()][-1]
     assert re.search(match, last), last
     assert "Traceback" not in r.output and not (tmp_path / "o").exists()
+
+
+def test_the_ladder_takes_the_gripper_the_segments_were_tracked_with(tmp_path, monkeypatch):
+    from pipeline.studies import retrieval_ladder as ladder
+    from stucco_cli.main import cli
+
+    def ok(*args):
+        r = CliRunner().invoke(cli, ["-q", *map(str, args)])
+        assert r.exit_code == 0, r.output
+
+    ok("isolate", "--in", REGRESSION / "FB-000.parquet", "--out", tmp_path / "c.parquet")
+    ok("track", "--in", tmp_path / "c.parquet", "--out", tmp_path / "t.parquet", "--robot", "disc:0.05",
+       "--particles", "20")
+    ok("segment", "--in", tmp_path / "t.parquet", "--out", tmp_path / "s.parquet")
+    asked = []
+
+    def robot(name):
+        asked.append(name)
+        raise StopIteration  # the gripper is all this test wants to see
+
+    monkeypatch.setattr(ladder, "load_robot", robot)
+    for segments in (tmp_path / "s.parquet", None):
+        with pytest.raises(StopIteration):
+            ladder.run_ladder(REGRESSION / "FB-000.parquet", segments, ["plausible"], 0)
+    assert asked == ["disc:0.05", "panda"]

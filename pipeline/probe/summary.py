@@ -17,6 +17,7 @@ from pipeline.estimators.run_info import load_run
 from pipeline.layout import partition
 from pipeline.probe.report import run_stats
 from pipeline.report import PAPER_TABLE_II
+from pipeline.scenes.files import scene_digest, shipped_digest
 
 __all__ = ["active_rows", "active_markdown", "group_of"]
 
@@ -25,19 +26,22 @@ __all__ = ["active_rows", "active_markdown", "group_of"]
 PAPER_TASKS = tuple(PAPER_TABLE_II)
 
 
-def group_of(scene: str, shape: str) -> str:
-    """The row a run of ``scene`` is reported in: a paper task by name, any other scene by its target's ``shape``
-    ("box" or "cylinder", reported as a box or a can target)."""
-    return scene if scene in PAPER_TASKS else f"other scenes, {'can' if shape == 'cylinder' else 'box'} target"
+def group_of(scene: str, shape: str, source: str | None = None) -> str:
+    """The row a run of ``scene`` is reported in: a paper task by name, when its scene file's text ``source`` is the
+    shipped one (or is not known), any other scene (an edited copy under a task's name too) by its target's
+    ``shape`` ("box" or "cylinder", reported as a box or a can target)."""
+    shipped = source is None or scene_digest(source) == shipped_digest(scene)
+    return scene if scene in PAPER_TASKS and shipped else \
+        f"other scenes, {'can' if shape == 'cylinder' else 'box'} target"
 
 
-def _run_facts(run_path: Path) -> tuple[str, int, float]:
+def _run_facts(run_path: Path) -> tuple[str, int, float, str]:
     """(the target's shape, "box" or "cylinder"; the run's actions; how far the target's centre moved from after the
-    first action to the end of the run, m) of a run file."""
+    first action to the end of the run, m; the text of the scene file it was collected from) of a run file."""
     info = load_run(run_path)  # the scene recorded in the run file, its target, the final poses
     first = np.asarray(schema.read_run(run_path).column("obj_pose")[0].as_py(), dtype=np.float64).reshape(-1, 3)
     moved = math.hypot(*(info.true_pose[:2] - first[info.target_id, :2]))
-    return info.target.kind, len(info.steps), moved
+    return info.target.kind, len(info.steps), moved, info.scene.source
 
 
 def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) -> list[dict]:
@@ -58,8 +62,8 @@ def active_rows(out: str | Path, scores: pa.Table, method: str | None = None) ->
         path = partition(out, "runs", scene, seed)
         if r.get("grasp_attempts") is None or not path.is_file():
             continue
-        shape, actions, pushed = _run_facts(path)
-        groups.setdefault(group_of(scene, shape), []).append((r, run_stats(path), actions, pushed))
+        shape, actions, pushed, source = _run_facts(path)
+        groups.setdefault(group_of(scene, shape, source), []).append((r, run_stats(path), actions, pushed))
     out_rows = []
     order = {name: i for i, name in enumerate(PAPER_TASKS)}
     for name in sorted(groups, key=lambda g: (order.get(g, len(order)), g)):

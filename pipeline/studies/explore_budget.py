@@ -54,8 +54,8 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
     pe, ye = pose_error(info.target, r.pose, info.true_pose)
     probe = schema.probe_record(path)
     dec = np.asarray(run_stats(path)["decision_s"], dtype=np.float64)
-    return dict(scene=scene.name, group=group_of(scene.name, scene.target.shape), seed=seed, budget=budget,
-                actions=len(info.steps),
+    return dict(scene=scene.name, group=group_of(scene.name, scene.target.shape, scene.source), seed=seed,
+                budget=budget, actions=len(info.steps),
                 search_actions=int(probe["search"]["actions"]), probes=r.probes,
                 success=bool(r.result.first_success), success_any=bool(r.result.success),
                 attempts=len(r.result.attempts), position_error_m=pe, yaw_error_rad=ye,

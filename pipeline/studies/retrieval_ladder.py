@@ -55,7 +55,7 @@ from pipeline.geometry import rotate
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.retrieve.stage import contact_step_segments
+from pipeline.retrieve.stage import contact_step_segments, tracking_robot
 from pipeline.robot import load_robot
 from pipeline.safe_open import regular_file
 from pipeline.segment import final_estimates
@@ -280,7 +280,8 @@ def run_ladder(run_path: Path, segments_path: Path | None, estimators: Sequence[
     """
     info = load_run(run_path)
     target, truth = info.target, info.true_pose
-    sdf = load_robot("panda")
+    # the gripper the segments were tracked with (their record; the Panda without segments or a record)
+    sdf = load_robot((tracking_robot(segments_path) if segments_path is not None else None) or "panda")
     rows: list[LadderRow] = []
 
     def grasp(estimator: str, rung: str, pose: np.ndarray, purity: float = 1.0) -> None:
