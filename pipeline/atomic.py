@@ -183,14 +183,17 @@ def write_csv_rows(path: str | os.PathLike, rows: Sequence[dict], fields: Sequen
     return Path(path)
 
 
-def save_figure(fig, path: str | os.PathLike, dpi: int = 100, image_format: str | None = None) -> Path:
+def save_figure(fig, path: str | os.PathLike, dpi: int = 100, image_format: str | None = None,
+                metadata: dict[str, str] | None = None) -> Path:
     """Save a matplotlib figure to `path` atomically (format: `image_format`, else from the suffix, else PNG) and
-    close it; returns `path`."""
+    close it; `metadata` (key -> text) goes into the file as the format allows (a PNG's text chunks); returns
+    `path`."""
     import matplotlib.pyplot as plt  # only callers that draw pay for matplotlib
 
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, format=image_format or Path(path).suffix.lstrip(".") or "png")
+            fig.savefig(tmp, dpi=dpi, format=image_format or Path(path).suffix.lstrip(".") or "png",
+                        **({"metadata": metadata} if metadata else {}))
     finally:
         plt.close(fig)
     return Path(path)

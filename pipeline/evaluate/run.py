@@ -23,7 +23,7 @@ from pipeline.evaluate.jobs import JobResult, PreparedRun, prepare_one, run_job
 from pipeline.evaluate.parallel import parallel_backend
 from pipeline.evaluate.results import gather_scores, write_report
 from pipeline.evaluate.stages import StageTimes, stored_stage_s
-from pipeline.figures import figure_path, run_figure, summary_figure
+from pipeline.figures import drawn, figure_methods, figure_path, run_figure, summary_figure
 from pipeline.layout import LOCK, STAGE_SPECS, JobPaths, job_paths, run_paths
 from pipeline.parallel import map_jobs
 from pipeline.probe.report import read_times
@@ -157,9 +157,12 @@ def _evaluate(out, scenes, seeds, methods, cfg, *, jobs, progress, figures) -> E
         if figures:
             # The figures show the first pose estimator's estimate (the report's first GS column).
             first = cfg.estimators[0]
+            # stale: older than a scores file it shows, or showing other panels than it would now (methods dropped)
             stale_figs = [(out, sc, s, methods, first) for sc, s in pairs
                           if figure_stale(figure_path(out, sc, s),
-                                          [paths[Job(sc, s, m)].of("scores", first) for m in methods])]
+                                          [paths[Job(sc, s, m)].of("scores", first) for m in methods])
+                          or drawn(figure_path(out, sc, s)) != {"methods": figure_methods(out, sc, s, methods, first),
+                                                                "estimator": first}]
             with tqdm(total=len(stale_figs), desc="figures", unit="fig", disable=progress or not stale_figs) as bar:
                 map_jobs(run_figure, stale_figs, jobs, bar)
             summary_figure(table_ii(scores), out / "summary.png")

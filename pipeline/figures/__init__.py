@@ -15,6 +15,7 @@ Drawing blocks are in :mod:`pipeline.figures.draw`. Files are written to a tempo
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -41,8 +42,8 @@ from pipeline.retrieve import DEFAULT_ESTIMATOR, load_run, read_retrieval
 from pipeline.score import read_scores
 from pipeline.segment import final_estimates
 
-__all__ = ["figure_path", "outline", "run_figure", "summary_figure", "plot_table", "segments_with_plot",
-           "PLOTTABLE"]
+__all__ = ["figure_path", "outline", "run_figure", "figure_methods", "drawn", "DRAWN_KEY", "summary_figure",
+           "plot_table", "segments_with_plot", "PLOTTABLE"]
 
 
 def figure_path(out: str | Path, scene: str, seed: int) -> Path:
@@ -50,8 +51,43 @@ def figure_path(out: str | Path, scene: str, seed: int) -> Path:
     return Path(out) / "figures" / f"{scene}-{int(seed):03d}.png"
 
 
-def _save(fig, path: Path) -> None:
-    save_figure(fig, path, dpi=100)
+def _save(fig, path: Path, metadata: dict[str, str] | None = None) -> None:
+    save_figure(fig, path, dpi=100, metadata=metadata)
+
+
+#: The PNG text chunk in which a run figure records what it drew (:func:`drawn`).
+DRAWN_KEY = "stucco.figure"
+
+
+def figure_methods(out: str | Path, scene: str, seed: int, methods: Sequence[str], estimator: str) -> list[str]:
+    """The methods :func:`run_figure` draws a panel for: those of ``methods`` with a scores file of ``estimator``
+    (the first method when none has)."""
+    return [m for m in methods if partition(out, "scores", scene, seed, m, estimator).is_file()] or list(methods)[:1]
+
+
+def drawn(png: str | Path) -> dict | None:
+    """What a run figure recorded it drew (``{"methods": [...], "estimator": ...}``, its PNG text chunk
+    :data:`DRAWN_KEY`), or None (no such chunk, or not a PNG): the evaluation redraws a figure whose panels differ
+    from those it would draw now."""
+    try:
+        data = Path(png).read_bytes()
+    except OSError:
+        return None
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    at = 8
+    while at + 8 <= len(data):
+        size, kind = int.from_bytes(data[at:at + 4], "big"), data[at + 4:at + 8]
+        body = data[at + 8:at + 8 + size]
+        if kind == b"tEXt" and body.startswith(DRAWN_KEY.encode() + b"\0"):
+            try:
+                return json.loads(body[len(DRAWN_KEY) + 1:].decode("latin-1"))
+            except ValueError:
+                return None
+        if kind == b"IEND":
+            break
+        at += 12 + size
+    return None
 
 
 def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], estimator: str | None = None,
@@ -70,7 +106,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
     probe = probe_actions(run_path, len(info.ee) - 1)
     shapes = scene_shapes(info)
     lo, hi = window(shapes, info.ee)  # zoom on the objects and the trail; walls drawn where they enter it
-    methods = [m for m in methods if partition(out, "scores", scene, seed, m, estimator).is_file()] or list(methods)[:1]
+    methods = figure_methods(out, scene, seed, methods, estimator)
     width = max(3.6 * len(methods), 5.2)  # one panel: wide enough for its title and the figure's
     fig, axes = plt.subplots(1, len(methods), figsize=(width, 4.4), squeeze=False)
     for ax, m in zip(axes[0], methods):
@@ -110,7 +146,7 @@ def run_figure(out: str | Path, scene: str, seed: int, methods: Sequence[str], e
             f"green held, red failed)")
     fig.suptitle(wrap(head, width, 8), fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, {DRAWN_KEY: json.dumps({"methods": methods, "estimator": estimator})})
     return path
 
 

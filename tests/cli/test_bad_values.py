@@ -284,3 +284,20 @@ def test_a_damaged_scores_file_is_rebuilt_on_resume(tmp_path):
     assert r.exit_code == 0, r.output
     assert pq.read_table(scores).drop_columns([c for c in pq.read_schema(scores).names if c.endswith("_s")]).equals(
         pq.read_table(io.BytesIO(good)).drop_columns([c for c in pq.read_schema(scores).names if c.endswith("_s")]))
+
+
+def test_a_figure_is_redrawn_when_the_methods_it_shows_change(tmp_path):
+    # a figure is stale when older than a scores file it shows, and also when it shows other panels than the
+    # evaluation would draw now (a method dropped from the grid: no scores file is newer)
+    from pipeline.figures import drawn, figure_path
+
+    def grid(methods):
+        r = CliRunner().invoke(cli, ["-q", "--seed", "0", "evaluate", "--scenes", "FB", "--seeds", "0", "--methods",
+                                     methods, "--estimators", "plausible", "--max-actions", "10", "--out",
+                                     str(tmp_path / "ev")])
+        assert r.exit_code == 0, r.output
+        return drawn(figure_path(tmp_path / "ev", "FB", 0))
+
+    assert grid("stucco,kmeans") == {"methods": ["stucco", "kmeans"], "estimator": "plausible"}
+    assert grid("stucco") == {"methods": ["stucco"], "estimator": "plausible"}
+    assert drawn(tmp_path / "nothing.png") is None
