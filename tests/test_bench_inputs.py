@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from pipeline.layout import partition
@@ -52,23 +53,17 @@ def test_bench_probe_refuses_a_run_of_another_policy_or_root_seed(tmp_path):
     assert "not of scripted+probe" in r.output.splitlines()[-1]
 
 
-def test_bench_probe_refuses_a_run_of_another_root_seed(tmp_path):
-    runs = tmp_path / "runs"
-    _ok("--seed", "1", "collect", "--scene", "TC", "--seeds", "0", "--policy", "scripted+probe", "--max-actions", "20",
-        "--out", runs)
-    r = CliRunner().invoke(cli, ["-q", "--seed", "0", "bench", "probe", "--scenes", "TC", "--seeds", "0", "--runs",
-                                 str(runs), "--budgets", "0", "--out", str(tmp_path / "out")])
-    assert r.exit_code != 0 and "Traceback" not in r.output
-    assert "collected with root seed 1" in r.output.splitlines()[-1]
-
-
-def test_bench_probe_refuses_a_stored_run_it_would_not_have_collected(tmp_path):
+@pytest.mark.parametrize("root_seed, refusal", [
+    ("1", "collected with root seed 1"),
     # a run cut short (or of an edited scene, other effects or policy parameters) is not the run the bench stands
     # for: it was reported as the scene's before
+    ("0", "TC-000.parquet: collected with max_actions 20, not None"),
+])
+def test_bench_probe_refuses_a_stored_run_it_would_not_have_collected(tmp_path, root_seed, refusal):
     runs = tmp_path / "runs"
-    _ok("--seed", "0", "collect", "--scene", "TC", "--seeds", "0", "--policy", "scripted+probe", "--max-actions", "20",
-        "--out", runs)
+    _ok("--seed", root_seed, "collect", "--scene", "TC", "--seeds", "0", "--policy", "scripted+probe", "--max-actions",
+        "20", "--out", runs)
     r = CliRunner().invoke(cli, ["-q", "--seed", "0", "bench", "probe", "--scenes", "TC", "--seeds", "0", "--runs",
                                  str(runs), "--budgets", "0", "--out", str(tmp_path / "out")])
     assert r.exit_code != 0 and "Traceback" not in r.output
-    assert "TC-000.parquet: collected with max_actions 20, not None" in r.output.splitlines()[-1]
+    assert refusal in r.output.splitlines()[-1]
