@@ -162,8 +162,10 @@ def check_run_settings(path: Path, scene, policy: str | None, max_actions: int |
     expected = {"policy": policy, "max_actions": max_actions, "effects": scene.effects.as_dict(),
                 "scene_sha256": scene_digest(scene.source),
                 "policy parameters": None if own is None else drop(own.to_dict())}
+    # (the probing policies record their parameters with their log, the others under policy_params)
+    own_recorded = (params.get("probe") or {}).get("params") or params.get("policy_params")
     recorded = {**{k: params.get(k) for k in ("policy", "max_actions", "effects", "scene_sha256")},
-                "policy parameters": drop((params.get("probe") or {}).get("params")) if own is not None else None}
+                "policy parameters": drop(own_recorded) if own is not None else None}
     for key, want in expected.items():
         if key == "scene_sha256" and recorded[key] is None:
             continue  # a run file written before runs carried their scene

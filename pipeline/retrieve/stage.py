@@ -280,8 +280,12 @@ def read_segments_for(segments_path: str | Path, config: RetrieveConfig) -> tupl
                          f"rows would be reported as another method's")
     robot = tracking_robot(segments_path)
     if robot is not None and robot != config.params.robot:
-        raise ValueError(f"{segments_path}: its points were tracked with robot {robot!r}, not {config.params.robot!r} "
-                         f"(--robot): the free space is the trail of the gripper that made them")
+        # the same gripper may be spelled otherwise (disc:0.03, disc:0.030): its grid's digest decides when recorded
+        recorded_digest = ((params.get("tracking") or {}).get("params") or {}).get("robot_digest")
+        if recorded_digest is None or load_robot(config.params.robot).digest != recorded_digest:
+            raise ValueError(f"{segments_path}: its points were tracked with robot {robot!r}, not "
+                             f"{config.params.robot!r} (--robot): the free space is the trail of the gripper that "
+                             "made them")
     if needs_every_step([config.estimator]) and not params.get("every_step"):
         raise ValueError(f"{segments_path}: holds only the final estimate of each run; --estimator "
                          f"{config.estimator} runs at every in-contact step: track with `stucco track --every-step`, "

@@ -301,3 +301,16 @@ def test_a_figure_is_redrawn_when_the_methods_it_shows_change(tmp_path):
     assert grid("stucco,kmeans") == {"methods": ["stucco", "kmeans"], "estimator": "plausible"}
     assert grid("stucco") == {"methods": ["stucco"], "estimator": "plausible"}
     assert drawn(tmp_path / "nothing.png") is None
+
+
+@pytest.mark.parametrize("policy_args", [["--policy", "rummage", "--policy-param", "contacts=3"],
+                                         ["--policy", "scripted+probe", "--policy-param", "budget=1"]])
+def test_an_evaluation_of_a_policy_with_parameters_resumes(tmp_path, policy_args):
+    # the run-settings check reads each policy's parameters where it records them: the same command again resumes
+    args = ["-q", "--seed", "0", "evaluate", "--scenes", "FB", "--seeds", "0", "--methods", "stucco", "--estimators",
+            "plausible", "--no-figures", "--max-actions", "30", "--out", str(tmp_path / "ev"), *policy_args]
+    first = CliRunner().invoke(cli, args)
+    assert first.exit_code == 0, first.output
+    again = CliRunner().invoke(cli, args[1:])  # without -q: the summary line
+    assert again.exit_code == 0, again.output
+    assert "0 run, 1 already done" in again.output

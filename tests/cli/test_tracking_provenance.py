@@ -54,6 +54,9 @@ def test_retrieve_takes_the_robot_the_points_were_tracked_with_and_refuses_anoth
                   tmp_path / "p.parquet", "--no-grasp", "--robot", "panda")
     assert "tracked with robot 'disc:0.05', not 'panda'" in last and "segments.parquet" in last
     assert not (tmp_path / "p.parquet").exists()
+    # the same gripper spelled otherwise is the same gripper (its grid's digest)
+    _ok("retrieve", "--segments", made / "segments.parquet", "--runs", made / "runs", "--out", tmp_path / "s.parquet",
+        "--no-grasp", "--robot", "disc:0.050")
 
 
 def test_retrieve_refuses_a_method_the_segments_were_not_tracked_by(made, tmp_path):
