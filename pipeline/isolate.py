@@ -63,6 +63,8 @@ class IsolationResult:
         not in contact).
     detection : DetectionParams or None
         The detector of every run (None: the runs were collected with different ones).
+    root_seeds : tuple of int
+        The distinct root seeds the runs record they were collected with (``stucco.seed``), sorted.
     """
 
     table: object
@@ -72,6 +74,7 @@ class IsolationResult:
     n_contact: int
     n_unisolated: int
     detection: DetectionParams | None = None
+    root_seeds: tuple[int, ...] = ()
 
     def error_summary(self) -> dict[str, float | int | None]:
         """Median and 90th percentile of the isolation error (m), and the number of errors."""
@@ -104,8 +107,11 @@ def isolate_runs(files: list[Path], det: DetectionParams | None = None,
     errors: list[float] = []
     unisolated = n_actions = 0
     tables = []
+    seeds: set[int] = set()
     for path in files:
         t, meta = schema.read_run_and_metadata(path)
+        if isinstance(meta.get("seed"), int):
+            seeds.add(meta["seed"])
         key = (t.column("scene")[0].as_py(), t.column("seed")[0].as_py())
         tables.append((key, t, det or detection_of(meta)))
     per_run = []
@@ -134,7 +140,8 @@ def isolate_runs(files: list[Path], det: DetectionParams | None = None,
     n_contact = len({(r, s) for r, s, inc in zip(allcols["run"], allcols["step"], allcols["in_contact"]) if inc})
     used = list(dict.fromkeys(d for _, _, d in tables)) or [det or DetectionParams()]
     return IsolationResult(table=table, errors=np.asarray(errors), n_runs=len(files), n_actions=n_actions,
-                           n_contact=n_contact, n_unisolated=unisolated, detection=used[0] if len(used) == 1 else None)
+                           n_contact=n_contact, n_unisolated=unisolated, detection=used[0] if len(used) == 1 else None,
+                           root_seeds=tuple(sorted(seeds)))
 
 
 def detection_of(meta: dict) -> DetectionParams:
@@ -153,12 +160,18 @@ def isolate_file(files: list[Path], out_path: str | Path, *, seed: int, det: Det
                  iso: IsolationParams = IsolationParams()) -> IsolationResult:
     """The `isolate` stage on files: detect and isolate the contacts of collected run files and write the contacts
     table (atomically), its metadata recording both parameter sets, the isolation error and the counts, and every
-    run file as an input (by stem). Returns the :class:`IsolationResult`."""
+    run file as an input (by stem). Isolating draws nothing: the table's seed is the runs' root seed (``seed``, the
+    command's, only for runs that record none); runs of different root seeds are refused (ValueError), as every
+    later stage would refuse some of them. Returns the :class:`IsolationResult`."""
     res = isolate_runs(files, det, iso)
+    if len(res.root_seeds) > 1:
+        raise ValueError(f"the runs were collected with root seeds {', '.join(map(str, res.root_seeds))}: isolate "
+                         "each root seed's runs apart")
     params = params_dict(res.detection, iso)
     params["isolation_error"] = res.error_summary()
     params["counts"] = {"runs": res.n_runs, "actions": res.n_actions, "in_contact": res.n_contact,
                         "unisolated": res.n_unisolated}
-    schema.write_table(res.table, out_path, stage="isolate", params=params, seed=seed,
+    schema.write_table(res.table, out_path, stage="isolate", params=params,
+                       seed=res.root_seeds[0] if res.root_seeds else seed,
                        inputs={f.stem: f for f in files}, kind="contacts")
     return res

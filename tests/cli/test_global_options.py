@@ -19,8 +19,9 @@ def test_seed_and_jobs_after_the_command_mean_the_same(stages, tmp_path):
 
 def test_after_the_command_wins(stages, tmp_path):
     d, _ = stages
-    out = tmp_path / "c.parquet"
-    ok(invoke("--seed", 1, "isolate", "--in", d / "runs", "--out", out, "--seed", 2))
+    out = tmp_path / "t.parquet"  # (track draws from its seed; isolate, drawing nothing, records its runs')
+    ok(invoke("--seed", 1, "track", "--in", d / "contacts.parquet", "--out", out, "--robot", "disc:0.05",
+              "--particles", 20, "--seed", 2))
     assert schema.read_metadata(out)["seed"] == 2
 
 

@@ -115,3 +115,14 @@ def test_a_run_tracked_without_contact_is_checked_against_its_recorded_run_file(
     last = _fails("score", "--retrieval", tmp_path / "r.parquet", "--segments", tmp_path / "s.parquet", "--runs", bad,
                   "--out", tmp_path / "sc.parquet")
     assert "not the run FB/0" in last
+
+
+def test_isolate_records_the_runs_root_seed_and_refuses_runs_of_two(tmp_path):
+    _ok("--seed", 3, "collect", "--scene", "FB", "--seeds", 0, "--max-actions", 2, "--out", tmp_path / "s3")
+    _ok("isolate", "--in", tmp_path / "s3", "--out", tmp_path / "c3.parquet")  # its own seed: 0, drawing nothing
+    assert schema.read_metadata(tmp_path / "c3.parquet")["seed"] == 3
+    (tmp_path / "mixed").mkdir()
+    shutil.copy(tmp_path / "s3" / "FB-000.parquet", tmp_path / "mixed" / "FB-000.parquet")
+    shutil.copy(REGRESSION / "TC-000.parquet", tmp_path / "mixed" / "TC-000.parquet")  # root seed 0
+    last = _fails("isolate", "--in", tmp_path / "mixed", "--out", tmp_path / "cm.parquet")
+    assert "root seeds 0, 3" in last and not (tmp_path / "cm.parquet").exists()
