@@ -278,7 +278,7 @@ def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions,
                                         policy_params=policy_params)
     if result.discarded is None or keep_discarded:
-        for suffix in dict.fromkeys(s for spec in registry.policies() for s in spec.side_files):
+        for suffix in registry.side_suffixes():
             registry.side_path(path, suffix).unlink(missing_ok=True)
         write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
         result.path = Path(path)

@@ -22,7 +22,7 @@ from typing import Any
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
            "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
            "estimator_names", "policy_names", "default_policy", "method_title", "resolve", "build_params", "choices",
-           "side_path", "DEFAULT_ESTIMATOR"]
+           "side_path", "side_suffixes", "DEFAULT_ESTIMATOR"]
 
 #: An object, or ``"package.module:attribute"`` resolved on first use.
 Ref = str | Callable[..., Any] | type | None
@@ -230,6 +230,11 @@ def estimators() -> tuple[EstimatorSpec, ...]:
 
 def policies() -> tuple[PolicySpec, ...]:
     return tuple(_REGISTRY["policy"].values())
+
+
+def side_suffixes() -> tuple[str, ...]:
+    """The side-file suffixes every registered policy declares, each once (a run file may come from any of them)."""
+    return tuple(dict.fromkeys(s for spec in policies() for s in spec.side_files))
 
 
 def tracker_names() -> tuple[str, ...]:

@@ -39,8 +39,7 @@ def migrate(out: str | Path) -> list[str]:
             shutil.rmtree(root / _WALL_DIR)
     renamed = 0
     runs = out / "runs"
-    suffixes = dict.fromkeys(s for spec in registry.policies() for s in spec.side_files)
-    for suffix in suffixes if runs.is_dir() else ():
+    for suffix in registry.side_suffixes() if runs.is_dir() else ():
         for old in runs.glob(f"*{suffix}"):
             if old.name.startswith("_"):
                 continue

@@ -46,11 +46,6 @@ StageTimes = dict[str, float | None]
 _COLLECT, _ISOLATE, _TRACK, _SEGMENT, _RETRIEVE, _SCORE = (stage_spec(s) for s in STAGES)
 
 
-def _side_suffixes() -> tuple[str, ...]:
-    """The side-file suffixes every registered policy declares (a stored run may come from any of them)."""
-    return tuple(dict.fromkeys(s for spec in registry.policies() for s in spec.side_files))
-
-
 def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
     """Collect the scripted run (or copy the stored one of ``cfg.source``, with its policy's side files) into the
     job's run file; returns the wall time (s), None for a copied run (it was not produced here)."""
@@ -61,10 +56,10 @@ def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
         src = output_path(cfg.source, scene, seed)
         if optional_file(src, "the stored run") is None:
             raise FileNotFoundError(f"{src}: no stored run for {scene} seed {seed}")
-        sides = [(side, registry.side_path(dest, suffix)) for suffix in _side_suffixes()
+        sides = [(side, registry.side_path(dest, suffix)) for suffix in registry.side_suffixes()
                  if optional_file(side := registry.side_path(src, suffix), "the run's side file") is not None]
         # the run and its side files appear together (a side file of an older copy never outlives its run)
-        for suffix in _side_suffixes():
+        for suffix in registry.side_suffixes():
             registry.side_path(dest, suffix).unlink(missing_ok=True)
         with all_or_none([dest, *(d for _, d in sides)]) as tmps:
             for (from_, _), tmp in zip([(src, dest), *sides], tmps):
