@@ -34,7 +34,7 @@ from pipeline.metrics import fmi
 from pipeline.retrieve import check_runs, load_run, read_retrieval, run_files_by_name
 from pipeline.scenes.files import scene_digest
 from pipeline.schema.results import SCORES, SCORES_COLUMNS
-from pipeline.segment import final_estimates, tracking_record
+from pipeline.segment import final_estimates, recorded_tracking, tracking_record
 
 __all__ = ["scene_signed_distance", "contact_error_cm", "fmi", "score", "SCORES_COLUMNS", "SCORES",
            "validate_scores", "read_scores", "diagnostics_beside", "summary_lines", "check_score_inputs",
@@ -227,7 +227,7 @@ def check_score_inputs(retrieval_path: str | Path, segments_path: str | Path, se
                                      f"no diagnostics for run {missing[0]!r} of {segments_path} "
                                      f"({len(missing)} run(s) missing); pass the diagnostics of the same tracking")
         # the tracking the segments record (pipeline.segment.tracking_record) against the diagnostics' own
-        tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking")
+        tracking = recorded_tracking(schema.read_metadata(segments_path))
         if tracking:
             own = tracking_record(schema.read_metadata(diagnostics_path))
             differs = [k for k in ("params", "seed", "contacts_sha256")

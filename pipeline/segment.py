@@ -169,6 +169,13 @@ def tracking_record(tracks_meta: dict) -> dict:
             "contacts_sha256": contacts.get("sha256")}
 
 
+def recorded_tracking(segments_meta: dict) -> dict:
+    """The tracking a segments file records (:func:`tracking_record`, its ``params.tracking``) from its decoded
+    metadata (:func:`pipeline.schema.read_metadata`); {} for a file that records none (written before, or by
+    another tool)."""
+    return (segments_meta.get("params") or {}).get("tracking") or {}
+
+
 def segment_file(in_path, out_path, *, seed: int, length: float | None = None, alpha: float | None = None,
                  by: str = "auto", plot_path=None):
     """The `segment` stage on files: segment a tracks table and write the segments table (and, with

@@ -23,6 +23,7 @@ from pipeline.retrieve.stage import (
     retrieve_runs,
     write_retrieval_tables,
 )
+from pipeline.segment import recorded_tracking
 
 __all__ = ["retrieve_log", "retrieve_log_file"]
 
@@ -68,8 +69,7 @@ def retrieve_log_file(segments_path: str | Path, contacts_path: str | Path, targ
     segments, config = read_segments_for(segments_path, config)
     contacts = schema.read_contacts(contacts_path)
     # the contacts table the segments were tracked from, byte for byte, when they record it (params.tracking)
-    tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking") or {}
-    digest = tracking.get("contacts_sha256")
+    digest = recorded_tracking(schema.read_metadata(segments_path)).get("contacts_sha256")
     if digest and schema.file_digest(contacts_path) != digest:
         raise ValueError(f"{contacts_path}: not the contacts table {segments_path} was tracked from (it recorded "
                          f"SHA-256 {digest[:12]}…, this file differs)")

@@ -30,7 +30,7 @@ from pipeline.parallel import run_calls
 from pipeline.robot import load_robot
 from pipeline.schema.retrieval import candidates_table, retrieval_table
 from pipeline.seeds import check_stream
-from pipeline.segment import final_estimates
+from pipeline.segment import final_estimates, recorded_tracking
 
 __all__ = ["RetrieveConfig", "final_segments_by_run", "contact_step_segments", "retrieve", "retrieve_file",
            "retrieve_one", "retrieve_runs", "read_segments_for", "write_retrieval_tables", "LOG_SCENE"]
@@ -258,8 +258,7 @@ def retrieve_file(segments_path: str | Path, run_dir: str | Path, out_path: str 
 def tracking_robot(segments_path: str | Path) -> str | None:
     """The robot a segments file's points were tracked with (its ``params.tracking``, docs/tables.md), or None
     when it does not record one."""
-    tracking = (schema.read_metadata(segments_path).get("params") or {}).get("tracking") or {}
-    robot = (tracking.get("params") or {}).get("robot")
+    robot = (recorded_tracking(schema.read_metadata(segments_path)).get("params") or {}).get("robot")
     return str(robot) if robot is not None else None
 
 
@@ -268,7 +267,8 @@ def read_segments_for(segments_path: str | Path, config: RetrieveConfig) -> tupl
     ``config.method`` is None); ValueError (one line) when the method is not registered or the estimator needs
     every step and the file holds only the final estimate."""
     segments = schema.read_segments(segments_path)
-    params = schema.read_metadata(segments_path).get("params") or {}
+    meta = schema.read_metadata(segments_path)
+    params = meta.get("params") or {}
     recorded = params.get("method")
     if config.method is None:
         try:
@@ -278,10 +278,11 @@ def read_segments_for(segments_path: str | Path, config: RetrieveConfig) -> tupl
     elif recorded and str(recorded) != config.method:
         raise ValueError(f"{segments_path}: tracked by method {recorded!r}, not {config.method!r} (--method): its "
                          f"rows would be reported as another method's")
-    robot = tracking_robot(segments_path)
-    if robot is not None and robot != config.params.robot:
+    tracker = recorded_tracking(meta).get("params") or {}
+    robot = tracker.get("robot")
+    if robot is not None and str(robot) != config.params.robot:
         # the same gripper may be spelled otherwise (disc:0.03, disc:0.030): its grid's digest decides when recorded
-        recorded_digest = ((params.get("tracking") or {}).get("params") or {}).get("robot_digest")
+        recorded_digest = tracker.get("robot_digest")
         if recorded_digest is None or load_robot(config.params.robot).digest != recorded_digest:
             raise ValueError(f"{segments_path}: its points were tracked with robot {robot!r}, not "
                              f"{config.params.robot!r} (--robot): the free space is the trail of the gripper that "
