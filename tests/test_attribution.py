@@ -27,6 +27,8 @@ class _Sensing:
         self.probe_points = [np.asarray(point, dtype=np.float64)]
         self.probe_steps = [40]
         self.probe_forces = [np.full(2, np.nan)]
+        self.probe_force_n = [np.nan]
+        self.light_n = 0.0
 
 
 @pytest.fixture
@@ -114,6 +116,8 @@ class _Contacts:
         self.probe_steps = list(points)
         self.probe_points = [np.asarray(p, dtype=np.float64) for p in points.values()]
         self.probe_forces = [np.full(2, np.nan) for _ in points]
+        self.probe_force_n = [np.nan for _ in points]
+        self.light_n = 0.0
 
 
 def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(fits):

@@ -31,6 +31,8 @@ class _Sensing:
     probe_points = [np.array([0.3, 0.0]), np.array([0.3, 0.03]), np.array([0.0, 0.08])]
     probe_steps = [10, 20, 30]
     probe_forces = [np.full(2, np.nan)] * 3  # no wrench measured: attributed by position alone
+    probe_force_n = [np.nan] * 3
+    light_n = 0.0
 
 
 @pytest.fixture

@@ -310,16 +310,20 @@ def test_collect_scripted_plus_probe_marks_probe_actions_and_records_the_log():
 
     validate_spec(table, schema.SIM_RUN)  # the probe column is the run table's optional column
     # what the policy senses of its probes: one point, step and contact force per isolated probe contact
+    from pipeline.detection import contact_forces
     from pipeline.probe.belief import Sensing
 
     sensing = Sensing("TC/104", 0, np.zeros(2), 20)
     sensing.observe(table)
-    assert len(sensing.probe_points) == len(sensing.probe_steps) == len(sensing.probe_forces)
+    assert len(sensing.probe_points) == len(sensing.probe_steps) == len(sensing.probe_forces) == \
+        len(sensing.probe_force_n)
     assert sensing.probe_steps  # the probe touched something
-    for f, step in zip(sensing.probe_forces, sensing.probe_steps):
+    force_n = contact_forces(table, sensing.detection)
+    for f, fn, step in zip(sensing.probe_forces, sensing.probe_force_n, sensing.probe_steps):
         row = table.slice(step, 1).to_pylist()[0]  # one row per action, in step order
         assert row["step"] == step and f.shape == (2,)
         assert np.array_equal(f, [row["force_rep_x_n"], row["force_rep_y_n"]], equal_nan=True)
+        assert fn == force_n[step] or np.isnan(fn) and np.isnan(force_n[step])  # the action's force, as isolate's
 
 
 def _parquet_bytes(table) -> bytes:

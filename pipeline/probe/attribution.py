@@ -16,8 +16,21 @@ from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, explaining, po
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement
 
-__all__ = ["current_set", "set_from_steps", "prior_for", "mine_now", "probe_points_at", "set_share", "bunched",
-           "give_way_at_budget", "required_contacts"]
+__all__ = ["light_limit", "is_light", "current_set", "set_from_steps", "prior_for", "mine_now", "probe_points_at",
+           "set_share", "bunched", "give_way_at_budget", "required_contacts"]
+
+
+def light_limit(params: ProbeParams, mass: float, heavy_target_kg: float | None) -> float:
+    """The force (N) below which a probe contact is another object's (``Sensing.light_n``): ``light_contact_n``
+    for a target whose known ``mass`` (kg) is at least ``heavy_target_kg``, else 0 (no contact is light)."""
+    heavy = heavy_target_kg is not None and bool(mass >= heavy_target_kg)
+    return float(params.light_contact_n) if heavy else 0.0
+
+
+def is_light(sensing: Sensing, force_n: float) -> bool:
+    """Whether a probe contact whose action met ``force_n`` (N; NaN: not measured, never light) moved its object
+    away too easily to be the heavy target's (:func:`light_limit`)."""
+    return bool(force_n < sensing.light_n)
 
 
 def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,
@@ -28,8 +41,9 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
     ``attribute_corner``; :func:`pipeline.probe.belief.explaining`), to the target if all of them do, and if only
     some do, to the target only when the set fitted with it as the target's costs less than ``clutter_cost``
     more than the set fitted with it as another object's (docs/active.md, "Whose contact
-    (attribution)"). Every contact is the target's while no set exists or the set is the no-segment prior.
-    The target's contacts' steps go to ``log.target_steps``."""
+    (attribution)"). Every contact is the target's while no set exists or the set is the no-segment prior, but
+    a light one (:func:`is_light`), which is always another object's; one the previous set explained counts in
+    ``log.refuted``. The target's contacts' steps go to ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
     fitted: dict[tuple, PoseSet] = {}  # the sets of this call by target steps (a fit is deterministic)
 
@@ -44,14 +58,21 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
         return fit(log.target_steps + [step]).cost - fit(log.target_steps).cost < params.clutter_cost
 
     earlier = list(log.other_steps)
-    for q, step, f in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:]):
+    for q, step, f, fn in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:],
+                              sensing.probe_force_n[done:]):
         mine = True
         if previous is not None and previous.segment >= 0:
             hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
                              params.attribute_corner)
             mine = bool(hit.any())
-            if mine and not hit.all():
+            if mine and is_light(sensing, fn):
+                # the set put the target where something gave way at a few newtons
+                log.refuted += 1
+                mine = False
+            elif mine and not hit.all():
                 mine = costs_little(int(step))
+        elif is_light(sensing, fn):
+            mine = False
         (log.target_steps if mine else log.other_steps).append(int(step))
     if params.reattribute != "off" and previous is not None and previous.segment >= 0 and earlier:
         _reattribute(target, sensing, log, earlier, previous, costs_little, spare=not fitted, params=params)
@@ -66,11 +87,14 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
     estimate's surface among the others is tried by the cost rule of :func:`current_set` (``costs_little``; with
     ``explained`` only if some hypothesis explains it), if ``spare`` (no fit beyond the set's own was made for
     this decision's contacts): one fit more per decision at most, for a decision must stay under half a second."""
-    at = {int(st): (q, f) for q, st, f in zip(sensing.probe_points, sensing.probe_steps, sensing.probe_forces)}
+    at = {int(st): (q, f, fn) for q, st, f, fn in zip(sensing.probe_points, sensing.probe_steps,
+                                                       sensing.probe_forces, sensing.probe_force_n)}
     best = previous.poses[previous.best]
     ranked = sorted(earlier, key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
     for step in ranked:
-        q, f = at[step]
+        q, f, fn = at[step]
+        if is_light(sensing, fn):
+            continue
         hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
                          params.attribute_corner)
         if not hit.all():

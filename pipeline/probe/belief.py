@@ -106,12 +106,15 @@ class Sensing:
         self.probe_points: list[np.ndarray] = []
         self.probe_steps: list[int] = []
         self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
+        self.probe_force_n: list[float] = []  # the force (N) each probe contact's action met, NaN without
+        self.light_n = 0.0  # probe contacts that met less are another object's (pipeline.probe.attribution.light_limit)
         self.prior: Any = None
 
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order). An action with several contacts (fingertip
         sensors) gives the tracker all of them in one update, as ``stucco track`` does."""
         cols, _, _ = isolate_run(table, *self.surface, self.detection)
+        first = len(self.forces)
         self.forces += contact_forces(table, self.detection).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
@@ -138,6 +141,7 @@ class Sensing:
             self.probe_points += list(p)
             self.probe_steps += [int(step[i])] * (j - i)
             self.probe_forces += [force[a].copy() for _ in range(j - i)]
+            self.probe_force_n += [float(self.forces[first + a])] * (j - i)
 
     @property
     def visited(self) -> np.ndarray:

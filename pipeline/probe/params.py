@@ -51,6 +51,14 @@ class ProbeParams(Params):
     min_target_contacts : int
         The set agrees only once this many probe contacts are the target's (3 for a box, one fewer for a can):
         the scripted part's points have drifted, so a set resting on them alone is not trusted.
+    light_contact_n : float, N
+        For a heavy target (its known mass at least ``RetrievalParams.heavy_target_kg``), a probe contact that met
+        less force than this (the sensed wrench, :func:`pipeline.detection.contact_forces`) is another object's
+        whatever the set says: the heavy target does not give way at a few newtons, the household clutter does
+        (3.0; 0: off; docs/active.md, "Whose contact (attribution)").
+    light_refutations : int
+        After this many such light contacts that the set explained (it put the target there), the segment is not
+        the target's: the next-ranked one is taken (2; 0: never).
     switch_probes : int
         Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
         the budget: its set rests on the scripted part's drifted points otherwise.
@@ -101,6 +109,8 @@ class ProbeParams(Params):
     min_span: float = 0.6
     min_target_contacts: int = 3
     switch_probes: int = 3
+    light_contact_n: float = 3.0
+    light_refutations: int = 2
     clutter_cost: float = 0.3
     reattribute: str = "fit"
     method: str = "stucco"
@@ -119,7 +129,7 @@ class ProbeParams(Params):
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
-        "clutter_cost": number(0),
+        "clutter_cost": number(0), "light_contact_n": number(0), "light_refutations": integer(0),
         "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),
         "history": rule("pushtrack or off", lambda v: v in ("pushtrack", "off")),
@@ -165,6 +175,8 @@ class ProbeLog:
         probe``).
     switches : int
         Times the probes showed the chosen segment was not the target's and the next one was taken.
+    refuted : int
+        Light probe contacts (``light_contact_n``) the current segment's set explained since it was taken.
     lines : list of list
         Each probe's start (x, y), direction (x, y), the weighted 10, 50 and 90 % quantiles of the travel its
         set predicted (metres; None: no contact predicted), and whether it was a spread probe.
@@ -183,6 +195,7 @@ class ProbeLog:
     target_steps: list = field(default_factory=list)
     other_steps: list = field(default_factory=list)
     switches: int = 0
+    refuted: int = 0
     history: list = field(default_factory=list)
 
     def to_dict(self) -> dict:

@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 import pyarrow as pa
 
+from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.geometry import Primitive, primitive_of
@@ -27,6 +28,7 @@ from pipeline.probe.attribution import (
     bunched,
     current_set,
     give_way_at_budget,
+    light_limit,
     mine_now,
     prior_for,
     required_contacts,
@@ -92,6 +94,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     """
     rows = table()
     sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, scene=scene)
+    sensing.light_n = light_limit(params, mass, RetrievalParams().heavy_target_kg)
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()
@@ -122,10 +125,12 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         mine = mine_now(sensing, log)
         stalled = log.probes - since >= params.stall and set_share(target, belief, params.plan) < \
             params.plan.agree_share and rank + 1 < len(choices)
-        if choice.segment >= 0 and (stalled or len(mine) >= 2 and misfit(target, belief, mine) >
+        refuted = params.light_refutations > 0 and log.refuted >= params.light_refutations
+        if choice.segment >= 0 and (stalled or refuted or len(mine) >= 2 and misfit(target, belief, mine) >
                                     params.misfit_tolerance):
-            # The probes' contacts do not lie on this segment's object, or they leave its set wide: take the
-            # next-ranked segment (or none) and attribute every probe contact afresh against its set.
+            # The probes' contacts do not lie on this segment's object, or they leave its set wide, or what the
+            # set took for the target gave way at a few newtons: take the next-ranked segment (or none) and
+            # attribute every probe contact afresh against its set.
             since = log.probes
             rank += 1
             choice = choices[rank] if rank < len(choices) else NO_TARGET
@@ -133,6 +138,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             log.target_steps, log.other_steps = [], []
             belief = current_set(choice, target, sensing, root_seed, run, log,
                                  set_from_steps(choice, target, sensing, root_seed, run, []), params)
+            log.refuted = 0  # the new segment is judged by the contacts sensed from now on
         share = set_share(target, belief, params.plan)
         log.history.append({"rows": int(seen), "segment": int(choice.segment), "share": float(share),
                             "target_steps": list(log.target_steps)})
@@ -146,7 +152,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                 # The budget is spent on another object: the segment taken gets probes of its own.
                 choice, log.target_steps, log.other_steps, belief = given
                 rank = next(i for i, c in enumerate(choices) if c.segment == choice.segment)
-                since, gave_way = log.probes, True
+                since, gave_way, log.refuted = log.probes, True, 0
                 limit = log.probes + params.switch_probes
                 log.switches += 1
                 share = set_share(target, belief, params.plan)

@@ -18,12 +18,13 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.estimators.estimate import Segment
+from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import RunInfo, retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
 from pipeline.grasp_judge import GRASP_STEP_M
-from pipeline.probe.attribution import current_set, give_way_at_budget, set_from_steps, set_share
+from pipeline.probe.attribution import current_set, give_way_at_budget, light_limit, set_from_steps, set_share
 from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
@@ -102,7 +103,9 @@ def _recorded_params(recorded: dict) -> ProbeParams:
     """The probing policy's parameters a run recorded (its ``probe.params``: the scalar ones; the defaults for the
     rest, and for a key a run file written before it existed)."""
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
-    return ProbeParams(**{k: recorded[k] for k in names if k in recorded})
+    # a run probed before light contacts were told apart was probed without the rule
+    before = {"light_contact_n": 0.0, "light_refutations": 0} if recorded else {}
+    return ProbeParams(**{**before, **{k: recorded[k] for k in names if k in recorded}})
 
 
 def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision: int | None = None,
@@ -127,7 +130,9 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     history = meta.get("history") or []
     state = history[min(decision, len(history) - 1)] if decision is not None and history else \
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
+    params = _recorded_params(meta.get("params") or {})
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, scene=info.scene)
+    sensing.light_n = light_limit(params, target_mass(info.scene), RetrievalParams().heavy_target_kg)
     sensing.observe(table.slice(0, int(state["rows"])))
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
@@ -148,7 +153,6 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     # none after a set of no segment, or of one the ranking does not hold (the policy moved past its last one)
     rank = next((i for i, c in enumerate(choices) if c.segment == choice.segment), len(choices))
     later = choices[rank + 1:] if choice.segment >= 0 else []
-    params = _recorded_params(meta.get("params") or {})
 
     def next_set(k: int) -> tuple[PoseSet, Surroundings] | None:
         if not 1 <= k <= len(later):
