@@ -108,3 +108,20 @@ def test_a_run_probed_before_the_rule_is_retrieved_without_it():
     now = ProbeParams().to_dict()
     assert _recorded_params(now).light_contact_n == ProbeParams().light_contact_n
     assert math.isclose(_recorded_params({**now, "light_contact_n": 4.5}).light_contact_n, 4.5)
+
+
+def test_the_contacts_of_one_action_refute_once():
+    # two fingertip pads on the same light object in one action: one refutation, not the two that drop a segment
+    log = ProbeLog()
+    sensing = _Sensing({}, 3.0)
+    sensing.probe_steps = [40, 40, 41]
+    sensing.probe_points = [ON_LONG_FACE, ON_LONG_FACE + [0.0, 0.01], ON_LONG_FACE]
+    sensing.probe_forces = [np.full(2, np.nan)] * 3
+    sensing.probe_force_n = [1.0, 1.0, 1.0]
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "REAL/0", log, _upright(), ProbeParams())
+    assert log.other_steps == [40, 40, 41] and log.refuted == 2
+    log = ProbeLog()
+    sensing.probe_steps, sensing.probe_points = [40, 40], sensing.probe_points[:2]
+    sensing.probe_forces, sensing.probe_force_n = sensing.probe_forces[:2], [1.0, 1.0]
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "REAL/0", log, _upright(), ProbeParams())
+    assert log.refuted == 1

@@ -42,8 +42,8 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
     some do, to the target only when the set fitted with it as the target's costs less than ``clutter_cost``
     more than the set fitted with it as another object's (docs/active.md, "Whose contact
     (attribution)"). Every contact is the target's while no set exists or the set is the no-segment prior, but
-    a light one (:func:`is_light`), which is always another object's; one the previous set explained counts in
-    ``log.refuted``. The target's contacts' steps go to ``log.target_steps``."""
+    a light one (:func:`is_light`), which is always another object's; an action with one the previous set
+    explained counts once in ``log.refuted``. The target's contacts' steps go to ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
     fitted: dict[tuple, PoseSet] = {}  # the sets of this call by target steps (a fit is deterministic)
 
@@ -58,6 +58,7 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
         return fit(log.target_steps + [step]).cost - fit(log.target_steps).cost < params.clutter_cost
 
     earlier = list(log.other_steps)
+    refuting: set[int] = set()  # actions that refuted the set: the contacts of one action (two pads) count once
     for q, step, f, fn in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:],
                               sensing.probe_force_n[done:]):
         mine = True
@@ -67,7 +68,8 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
             mine = bool(hit.any())
             if mine and is_light(sensing, fn):
                 # the set put the target where something gave way at a few newtons
-                log.refuted += 1
+                log.refuted += int(step) not in refuting
+                refuting.add(int(step))
                 mine = False
             elif mine and not hit.all():
                 mine = costs_little(int(step))

@@ -57,8 +57,8 @@ class ProbeParams(Params):
         whatever the set says: the heavy target does not give way at a few newtons, the household clutter does
         (3.0; 0: off; docs/active.md, "Whose contact (attribution)").
     light_refutations : int
-        After this many such light contacts that the set explained (it put the target there), the segment is not
-        the target's: the next-ranked one is taken (2; 0: never).
+        After this many probe actions with such a light contact that the set explained (it put the target there),
+        the segment is not the target's: the next-ranked one is taken (2; 0: never).
     switch_probes : int
         Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
         the budget: its set rests on the scripted part's drifted points otherwise.
@@ -176,7 +176,8 @@ class ProbeLog:
     switches : int
         Times the probes showed the chosen segment was not the target's and the next one was taken.
     refuted : int
-        Light probe contacts (``light_contact_n``) the current segment's set explained since it was taken.
+        Probe actions with a light contact (``light_contact_n``) the current segment's set explained since it was
+        taken (the contacts of one action count once).
     lines : list of list
         Each probe's start (x, y), direction (x, y), the weighted 10, 50 and 90 % quantiles of the travel its
         set predicted (metres; None: no contact predicted), and whether it was a spread probe.
