@@ -10,6 +10,7 @@ from functools import partial
 
 import numpy as np
 
+from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
 from pipeline.geometry import Primitive
 from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, explaining, pose_set, surface_distance
@@ -20,9 +21,11 @@ __all__ = ["light_limit", "is_light", "current_set", "set_from_steps", "prior_fo
            "set_share", "bunched", "give_way_at_budget", "required_contacts"]
 
 
-def light_limit(params: ProbeParams, mass: float, heavy_target_kg: float | None) -> float:
+def light_limit(params: ProbeParams, mass: float,
+                heavy_target_kg: float | None = RetrievalParams().heavy_target_kg) -> float:
     """The force (N) below which a probe contact is another object's (``Sensing.light_n``): ``light_contact_n``
-    for a target whose known ``mass`` (kg) is at least ``heavy_target_kg``, else 0 (no contact is light)."""
+    for a target whose known ``mass`` (kg) is at least ``heavy_target_kg`` (the segment choice's, by default),
+    else 0 (no contact is light)."""
     heavy = heavy_target_kg is not None and bool(mass >= heavy_target_kg)
     return float(params.light_contact_n) if heavy else 0.0
 

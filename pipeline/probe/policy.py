@@ -20,7 +20,6 @@ from collections.abc import Callable
 import numpy as np
 import pyarrow as pa
 
-from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.geometry import Primitive, primitive_of
@@ -94,7 +93,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     """
     rows = table()
     sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, scene=scene)
-    sensing.light_n = light_limit(params, mass, RetrievalParams().heavy_target_kg)
+    sensing.light_n = light_limit(params, mass)
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()

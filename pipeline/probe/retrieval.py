@@ -18,7 +18,6 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.estimators.estimate import Segment
-from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import RunInfo, retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
@@ -101,7 +100,7 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
 
 def _recorded_params(recorded: dict) -> ProbeParams:
     """The probing policy's parameters a run recorded (its ``probe.params``: the scalar ones; the defaults for the
-    rest, and for a key a run file written before it existed)."""
+    rest, and for a key a run file written before it existed, but the light-contact rule: off for such a run)."""
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
     # a run probed before light contacts were told apart was probed without the rule
     before = {"light_contact_n": 0.0, "light_refutations": 0} if recorded else {}
@@ -132,7 +131,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
     params = _recorded_params(meta.get("params") or {})
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, scene=info.scene)
-    sensing.light_n = light_limit(params, target_mass(info.scene), RetrievalParams().heavy_target_kg)
+    sensing.light_n = light_limit(params, target_mass(info.scene))
     sensing.observe(table.slice(0, int(state["rows"])))
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
