@@ -8,8 +8,7 @@ STUCCO, the tracker's own labels for the baselines); the probes' contacts are ke
 :func:`choose_target` is the paper's segment choice on the scripted part and :func:`pose_set` the plausible
 estimator's fit (docs/estimators.md, "The plausible estimator") on that segment plus the probes' contacts,
 returning the whole set with each pose's likelihood. The belief depends only on the run's data and the probe
-contacts' attribution (recorded in the run's metadata), so the active protocol's grasp recomputes exactly the
-policy's last belief from the run file (docs/active.md).
+contacts' attribution (in the run's metadata): the grasp recomputes the policy's last belief exactly (docs/active.md).
 
 Nothing here reads the simulation's ground truth: only the contact wrench (through isolation), the gripper's
 positions and the target's known shape.
@@ -102,20 +101,17 @@ class Sensing:
         self.blocked = [False]  # per visited position: near where a transit met an object (block_near)
         self.steps: list[int] = []
         self.forces: list[float] = []  # contact force (N) each action met, NaN without
-        self.point_steps: list[int] = []
-        self.probe_points: list[np.ndarray] = []
-        self.probe_steps: list[int] = []
+        self.point_steps, self.probe_steps, self.probe_points = [], [], []  # steps (int) and points (2,) arrays
         self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
         self.probe_force_n: list[float] = []  # the force (N) each probe contact's action met, NaN without
-        self.light_n = 0.0  # probe contacts that met less are another object's (pipeline.probe.attribution.light_limit)
+        self.light_n = 0.0  # probe contacts under this force (N) are the clutter's (attribution.light_limit)
         self.prior: Any = None
 
     def observe(self, table: pa.Table) -> None:
         """Feed new actions (rows of a ``sim_run`` table, in order). An action with several contacts (fingertip
         sensors) gives the tracker all of them in one update, as ``stucco track`` does."""
         cols, _, _ = isolate_run(table, *self.surface, self.detection)
-        first = len(self.forces)
-        self.forces += contact_forces(table, self.detection).tolist()
+        first, self.forces = len(self.forces), self.forces + contact_forces(table, self.detection).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
         step = np.asarray(cols["step"], dtype=np.int64)
@@ -151,9 +147,8 @@ class Sensing:
     def block_near(self, point: np.ndarray, radius: float) -> None:
         """Mark the visited positions within ``radius`` (m) of ``point`` (2,) ``blocked``: a transit met an object
         there, so the space the gripper once passed may no longer be free. Transit leaves them out like positions
-        reached in contact (:func:`pipeline.probe.moves.transit_limits`), except as a last resort when nothing
-        else is left (:func:`pipeline.probe.policy.next_probe`); the current position stays the start of every
-        path."""
+        reached in contact (:func:`pipeline.probe.moves.transit_limits`), but as a last resort when nothing else
+        is left (:func:`pipeline.probe.policy.next_probe`); the current position starts every path."""
         near = np.linalg.norm(self.visited - np.asarray(point, dtype=np.float64).reshape(1, 2), axis=1) < radius
         self.blocked = [t or bool(b) for t, b in zip(self.blocked, near)]
 
