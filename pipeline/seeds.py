@@ -10,7 +10,7 @@ import operator
 
 import numpy as np
 
-__all__ = ["run_key", "run_rng", "check_stream"]
+__all__ = ["run_key", "run_rng", "check_stream", "check_root_seed"]
 
 
 def check_stream(stream, name: str = "stream") -> int:
@@ -23,6 +23,16 @@ def check_stream(stream, name: str = "stream") -> int:
     if value < 0:
         raise ValueError(f"{name} must be a non-negative integer, got {stream!r}")
     return int(value)
+
+
+def check_root_seed(path, meta: dict, root_seed: int, then: str) -> None:
+    """ValueError (one line naming the file ``path``) when its decoded metadata ``meta`` records another root
+    seed (``stucco.seed``) than ``root_seed``: every stage after it would draw from another stream. ``then`` ends
+    the message with what to do; ``{seed}`` in it stands for the recorded root seed, ``{root}`` for ``root_seed``.
+    A file that records no root seed passes."""
+    recorded = meta.get("seed")
+    if isinstance(recorded, int) and recorded != root_seed:
+        raise ValueError(f"{path}: collected with root seed {recorded}" + then.format(seed=recorded, root=root_seed))
 
 
 def run_key(run: str) -> int:

@@ -24,6 +24,7 @@ from pipeline.layout import STAGE_SPECS, STAGES, JobPaths, job_paths, run_paths,
 from pipeline.registry import DEFAULT_ESTIMATOR
 from pipeline.safe_open import optional_file
 from pipeline.scenes import scene_digest
+from pipeline.seeds import check_root_seed
 
 __all__ = ["file_digest", "Digests", "up_to_date", "stale_stages", "job_stale_stages", "shared_stale_stages",
            "check_run_settings", "figure_stale"]
@@ -141,10 +142,8 @@ def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None)
     if have != (scene, seed):
         raise ValueError(f"{path}: holds the run {have[0]}/{have[1]}, not {scene}/{seed}; a run file stands for "
                          "the scene and seed of its name (remove it to collect the right one)")
-    recorded = meta.get("seed")
-    if root_seed is not None and isinstance(recorded, int) and recorded != root_seed:
-        raise ValueError(f"{path}: collected with root seed {recorded}, this evaluation's is {root_seed}; use "
-                         "another --out")
+    if root_seed is not None:
+        check_root_seed(path, meta, root_seed, ", this evaluation's is {root}; use another --out")
 
 
 def check_run_settings(path: Path, scene, policy: str | None, max_actions: int | None, policy_params,

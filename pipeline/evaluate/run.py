@@ -29,6 +29,7 @@ from pipeline.parallel import map_jobs
 from pipeline.probe.report import read_times
 from pipeline.report import table_ii
 from pipeline.retrieve import load_run, run_files_by_name
+from pipeline.seeds import check_root_seed
 
 __all__ = ["Evaluation", "evaluate"]
 
@@ -62,10 +63,7 @@ def _runs_in(source: Path, root_seed: int) -> list[tuple[str, int]]:
     for _, path in sorted(run_files_by_name(source).items()):
         info = load_run(path)
         read_times(path)  # a policy's side file beside it, checked now rather than in the report after every job
-        recorded = schema.read_metadata(path).get("seed")
-        if isinstance(recorded, int) and recorded != root_seed:
-            raise ValueError(f"{path}: collected with root seed {recorded}; replay it with `stucco --seed {recorded} "
-                             f"evaluate`")
+        check_root_seed(path, schema.read_metadata(path), root_seed, "; replay it with `stucco --seed {seed} evaluate`")
         named = output_path(source, info.scene.name, info.seed)
         if Path(path).name != named.name:  # each job copies its stored run by this name
             raise ValueError(f"{path}: holds run {info.run}, which evaluate reads from {named.name}; rename it")

@@ -26,6 +26,7 @@ from pipeline.probe.policy import ProbeParams, required_contacts
 from pipeline.probe.report import run_stats
 from pipeline.probe.retrieval import active_state
 from pipeline.scenes import load_scene
+from pipeline.seeds import check_root_seed
 
 __all__ = ["BUDGETS", "stop_decision", "decision_at", "budget_rows", "summarise", "write_outputs"]
 
@@ -84,10 +85,8 @@ def _one(scene_name: str, seed: int, runs: Path, budgets: tuple[int, ...], root_
         policy = (schema.read_metadata(path).get("params") or {}).get("policy")
         raise ValueError(f"{path}: a run of policy {policy!r}, not of scripted+probe; bench probe reads the "
                          "probing policy's runs (another --runs directory)")
-    recorded = schema.read_metadata(path).get("seed")
-    if isinstance(recorded, int) and recorded != root_seed:
-        raise ValueError(f"{path}: collected with root seed {recorded}; run `stucco --seed {recorded} bench probe` "
-                         "or use another --runs directory")
+    check_root_seed(path, schema.read_metadata(path), root_seed,
+                    "; run `stucco --seed {seed} bench probe` or use another --runs directory")
     # the scene, its effects, the whole run and the policy's parameters this bench would collect it with (the
     # budget aside: a run stands for the smaller budgets, checked below)
     check_run_settings(path, scene, "scripted+probe", None, params, ignore=("budget",))

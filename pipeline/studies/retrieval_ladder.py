@@ -58,6 +58,7 @@ from pipeline.parallel import run_calls, single_threaded
 from pipeline.retrieve.stage import contact_step_segments, tracking_robot
 from pipeline.robot import load_robot
 from pipeline.safe_open import regular_file
+from pipeline.seeds import check_root_seed
 from pipeline.segment import final_estimates
 
 __all__ = ["PERTURBATIONS", "RUNGS", "MOTION_RUNGS", "LadderRow", "ideal_segments", "perturbed", "loss_reason",
@@ -328,10 +329,7 @@ def _run_pair(out: Path, scene: str, seed: int, estimators: Sequence[str], metho
     runs = partition(out, "runs", scene, seed)
     if not runs.is_file():
         raise FileNotFoundError(f"{runs}: no collected run for {scene} seed {seed}; run `stucco evaluate` first")
-    recorded = schema.read_metadata(runs).get("seed")
-    if isinstance(recorded, int) and recorded != root_seed:  # its ladder would draw from another stream
-        raise ValueError(f"{runs}: collected with root seed {recorded}; run `stucco --seed {recorded} bench "
-                         "retrieval` on it")
+    check_root_seed(runs, schema.read_metadata(runs), root_seed, "; run `stucco --seed {seed} bench retrieval` on it")
     seg = partition(out, "segments", scene, seed, method)
     if seg.is_file():
         check_segments_of_run(seg, runs, f"{scene}/{seed}")
