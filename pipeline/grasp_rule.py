@@ -89,18 +89,24 @@ def _box_faces(world, base, approach, closing, local, hx, hy, corner_margin, ok)
                 nearest = min(nearest, depth[k])
             shift = max(lo - nearest, 0.0)
             any_band = False
+            reach0 = reach1 = -np.inf  # each finger's farthest reach in the band (in one pass, in k's order)
             for k in range(K):
                 d = depth[k] + shift
                 band[k] = d >= lo and d <= hi
                 any_band = any_band or band[k]
+                if band[k]:
+                    reach0 = max(reach0, 1.0 * lateral[k])
+                    reach1 = max(reach1, -1.0 * lateral[k])
             good = any_band
             face0 = face1 = 0.0
             for f in range(2):
+                if not good:
+                    break  # (the verdict is false whatever the other finger touches)
                 sign = 1.0 if f == 0 else -1.0
-                reach = -np.inf
-                for k in range(K):
-                    if band[k]:
-                        reach = max(reach, sign * lateral[k])
+                reach = reach0 if f == 0 else reach1
+                if not reach <= OPEN:
+                    good = False
+                    break
                 n = 0
                 for k in range(K):
                     touch = band[k] and sign * lateral[k] >= reach - CONTACT_BAND

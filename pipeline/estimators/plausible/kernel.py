@@ -24,7 +24,8 @@ from numba import njit
 
 from pipeline.pairwise_sum import pairwise_sum
 
-__all__ = ["pairwise_sum", "piece_terms", "piece_terms_each", "local_sdf", "warm_up", "CONTACT", "FREE"]
+__all__ = ["pairwise_sum", "piece_terms", "piece_terms_each", "local_sdf", "first_of_cells", "warm_up", "CONTACT",
+           "FREE"]
 
 #: Kinds of a term (the ``kind`` argument of :func:`piece_terms`).
 CONTACT, FREE = 0, 1
@@ -80,6 +81,11 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
     """
     B = pose.shape[0]
     P = pts.shape[0]
+    # A free-space point outside the primitive's circumscribed circle (plus a margin) is outside it, sd + tol > 0
+    # for tol >= 0: its cost is +0.0 and its Jacobian terms +-0.0, which leave the running sums as they are
+    # (skipped, as kernel.free_depth_sums of the pushtrack estimator skips them).
+    skip = kind == FREE and tol >= 0.0
+    r2 = (math.sqrt(hx * hx + hy * hy) + 1e-6) ** 2
     for b in range(B):
         c = cos_t[b]
         s = sin_t[b]
@@ -90,6 +96,9 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
         for p in range(P):
             dx = pts[p, 0] - px
             dy = pts[p, 1] - py
+            if skip and r2 < dx * dx + dy * dy < math.inf:
+                scratch[p] = 0.0
+                continue
             sd, lx, ly = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
             if kind == CONTACT:
                 u = sd / sigma[p]
@@ -164,6 +173,35 @@ def piece_terms_each(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, half_c2, 
                     half_c2, c2, 0.0, 1.0, 1.0, 0.0, jacobian, cost[b:b + 1], H[b:b + 1], grad[b:b + 1], scratch)
 
 
+@njit(cache=True)
+def first_of_cells(cell, max_cells):
+    """Indices (ascending) of the first of the points in each grid cell: ``cell`` (P, 2) int64 the points' cell
+    indices, P >= 1. A flag per cell of the cells' bounding box replaces numpy's sort of the cells' keys (the
+    same indices, in order); an empty result (shape (0,)) when that box has more than ``max_cells`` cells (the
+    caller sorts then)."""
+    P = cell.shape[0]
+    x0 = x1 = cell[0, 0]
+    y0 = y1 = cell[0, 1]
+    for p in range(1, P):
+        x0 = min(x0, cell[p, 0])
+        x1 = max(x1, cell[p, 0])
+        y0 = min(y0, cell[p, 1])
+        y1 = max(y1, cell[p, 1])
+    ny = y1 - y0 + 1
+    if (x1 - x0 + 1) > max_cells // ny:
+        return np.empty(0, np.int64)
+    seen = np.zeros((x1 - x0 + 1) * ny, dtype=np.bool_)
+    keep = np.empty(P, np.int64)
+    k = 0
+    for p in range(P):
+        key = (cell[p, 0] - x0) * ny + (cell[p, 1] - y0)
+        if not seen[key]:
+            seen[key] = True
+            keep[k] = p
+            k += 1
+    return keep[:k]
+
+
 def warm_up() -> None:
     """Compile the kernels (once per machine: numba caches them on disk), as ``make setup`` does, so
     that no evaluation job pays for it."""
@@ -174,3 +212,4 @@ def warm_up() -> None:
                 1.0 / 0.003, 1.0, True, *out, np.empty(1))
     piece_terms_each(False, 0.1, 0.1, pose, np.ones(1), np.zeros(1), pts[None], np.ones(1), 4.5, 9.0, True, *out,
                      np.empty(1))
+    first_of_cells(np.zeros((1, 2), dtype=np.int64), 1)

@@ -90,6 +90,7 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
     the target (a pose every ``sweep_spacing``), within ``radius`` of ``centre``, deduplicated on a
     ``free_resolution`` grid."""
     reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)
+    trails: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # (every start and island asks for the same rows)
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
@@ -97,17 +98,14 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
             rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
         if len(rows) == 0 or len(lattice) == 0:
             return np.zeros((0, 2))
-        a, b = actions.ee_start[rows], actions.ee_end[rows]
-        n = np.where(actions.touch[rows], 0, np.ceil(np.hypot(*(b - a).T) / params.sweep_spacing)).astype(np.int64)
-        seg = np.repeat(np.arange(len(rows)), n + 1)
-        first = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
-        k = np.arange(len(seg)) - first
-        frac = np.where(n[seg] > 0, k / np.maximum(n[seg], 1), 1.0)  # a touching action: its end pose only
-        poses = a[seg] + frac[:, None] * (b - a)[seg]
-        poses = poses[np.hypot(*(poses - centre).T) <= reach]
-        if len(poses) == 0:
+        if rows.tobytes() not in trails:  # the slice's poses (P, 2) and lattice points (P, G, 2), made once
+            poses = actions.slice_poses(rows, params.sweep_spacing)
+            trails[rows.tobytes()] = poses, poses[:, None, :] + lattice[None, :, :]
+        poses, pts = trails[rows.tobytes()]
+        near = np.hypot(*(poses - centre).T) <= reach
+        if not near.any():
             return np.zeros((0, 2))
-        pts = (poses[:, None, :] + lattice[None, :, :]).reshape(-1, 2)
+        pts = pts[near].reshape(-1, 2)
         return first_per_cell(pts[np.hypot(*(pts - centre).T) <= radius], params.free_resolution)
 
     return free_points

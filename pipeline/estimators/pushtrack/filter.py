@@ -64,6 +64,16 @@ class Actions:
     push: np.ndarray
     gripper: GripperSlice | None = None
 
+    def slice_poses(self, rows: np.ndarray, spacing: float) -> np.ndarray:
+        """The gripper's positions (P, 2), metres, in the actions ``rows`` (R,): the end of a touching one, and
+        along one that did not touch, straight from its start to its end, one every ``spacing`` (m) or closer."""
+        a, b = self.ee_start[rows], self.ee_end[rows]
+        n = np.where(self.touch[rows], 0, np.ceil(np.hypot(*(b - a).T) / spacing)).astype(np.int64)
+        seg = np.repeat(np.arange(len(rows)), n + 1)
+        k = np.arange(len(seg)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+        frac = np.where(n[seg] > 0, k / np.maximum(n[seg], 1), 1.0)  # a touching action: its end pose only
+        return a[seg] + frac[:, None] * (b - a)[seg]
+
 
 def push(prim: Primitive, pose: np.ndarray, start: np.ndarray, d: np.ndarray, c: float,
          params: PushTrackParams) -> np.ndarray:

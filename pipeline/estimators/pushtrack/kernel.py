@@ -55,6 +55,7 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
         s = sin_t[n]
         px = centre[n, 0]
         py = centre[n, 1]
+        terms = 0  # the points of a nonzero (or NaN) term
         for p in range(F):
             dx = pts[p, 0] - px
             dy = pts[p, 1] - py
@@ -65,7 +66,10 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
             sd, _, _ = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)
             r = min(sd + tol, 0.0) / sigma
             scratch[p] = r * r
-        out[n] = pairwise_sum(scratch, 0, F)
+            if scratch[p] != 0.0:
+                terms += 1
+        # Every term is +0.0 or a square: the pairwise sum of F > 0 terms all +0.0 is +0.0, exactly
+        out[n] = pairwise_sum(scratch, 0, F) if terms or F == 0 else 0.0
 
 
 def warm_up() -> None:
