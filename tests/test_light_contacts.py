@@ -1,7 +1,8 @@
 """Light probe contacts (docs/active.md, "Whose contact (attribution)"): for a heavy target, a probe contact whose
 action met less than ``ProbeParams.light_contact_n`` is another object's whatever the set says, one the set explained
 counts against its segment (``ProbeLog.refuted``), and the policy takes the next-ranked segment after
-``light_refutations`` of them."""
+``light_refutations`` of them; the scripted part's tracked points under ``light_scripted_n`` leave the segments the
+target is chosen from (``heavy_choices``)."""
 from __future__ import annotations
 
 import math
@@ -125,3 +126,66 @@ def test_the_contacts_of_one_action_refute_once():
     sensing.probe_forces, sensing.probe_force_n = sensing.probe_forces[:2], [1.0, 1.0]
     attribution_mod.current_set(CHOICE, BOX, sensing, 0, "REAL/0", log, _upright(), ProbeParams())
     assert log.refuted == 1
+
+
+class _Scripted:
+    """The scripted part as heavy_choices reads it: actions' steps and the force (N) each met."""
+
+    def __init__(self, forces):
+        self.steps = list(range(len(forces)))
+        self.forces = list(forces)
+        self.visited = np.zeros((len(forces) + 1, 2))
+        self.sdf = None
+
+
+@pytest.fixture
+def ranked(monkeypatch):
+    """choose_target stubbed: every segment it is given, in order, with the others' points; the segments seen."""
+    seen = []
+
+    def fake_choose(segments, target, ee, sdf, rngs, steps=None, force=None, mass=float("nan")):
+        seen.append(segments)
+        return [TargetChoice(s.id, s.points, s.steps, np.vstack([t.points for t in segments if t.id != s.id]
+                                                                 or [np.zeros((0, 2))]), np.zeros((0, 3)))
+                for s in segments]
+
+    monkeypatch.setattr(attribution_mod, "choose_target", fake_choose)
+    return seen
+
+
+def _segments():
+    from pipeline.estimators.estimate import Segment
+    # segment 0: actions 0 (1 N), 1 (20 N), 2 (no wrench); segment 1: actions 3 and 4, both under 5 N
+    return [Segment(0, np.array([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0]]), np.array([0, 1, 2])),
+            Segment(1, np.array([[1.0, 1.0], [1.1, 1.0]]), np.array([3, 4]))]
+
+
+def test_light_scripted_points_leave_the_segments_and_become_obstacles(ranked):
+    sensing = _Scripted([1.0, 20.0, float("nan"), 4.9, 2.0])
+    choices = attribution_mod.heavy_choices(_segments(), BOX, sensing, 0, "GEN/0", ProbeParams(), 5.0)
+    assert [c.segment for c in choices] == [0]  # segment 1 met only light forces: it cannot be the target
+    np.testing.assert_array_equal(choices[0].steps, [1, 2])  # an action without a wrench is never light
+    np.testing.assert_array_equal(choices[0].points, [[0.1, 0.0], [0.2, 0.0]])
+    # the other segments' points, light ones too, are obstacles; the segment's own light point is neither
+    assert {tuple(p) for p in choices[0].others} == {(1.0, 1.0), (1.1, 1.0)}
+
+
+@pytest.mark.parametrize("params, mass", [(ProbeParams(light_scripted_n=0.0), 5.0), (ProbeParams(), 0.4),
+                                          (ProbeParams(), float("nan"))])
+def test_without_the_rule_or_for_a_light_target_the_segments_are_ranked_whole(ranked, params, mass):
+    sensing = _Scripted([1.0, 20.0, float("nan"), 4.9, 2.0])
+    choices = attribution_mod.heavy_choices(_segments(), BOX, sensing, 0, "GEN/0", params, mass)
+    assert [c.segment for c in choices] == [0, 1] and [len(c.points) for c in choices] == [3, 2]
+
+
+def test_every_segment_light_leaves_no_choice(ranked):
+    sensing = _Scripted([1.0, 1.0, 1.0, 1.0, 1.0])
+    assert attribution_mod.heavy_choices(_segments(), BOX, sensing, 0, "GEN/0", ProbeParams(), 5.0) == []
+    assert attribution_mod.heavy_choices([], BOX, sensing, 0, "GEN/0", ProbeParams(), 5.0) == []
+
+
+def test_a_run_probed_before_the_scripted_rule_is_retrieved_without_it():
+    old = {k: v for k, v in ProbeParams().to_dict().items() if k != "light_scripted_n"}
+    assert _recorded_params(old).light_scripted_n == 0.0
+    assert _recorded_params(old).light_contact_n == ProbeParams().light_contact_n
+    assert _recorded_params(ProbeParams().to_dict()).light_scripted_n == ProbeParams().light_scripted_n

@@ -10,30 +10,62 @@ from functools import partial
 
 import numpy as np
 
+from pipeline.estimators.estimate import Segment
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
 from pipeline.geometry import Primitive
-from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, explaining, pose_set, surface_distance
+from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, choose_target, explaining, pose_set, surface_distance
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement
 
-__all__ = ["light_limit", "is_light", "current_set", "set_from_steps", "prior_for", "mine_now", "probe_points_at",
-           "set_share", "bunched", "give_way_at_budget", "required_contacts"]
+__all__ = ["light_limit", "is_light", "heavy_choices", "current_set", "set_from_steps", "prior_for", "mine_now",
+           "probe_points_at", "set_share", "bunched", "give_way_at_budget", "required_contacts"]
 
 
 def light_limit(params: ProbeParams, mass: float,
-                heavy_target_kg: float | None = RetrievalParams().heavy_target_kg) -> float:
+                heavy_target_kg: float | None = RetrievalParams().heavy_target_kg, scripted: bool = False) -> float:
     """The force (N) below which a probe contact is another object's (``Sensing.light_n``): ``light_contact_n``
-    for a target whose known ``mass`` (kg) is at least ``heavy_target_kg`` (the segment choice's, by default),
-    else 0 (no contact is light)."""
+    (with ``scripted``, ``light_scripted_n``: the scripted part's tracked points) for a target whose known
+    ``mass`` (kg) is at least ``heavy_target_kg`` (the segment choice's, by default), else 0 (no contact is
+    light)."""
     heavy = heavy_target_kg is not None and bool(mass >= heavy_target_kg)
-    return float(params.light_contact_n) if heavy else 0.0
+    return float(params.light_scripted_n if scripted else params.light_contact_n) if heavy else 0.0
 
 
 def is_light(sensing: Sensing, force_n: float) -> bool:
     """Whether a probe contact whose action met ``force_n`` (N; NaN: not measured, never light) moved its object
     away too easily to be the heavy target's (:func:`light_limit`)."""
     return bool(force_n < sensing.light_n)
+
+
+def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, root_seed: int, run: str,
+                  params: ProbeParams, mass: float, upto: int | None = None) -> list[TargetChoice]:
+    """The scripted part's segments ranked as the target's (:func:`pipeline.probe.belief.choose_target`, on the
+    gripper's positions up to action ``upto``, all by default), with the light rule on the scripted part too: for a
+    heavy target of known ``mass`` (kg), a tracked point whose action met less than ``params.light_scripted_n``
+    (N, :func:`light_limit`) is the clutter's, as a light probe contact is. Such points leave every segment (a
+    segment left empty cannot be the target), so the set is fitted to the segment's heavy points only; every other
+    segment's points, light ones too, stay the choice's ``others`` (the sensed obstacles), while the chosen
+    segment's own light points are dropped (the heavy target meets a few light contacts too: as obstacles they
+    turned its sets on the training seeds). The tracker's own segmentation is unchanged."""
+    visited = sensing.visited if upto is None else sensing.visited[:upto + 1]
+    steps, forces = np.array(sensing.steps), np.array(sensing.forces)
+    rank = partial(choose_target, target=target, ee=visited, sdf=sensing.sdf, rngs=retrieval_rng(root_seed, run),
+                   steps=steps, force=forces, mass=mass)
+    limit = light_limit(params, mass, scripted=True)
+    if not (limit > 0 and segments):
+        return rank(segments)
+    force_at = dict(zip(steps.tolist(), forces.tolist()))
+    heavy, light = [], []
+    for seg in segments:
+        keep = ~(np.array([force_at.get(int(st), np.nan) for st in seg.steps], dtype=np.float64) < limit)
+        light.append(np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)[~keep])
+        if keep.any():
+            heavy.append(Segment(seg.id, np.asarray(seg.points)[keep], np.asarray(seg.steps)[keep]))
+    ids = [seg.id for seg in segments]
+    return [TargetChoice(c.segment, c.points, c.steps,
+                         np.vstack([c.others] + [lt for i, lt in zip(ids, light) if i != c.segment]), c.seeds,
+                         c.resisted) for c in rank(heavy)]
 
 
 def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,

@@ -59,6 +59,11 @@ class ProbeParams(Params):
     light_refutations : int
         After this many probe actions with such a light contact that the set explained (it put the target there),
         the segment is not the target's: the next-ranked one is taken (2; 0: never).
+    light_scripted_n : float, N
+        The same rule on the scripted part: its tracked points whose action met less than this are the clutter's,
+        left out of the segments the target is chosen from and fitted to, kept as obstacles
+        (:func:`pipeline.probe.attribution.heavy_choices`; 5.0; 0: off). Higher than the probes' limit: the
+        scripted part pushes the clutter on at a few newtons where a probe only taps it.
     switch_probes : int
         Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
         the budget: its set rests on the scripted part's drifted points otherwise.
@@ -111,6 +116,7 @@ class ProbeParams(Params):
     switch_probes: int = 3
     light_contact_n: float = 3.0
     light_refutations: int = 2
+    light_scripted_n: float = 5.0
     clutter_cost: float = 0.3
     reattribute: str = "fit"
     method: str = "stucco"
@@ -129,7 +135,8 @@ class ProbeParams(Params):
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
-        "clutter_cost": number(0), "light_contact_n": number(0), "light_refutations": integer(0),
+        "clutter_cost": number(0), "light_contact_n": number(0), "light_scripted_n": number(0),
+        "light_refutations": integer(0),
         "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),
         "history": rule("pushtrack or off", lambda v: v in ("pushtrack", "off")),

@@ -20,13 +20,13 @@ from collections.abc import Callable
 import numpy as np
 import pyarrow as pa
 
-from pipeline.estimators.run_info import retrieval_rng
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.attribution import (
     bunched,
     current_set,
     give_way_at_budget,
+    heavy_choices,
     light_limit,
     mine_now,
     prior_for,
@@ -34,7 +34,7 @@ from pipeline.probe.attribution import (
     set_from_steps,
     set_share,
 )
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, choose_target, misfit
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, misfit
 from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
@@ -106,8 +106,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         sensing.prior = history_prior(rows, segments, scene, run, root_seed, sensing.sdf, params)
         log.prior_s = time.perf_counter() - t0
     t0 = time.perf_counter()  # the first decision includes the segment choice
-    choices = choose_target(segments, target, sensing.visited, sensing.sdf, retrieval_rng(root_seed, run),
-                            steps=np.array(sensing.steps), force=np.array(sensing.forces), mass=mass)
+    choices = heavy_choices(segments, target, sensing, root_seed, run, params, mass)
     rank = since = 0
     choice = choices[0] if choices else NO_TARGET
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)

@@ -18,13 +18,20 @@ import pyarrow as pa
 
 from pipeline import schema
 from pipeline.estimators.estimate import Segment
-from pipeline.estimators.run_info import RunInfo, retrieval_rng
+from pipeline.estimators.run_info import RunInfo
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.estimators.target_model import pose_error
 from pipeline.grasp import GraspParams
 from pipeline.grasp_judge import GRASP_STEP_M
-from pipeline.probe.attribution import current_set, give_way_at_budget, light_limit, set_from_steps, set_share
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice, choose_target
+from pipeline.probe.attribution import (
+    current_set,
+    give_way_at_budget,
+    heavy_choices,
+    light_limit,
+    set_from_steps,
+    set_share,
+)
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
@@ -104,6 +111,8 @@ def _recorded_params(recorded: dict) -> ProbeParams:
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
     # a run probed before light contacts were told apart was probed without the rule
     before = {"light_contact_n": 0.0, "light_refutations": 0} if recorded else {}
+    # and one probed before the rule reached the scripted part's points, without that
+    before = {**before, "light_scripted_n": 0.0} if recorded else {}
     return ProbeParams(**{**before, **{k: recorded[k] for k in names if k in recorded}})
 
 
@@ -136,9 +145,8 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
                                    (meta.get("params") or {}))
-    choices = choose_target(segments, info.target, sensing.ee[:n_scripted + 1], sensing.sdf,
-                            retrieval_rng(root_seed, info.run), steps=np.array(sensing.steps),
-                            force=np.array(sensing.forces), mass=target_mass(info.scene))
+    choices = heavy_choices(segments, info.target, sensing, root_seed, info.run, params, target_mass(info.scene),
+                            upto=n_scripted)
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
     choice = next((c for c in choices if c.segment == segment), NO_TARGET)
