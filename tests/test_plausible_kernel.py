@@ -107,3 +107,26 @@ def test_free_space_cells_keep_the_first_point_of_each_cell_as_the_row_unique_di
     expected = pts[np.sort(first)]
     assert len(expected) < len(pts)  # there were duplicates to remove
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("prim", [BOX, CAN], ids=["box", "can"])
+def test_far_free_points_and_a_yaw_that_is_not_finite(prim):
+    """Free-space points far outside the target are skipped by the kernel (their terms are +-0): the numpy form's
+    bits all the same, and with a NaN or infinite yaw every term stays NaN, as there."""
+    free = np.array([[5.0, 5.0], [-3.0, 0.5], [0.0, 0.0], [0.2, 0.0], [np.nan, 0.0], [np.inf, 1.0]])
+    pose = np.array([[0.0, 0.0, 0.3], [0.0, 0.0, np.nan], [0.1, 0.0, np.inf], [np.nan, 0.0, 0.0]])
+    pts = np.array([[0.08, 0.0], [0.0, 0.11]])
+    _assert_same(prim, pose, pts, np.full(2, 0.003), free, np.zeros((0, 2)))
+
+
+def test_first_per_cell_takes_non_finite_and_huge_points_the_sorting_way():
+    from pipeline.estimators.plausible.evidence import first_per_cell
+    pts = np.array([[0.0, 0.0], [0.004, 0.001], [0.01, 0.01], [0.0, 0.01], [0.01, 0.0], [0.011, 0.009]])
+    np.testing.assert_array_equal(first_per_cell(pts, 0.01), pts[[0, 2, 3, 4]])
+    for bad in ([np.nan, np.nan], [np.inf, 0.0], [1e300, -1e300]):
+        odd = np.vstack([[bad], pts])
+        with np.errstate(invalid="ignore"):
+            cell = np.rint(odd / 0.01).astype(np.int64)  # the sorting form's keys (garbage in, the same garbage out)
+            cell -= cell.min(axis=0)
+            _, first = np.unique(cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1], return_index=True)
+            np.testing.assert_array_equal(first_per_cell(odd, 0.01), odd[np.sort(first)])  # and no crash

@@ -110,7 +110,8 @@ def first_per_cell(pts: np.ndarray, resolution: float) -> np.ndarray:
     # A flag per cell of the cells' bounding box (compiled, :func:`first_of_cells`): the free space is asked for
     # at every action of every filter of pushtrack, and the sort below cost twice as much. Sorting is kept for a
     # box of more cells than a few per point.
-    first = first_of_cells(cell, 4 * len(cell) + 65536)
+    # (only for cells an int64 holds: a NaN, inf or huge point would wrap the box's size and write out of it)
+    first = first_of_cells(cell, 4 * len(cell) + 65536) if np.all(np.abs(pts) < 1e9 * resolution) else ()
     if len(first):
         return pts[first]
     # One int64 per cell (row-major in the cells' bounding box): np.unique over rows (axis=0) sorts them as

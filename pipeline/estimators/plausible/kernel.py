@@ -93,10 +93,12 @@ def piece_terms(cylinder, hx, hy, pose, cos_t, sin_t, pts, sigma, kind, half_c2,
         py = pose[b, 1]
         h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
         g0 = g1 = g2 = 0.0
+        # (a NaN or infinite yaw gives NaN terms at every point, as the array form does: nothing skipped then)
+        turned = math.isfinite(c) and math.isfinite(s)
         for p in range(P):
             dx = pts[p, 0] - px
             dy = pts[p, 1] - py
-            if skip and r2 < dx * dx + dy * dy < math.inf:
+            if skip and turned and r2 < dx * dx + dy * dy < math.inf:
                 scratch[p] = 0.0
                 continue
             sd, lx, ly = local_sdf(cylinder, hx, hy, c * dx + s * dy, -s * dx + c * dy)

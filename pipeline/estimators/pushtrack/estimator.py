@@ -86,11 +86,10 @@ def observed_actions(info: RunInfo, sdf, table: pa.Table | None = None, near: Se
 
 def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams, radius: float):
     """``free_points(rows, centre)`` for :func:`~pipeline.estimators.pushtrack.filter.run_filter`: the world points
-    (F, 2) of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not touch
-    the target (a pose every ``sweep_spacing``), within ``radius`` of ``centre``, deduplicated on a
-    ``free_resolution`` grid."""
+    (F, 2) of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not
+    touch the target (every ``sweep_spacing``), within ``radius`` of ``centre``, one per ``free_resolution`` cell."""
     reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)
-    trails: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # (every start and island asks for the same rows)
+    trails: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # (every start and island asks for the same actions)
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
@@ -98,10 +97,14 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
             rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
         if len(rows) == 0 or len(lattice) == 0:
             return np.zeros((0, 2))
-        if rows.tobytes() not in trails:  # the slice's poses (P, 2) and lattice points (P, G, 2), made once
+        # slice poses (P, 2), lattice points (P, G, 2) made once per action; not kept for a start's long prefix
+        one = int(rows[0]) if len(rows) == 1 else -1
+        made = trails.get(one) if one >= 0 else None
+        if made is None:
             poses = actions.slice_poses(rows, params.sweep_spacing)
-            trails[rows.tobytes()] = poses, poses[:, None, :] + lattice[None, :, :]
-        poses, pts = trails[rows.tobytes()]
+            made = poses, poses[:, None, :] + lattice[None, :, :]
+            trails.update({one: made} if one >= 0 else {})
+        poses, pts = made
         near = np.hypot(*(poses - centre).T) <= reach
         if not near.any():
             return np.zeros((0, 2))

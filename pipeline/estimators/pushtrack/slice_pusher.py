@@ -129,10 +129,9 @@ def target_outline(prim: Primitive, spacing: float = OUTLINE_SPACING) -> np.ndar
 def _grid_value(values, grid, qx, qy):
     """The grid's signed distance at robot-frame (qx, qy), by nearest cell (:meth:`GridSDF.query`): ``values`` the
     grid's values, ``grid`` its scalars (origin x, origin y, last index x, last index y (as floats), stride x,
-    stride y, resolution, outside value).
-
-    Inlined into :func:`sweep_kernel`'s loops, the scalars in a tuple: called there with the grid's arrays, every
-    call counted their references (atomic operations), two thirds of the kernel's time."""
+    stride y, resolution, outside value)."""
+    # Inlined into sweep_kernel's loops, the scalars in a tuple: called there with the grid's arrays, every call
+    # counted their references (atomic operations), most of the kernel's time (docs/experiments/pushtrack-speed.md).
     ix = np.rint((qx - grid[0]) / grid[6])
     iy = np.rint((qy - grid[1]) / grid[6])
     if not (ix >= 0.0 and ix <= grid[2] and iy >= 0.0 and iy <= grid[3]):
