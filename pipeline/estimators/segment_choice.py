@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["target_mass", "applies", "segment_resistance", "resisting_segment", "segment_fits",
+__all__ = ["target_mass", "applies", "segment_resistance", "point_forces", "resisting_segment", "segment_fits",
            "resisting_choice"]
 
 
@@ -47,16 +47,27 @@ def segment_resistance(segment_steps: Sequence[np.ndarray], steps: np.ndarray, f
 
     A segment with no finite force (every point at a step without a measured wrench) gets -inf: it never wins.
     """
-    steps = np.asarray(steps, dtype=np.int64).reshape(-1)  # strictly increasing, as a run file's
-    force = np.asarray(force, dtype=np.float64).reshape(-1)
     out = np.full(len(segment_steps), -np.inf)
     for i, s in enumerate(segment_steps):
-        s = np.asarray(s, dtype=np.int64).reshape(-1)
-        pos = np.minimum(np.searchsorted(steps, s), len(steps) - 1)
-        f = force[pos[steps[pos] == s]] if len(steps) else np.zeros(0)
+        f = point_forces(s, steps, force)
         f = f[np.isfinite(f)]
         if len(f):
             out[i] = float(np.median(f))
+    return out
+
+
+def point_forces(point_steps: np.ndarray, steps: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """The contact force (N) the action of each point met, shape (M,): ``point_steps`` (M,) the points' observation
+    steps, ``steps`` (K,) the run's action steps (strictly increasing, as a run file's) and ``force`` (K,) the force
+    each met; NaN for a step not among them."""
+    point_steps = np.asarray(point_steps, dtype=np.int64).reshape(-1)
+    steps = np.asarray(steps, dtype=np.int64).reshape(-1)
+    force = np.asarray(force, dtype=np.float64).reshape(-1)
+    out = np.full(len(point_steps), np.nan)
+    if len(steps):
+        pos = np.minimum(np.searchsorted(steps, point_steps), len(steps) - 1)
+        hit = steps[pos] == point_steps
+        out[hit] = force[pos[hit]]
     return out
 
 

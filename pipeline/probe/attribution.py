@@ -13,6 +13,7 @@ import numpy as np
 from pipeline.estimators.estimate import Segment
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
+from pipeline.estimators.segment_choice import point_forces
 from pipeline.geometry import Primitive
 from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, choose_target, explaining, pose_set, surface_distance
 from pipeline.probe.params import ProbeLog, ProbeParams
@@ -55,10 +56,9 @@ def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, 
     limit = light_limit(params, mass, scripted=True)
     if not (limit > 0 and segments):
         return rank(segments)
-    force_at = dict(zip(steps.tolist(), forces.tolist()))
     heavy, light = [], []
     for seg in segments:
-        keep = ~(np.array([force_at.get(int(st), np.nan) for st in seg.steps], dtype=np.float64) < limit)
+        keep = ~(point_forces(seg.steps, steps, forces) < limit)  # (a point without a measured force is not light)
         light.append(np.asarray(seg.points, dtype=np.float64).reshape(-1, 2)[~keep])
         if keep.any():
             heavy.append(Segment(seg.id, np.asarray(seg.points)[keep], np.asarray(seg.steps)[keep]))
