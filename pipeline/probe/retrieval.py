@@ -109,10 +109,8 @@ def _recorded_params(recorded: dict) -> ProbeParams:
     """The probing policy's parameters a run recorded (its ``probe.params``: the scalar ones; the defaults for the
     rest, and for a key a run file written before it existed, but the light-contact rule: off for such a run)."""
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
-    # a run probed before light contacts were told apart was probed without the rule
-    before = {"light_contact_n": 0.0, "light_refutations": 0} if recorded else {}
-    # and one probed before the rule reached the scripted part's points, without that
-    before = {**before, "light_scripted_n": 0.0} if recorded else {}
+    # a run probed before light contacts were told apart (the probes', then the scripted part's) was probed without
+    before = {"light_contact_n": 0.0, "light_refutations": 0, "light_scripted_n": 0.0} if recorded else {}
     return ProbeParams(**{**before, **{k: recorded[k] for k in names if k in recorded}})
 
 
