@@ -239,6 +239,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
                                                  lambda: _build_table(scene, seed, rows), seed, root_seed)
         # a policy that acts only in its second phase (explore: a search, then probes) says where its probes begin
         n_first = getattr(mover, "probes_from", n_first)
+        # bodies knocked over or leaning: the grasp is simulated in the state the run ended in, not upright
+        tilted = world.tilted_poses()
     table = _build_table(scene, seed, rows, None if extra is None else n_first)
     labels = table.column("object_id").to_numpy()
     fr = np.column_stack([table.column("force_rep_x_n").to_numpy(), table.column("force_rep_y_n").to_numpy()])
@@ -257,6 +259,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         # the scene itself: retrieval and scoring use it, verified by its digest (pipeline.estimators.run_info)
         "scene_toml": scene.source, "scene_sha256": scene_digest(scene.source),
     }
+    if tilted:
+        params["tilted"] = tilted
     if extra is not None:
         params["probe"] = extra
     if hasattr(mover, "metadata"):  # a policy with its own parameters records them (the rummage's contacts)

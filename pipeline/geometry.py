@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["wrap_angle", "wrap_symmetric", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "gripper_yaw",
+__all__ = ["wrap_angle", "wrap_symmetric", "rot2", "rots2", "rotate", "dot2", "apply_pose", "quat_yaw", "quat_tilt",
+           "TILTED_RAD", "gripper_yaw",
            "Primitive", "primitive_sdf", "primitive_of", "primitive_pose", "com_pose", "outline_point"]
 
 
@@ -78,6 +79,17 @@ def apply_pose(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """World coordinates of frame points: pose (..., 3) as (x, y, yaw), pts (..., N, 2) -> (..., N, 2), metres."""
     pose = np.asarray(pose, dtype=np.float64)
     return rotate(np.asarray(pts, dtype=np.float64), pose[..., None, 2]) + pose[..., None, :2]
+
+
+#: A body whose vertical axis leans more than this (radians) is knocked over or leaning on another; one at rest
+#: upright on the plane leans well under a thousandth of it.
+TILTED_RAD = 0.1
+
+
+def quat_tilt(q) -> float:
+    """How far (radians, in [0, pi]) the z axis of a body of xyzw quaternion ``q`` leans from the world's."""
+    x, y = q[0], q[1]
+    return math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + y * y))))
 
 
 def quat_yaw(q) -> float:

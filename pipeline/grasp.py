@@ -18,7 +18,8 @@ the rule of the paper is evaluated on the contacts pybullet reports after closin
   fingers reach past the can's middle: closed around more than half of it.
 
 The restored state is the poses recorded after the last action (``obj_pose``: x, y, yaw of every body's
-inertial frame; objects upright at rest height, since tilt is not recorded) and the final gripper position,
+inertial frame; objects upright at rest height, but those the run left knocked over or leaning, restored as they
+lay from ``params.tilted``) and the final gripper position,
 settled for ``settle_steps``.
 """
 from __future__ import annotations
@@ -33,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.geometry import Primitive, dot2, primitive_of, quat_yaw, rot2
+from pipeline.geometry import TILTED_RAD, Primitive, dot2, primitive_of, quat_tilt, quat_yaw, rot2
 from pipeline.grasp_judge import GRASP_STEP_M, PAD_FROM_BASE, FingerContacts, GraspParams, judge_box, judge_can
 
 __all__ = ["GraspPlan", "GraspParams", "GraspResult", "plan_for", "grasp_yaw", "pregrasp", "grasp_at", "grasp_with",
@@ -150,9 +151,11 @@ def pregrasp(plan: GraspPlan, target: Primitive, estimate: np.ndarray) -> tuple[
     return yaw, centre - plan.offset * approach, approach
 
 
-def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
+def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int, tilted: dict | None = None):
     """A :class:`pipeline.sim.World` in a run's final state: every object at its recorded (x, y, yaw), upright at
-    rest height, the gripper at ``ee``; settled for ``settle_steps``. Sensing effects are switched off."""
+    rest height, but those in ``tilted`` (body index -> [x, y, z, qx, qy, qz, qw], :attr:`pipeline.estimators.
+    run_info.RunInfo.final_tilted`: knocked over or leaning) as they lay; the gripper at ``ee``; settled for
+    ``settle_steps``. Sensing effects are switched off."""
     p = _pybullet()
     from pipeline.sim import World  # on first use, as pybullet (see _pybullet)
 
@@ -167,8 +170,13 @@ def restore_world(scene, poses: np.ndarray, ee: np.ndarray, settle_steps: int):
             body = world.body_of[i]
             # Recorded poses are of the inertial frame, which sits com_offset[2] above the link frame (upright).
             z = spec.spawn_z + spec.com_offset[2]
-            p.resetBasePositionAndOrientation(body, (x, y, z), p.getQuaternionFromEuler((0.0, 0.0, yaw)),
-                                              physicsClientId=c)
+            full = (tilted or {}).get(i)
+            if full is not None:  # restored upright it would stand where its neighbours lie, or inside them
+                p.resetBasePositionAndOrientation(body, tuple(map(float, full[:3])), tuple(map(float, full[3:])),
+                                                  physicsClientId=c)
+            else:
+                p.resetBasePositionAndOrientation(body, (x, y, z), p.getQuaternionFromEuler((0.0, 0.0, yaw)),
+                                                  physicsClientId=c)
             p.resetBaseVelocity(body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=c)
         world.place(float(ee[0]), float(ee[1]), settle=False)
         world.settle(settle_steps)
@@ -218,7 +226,7 @@ def body_pose(world, body: int) -> np.ndarray:
 
 
 def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
-             params: GraspParams = GraspParams()) -> GraspResult:
+             params: GraspParams = GraspParams(), tilted: dict | None = None) -> GraspResult:
     """Restore a run's final state and attempt the scripted grasp at an estimated target pose.
 
     Parameters
@@ -231,6 +239,8 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
     estimate : ndarray, shape (3,)
         Estimated target COM pose.
     params : GraspParams
+    tilted : dict or None
+        The bodies that ended knocked over or leaning (:func:`restore_world`).
 
     Returns
     -------
@@ -239,7 +249,7 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
     plan = plan_for(scene)
     target = primitive_of(next(o for o in scene.objects if o.target))
     yaw, pre, approach = pregrasp(plan, target, estimate)
-    return grasp_with(scene, poses, ee, yaw, pre, approach, params)
+    return grasp_with(scene, poses, ee, yaw, pre, approach, params, tilted=tilted)
 
 
 #: Grasps already simulated in this process (:func:`grasp_with`), most recent last; at most 64.
@@ -252,10 +262,11 @@ def _bits(a) -> bytes:
 
 def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.ndarray, approach: np.ndarray,
                params: GraspParams = GraspParams(), approach_steps: int | None = None,
-               via: np.ndarray | None = None) -> GraspResult:
+               via: np.ndarray | None = None, tilted: dict | None = None) -> GraspResult:
     """The grasp script of :func:`grasp_at` for a given grasp yaw, pre-grasp point (2,) and unit approach
     direction (2,), advancing ``approach_steps`` actions of the action scale (default ``params.approach_steps``);
-    the success rule is the same. ``via`` (V, 2), metres: points moved to first, in order, as to the pre-grasp point.
+    the success rule is the same. ``via`` (V, 2), metres: points moved to first, in order, as to the pre-grasp point;
+    ``tilted``: the bodies restored as they lay (:func:`restore_world`).
 
     A grasp is simulated once per process: the same run, pose and parameters again (two estimators that give
     the same pose, the active protocol's set grasp under each estimator) return a copy of the first result, whose
@@ -265,11 +276,12 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
     # All the outcome depends on, to the bit: scene (fields but the path, file text), restored state, grasp, params.
     via = np.zeros((0, 2)) if via is None else np.asarray(via, dtype=np.float64).reshape(-1, 2)
     key = (repr(dataclasses.replace(scene, path=None)), hashlib.sha256(scene.source.encode()).digest(), _bits(poses),
-           _bits(ee), _bits([yaw]), _bits(pre), _bits(approach), params, steps) + ((_bits(via),) if len(via) else ())
+           _bits(ee), _bits([yaw]), _bits(pre), _bits(approach), params, steps) + \
+        ((_bits(via),) if len(via) else ()) + tuple((i, _bits(v)) for i, v in sorted((tilted or {}).items()))
     if key in _MEMO:
         _MEMO.move_to_end(key)
         return dataclasses.replace(copy.deepcopy(_MEMO[key]), wall_s=time.perf_counter() - t0)
-    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps, via)
+    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps, via, tilted)
     result.wall_s = time.perf_counter() - t0
     _MEMO[key] = copy.deepcopy(result)
     while len(_MEMO) > 64:
@@ -316,10 +328,14 @@ def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: n
         ok, why = judge_can(fingers, target, pose, world.gripper_pose()[0][:2], approach, params)
     else:
         ok, why = judge_box(fingers, target, pose, params)
+    tilt = quat_tilt(_pybullet().getBasePositionAndOrientation(body, physicsClientId=world.client)[1])
+    if not ok and tilt > TILTED_RAD:  # the report says why a grasp of the pose could not hold it
+        why = f"{why}; the target lies tilted {math.degrees(tilt):.0f} deg"
     return fingers, pose, ok, why
 
 
-def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int, via) -> GraspResult:
+def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int, via,
+                    tilted: dict | None = None) -> GraspResult:
     """The simulation of :func:`grasp_with` (``wall_s`` left at 0)."""
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     target = primitive_of(scene.objects[tid])
@@ -327,7 +343,7 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
     approach = np.asarray(approach, dtype=np.float64)
     scale = GRASP_STEP_M
     world = restore_world(scene, np.asarray(poses, dtype=np.float64), np.asarray(ee, dtype=np.float64),
-                          params.settle_steps)
+                          params.settle_steps, tilted)
     with world:
         for point in via:
             move_to(world, point, params, scale)

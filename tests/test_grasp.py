@@ -164,6 +164,57 @@ def test_restore_world_puts_objects_at_their_recorded_final_poses(fb_run):
     np.testing.assert_allclose(pos[:2], fb_run.final_ee, atol=0.01)
 
 
+def test_a_body_that_ended_knocked_over_is_restored_as_it_lay_and_recorded_so(fb_run):
+    # the FB box laid on its broad face beside its recorded place: restored upright it would stand there; given as
+    # tilted it lies, and the world reports it among the tilted bodies (what collect records at a run's end)
+    tid = fb_run.target_id
+    x, y, _ = fb_run.final_poses[tid]
+    half = np.array(fb_run.scene.objects[tid].size) / 2.0
+    lying = np.r_[x, y, half[0], 0.0, np.sin(math.pi / 4), 0.0, np.cos(math.pi / 4)]  # 90 deg about y: on its face
+    with restore_world(fb_run.scene, fb_run.final_poses, fb_run.final_ee, 0) as world:
+        assert world.tilted_poses() == {}  # everything upright, as every body of the stored run ended
+    with restore_world(fb_run.scene, fb_run.final_poses, fb_run.final_ee, P.settle_steps, {tid: lying}) as world:
+        tilted = world.tilted_poses()
+        upright = world.object_poses()
+    name = fb_run.scene.body_names[tid]
+    assert list(tilted) == [name]
+    # still lying where it was put (a lying box rests), the quaternion's tilt about 90 degrees
+    assert tilted[name][:2] == pytest.approx(lying[:2], abs=0.01)
+    q = np.array(tilted[name][3:])
+    assert math.degrees(math.acos(1.0 - 2.0 * (q[0] ** 2 + q[1] ** 2))) == pytest.approx(90.0, abs=5.0)
+    others = [i for i in range(len(fb_run.scene.objects)) if i != tid]
+    np.testing.assert_allclose(upright[others, :2], fb_run.final_poses[others, :2], atol=0.01)
+
+
+def _with_tilted(tmp_path, tilted):
+    """The stored FB run with ``params.tilted`` set to ``tilted`` (None: the key absent)."""
+    import pyarrow.parquet as pq
+
+    from pipeline.schema import read_metadata, write_table
+
+    params = dict(read_metadata(REGRESSION)["params"])
+    if tilted is not None:
+        params["tilted"] = tilted
+    path = tmp_path / "FB-000.parquet"
+    write_table(pq.read_table(REGRESSION).replace_schema_metadata(None), path, stage="collect", params=params,
+                seed=0, kind="sim_run")
+    return path
+
+
+def test_a_runs_tilted_bodies_are_read_by_index_and_checked(tmp_path):
+    from pipeline.schema import SchemaError
+
+    pose = [0.1, 0.2, 0.03, 0.0, math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)]
+    assert load_run(_with_tilted(tmp_path, None)).final_tilted == {}
+    info = load_run(_with_tilted(tmp_path, {"cracker_box": pose}))
+    tid = info.scene.body_names.index("cracker_box")
+    assert list(info.final_tilted) == [tid] and info.final_tilted[tid].tolist() == pose
+    for bad in ({"kettle": pose}, {"cracker_box": pose[:6]}, {"cracker_box": [*pose[:3], 0.0, 0.0, 0.0, 2.0]},
+                {"cracker_box": "lying"}, {"cracker_box": [None, *pose[1:]]}, ["cracker_box"]):
+        with pytest.raises(SchemaError, match="params.tilted"):
+            load_run(_with_tilted(tmp_path, bad))
+
+
 def _shift_across(pose, d):
     """The box pose moved by d along its short axis (across the grasp)."""
     return pose + np.array([d * math.cos(pose[2]), d * math.sin(pose[2]), 0.0])

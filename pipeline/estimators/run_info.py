@@ -1,9 +1,10 @@
 """Collected run files as retrieval and scoring need them, and the per-run random streams of retrieval."""
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import stat
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,10 @@ class RunInfo:
     grasp_scene : pipeline.scenes.Scene or None
         For a log: the scene whose grasp plan and action scale an estimator that weighs the paper's grasp uses (the
         scene of a ``SCENE:OBJECT`` target, else the paper's task of the target's shape); None: ``scene``'s own.
+    final_tilted : dict of int -> ndarray (7,)
+        The bodies that ended knocked over or leaning (``params.tilted`` of the run file): body index -> inertial
+        frame [x, y, z, qx, qy, qz, qw]; the grasp restores them so (:func:`pipeline.grasp.restore_world`). Empty:
+        every body ended upright, or the run was recorded before tilts were.
 
     A run from a robot's log has no scene (``scene`` None), no recorded poses (``final_poses`` None) and no path.
     """
@@ -73,6 +78,7 @@ class RunInfo:
     target_mass_kg: float = float("nan")
     observed: tuple[np.ndarray, np.ndarray] | None = None
     grasp_scene: Any = None
+    final_tilted: dict = field(default_factory=dict)
 
     @property
     def final_ee(self) -> np.ndarray:
@@ -98,7 +104,29 @@ def load_run(path: str | Path) -> RunInfo:
     if final.shape[0] != len(scene.body_names):
         raise schema.SchemaError(path, "obj_pose", t.num_rows - 1,
                                  f"has {final.shape[0]} bodies; scene {scene.name} has {len(scene.body_names)}")
-    return info_from_table(t, scene, path, final, str(params.get("policy") or "scripted"))
+    return dataclasses.replace(info_from_table(t, scene, path, final, str(params.get("policy") or "scripted")),
+                               final_tilted=_tilted(path, params.get("tilted"), list(scene.body_names)))
+
+
+def _tilted(path: Path, recorded, bodies: list) -> dict:
+    """``params.tilted`` of a run file ({body name: [x, y, z, qx, qy, qz, qw]}) by body index; SchemaError naming
+    the file and the key when it is not that."""
+    out: dict[int, np.ndarray] = {}
+    if recorded is None:
+        return out
+    if not isinstance(recorded, dict):
+        raise schema.SchemaError(path, "params.tilted", None, "is not a mapping of body names to poses")
+    for name, pose in recorded.items():
+        try:
+            v = np.asarray(pose, dtype=np.float64)
+        except (TypeError, ValueError):
+            v = np.zeros(0)
+        if name not in bodies or v.shape != (7,) or not np.all(np.isfinite(v)) or \
+                not abs(float(np.sum(v[3:] ** 2)) - 1.0) < 1e-6:
+            raise schema.SchemaError(path, "params.tilted", None, f"{name!r}: not a body of the scene with a finite "
+                                                                  "[x, y, z, qx, qy, qz, qw] (a unit quaternion)")
+        out[bodies.index(name)] = v
+    return out
 
 
 def info_from_table(t: pa.Table, scene: Scene, path: Path | None = None, final: np.ndarray | None = None,

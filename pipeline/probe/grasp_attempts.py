@@ -109,12 +109,12 @@ def _extent(outline: np.ndarray, direction: np.ndarray) -> float:
 def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: Primitive, poses: np.ndarray,
                    weights: np.ndarray, best: int, surroundings: Surroundings,
                    planning: PlanningParams = PlanningParams(), params: GraspParams = GraspParams(),
-                   next_set: Callable[[int], tuple | None] | None = None) -> Attempts:
+                   next_set: Callable[[int], tuple | None] | None = None, tilted: dict | None = None) -> Attempts:
     """Plan, attempt, feel and re-plan, up to ``planning.attempts`` times, in the run's final state (objects'
     (x, y, yaw) ``final_poses`` (B, 3), gripper at ``final_ee`` (2,)), for the plausible set (COM poses (H, 3),
     weights (H,), ``best``). ``next_set(k)`` gives the set and surroundings of the ``k``-th segment ranked after
-    the set's, or None (:class:`pipeline.probe.retrieval.ActiveState`). The scene gives the simulation and the
-    judge only."""
+    the set's, or None (:class:`pipeline.probe.retrieval.ActiveState`); ``tilted`` the bodies that ended knocked
+    over or leaning (:func:`pipeline.grasp.restore_world`). The scene gives the simulation and the judge only."""
     t0 = time.perf_counter()
     out = Attempts()
     scale = GRASP_STEP_M
@@ -126,7 +126,7 @@ def attempt_grasps(scene, final_poses: np.ndarray, final_ee: np.ndarray, prim: P
     felt: list[np.ndarray] = []  # obstacles the attempts met, kept when the set changes
     switched = 0
     world = restore_world(scene, np.asarray(final_poses, dtype=np.float64), np.asarray(final_ee, dtype=np.float64),
-                          params.settle_steps)
+                          params.settle_steps, tilted)
     with world:
 
         body = world.body_of[tid]

@@ -213,7 +213,8 @@ def active_grasp(info: RunInfo, root_seed: int, grasp: bool = True, params: Gras
     belief, meta, around, next_set = active_state(info, root_seed, method)
     if grasp:
         attempts = attempt_grasps(info.scene, info.final_poses, info.final_ee, info.target, belief.poses,
-                                  belief.weights, belief.best, around, planning, params, next_set=next_set)
+                                  belief.weights, belief.best, around, planning, params, next_set=next_set,
+                                  tilted=info.final_tilted)
         g = attempts.attempts[0].grasp
     else:
         attempts = None

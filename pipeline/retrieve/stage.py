@@ -163,7 +163,7 @@ def retrieve_one(info: RunInfo, segs: list[Segment], config: RetrieveConfig, roo
         # the estimator (docs/active.md); the estimator's candidates are kept.
         row.update(registry.resolve(own)(info, method, root_seed, config.grasp, config.grasp_params))
     elif config.grasp and info.scene is not None:
-        g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params)
+        g = grasp_at(info.scene, info.final_poses, info.final_ee, est.pose, config.grasp_params, info.final_tilted)
         row.update(grasp_success=g.success, grasp_outcome=g.outcome, grasp_s=g.wall_s)
     cand = dict(est.candidates)
     cand["run"] = np.full(len(cand["segment"]), info.run, dtype=object)

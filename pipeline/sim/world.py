@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from pipeline.geometry import quat_yaw
+from pipeline.geometry import TILTED_RAD, quat_tilt, quat_yaw
 from pipeline.scenes import Effects, ObjectSpec, Scene, WallSpec
 from pipeline.sim.effects import NO_CONTACT, PADS, read_contacts, summarize_pads, wrench_noise
 from pipeline.sim.gripper import GRIPPER_Z, Gripper, create_gripper
@@ -335,6 +335,17 @@ class World:
         for i, b in self.body_of.items():
             pos, q = p.getBasePositionAndOrientation(b, physicsClientId=self.client)
             out[i] = (pos[0], pos[1], quat_yaw(q))
+        return out
+
+    def tilted_poses(self, min_tilt_rad: float = TILTED_RAD) -> dict[str, list[float]]:
+        """The full pose of every scene body whose vertical axis leans more than ``min_tilt_rad`` (a body knocked
+        over or leaning on another): name -> [x, y, z, qx, qy, qz, qw] (inertial frame, metres, pybullet's
+        quaternion order). What :meth:`object_poses` does not keep; the grasp's restored state needs it."""
+        out = {}
+        for i, b in self.body_of.items():
+            pos, q = p.getBasePositionAndOrientation(b, physicsClientId=self.client)
+            if quat_tilt(q) > min_tilt_rad:
+                out[self.scene.body_names[i]] = [float(v) for v in (*pos, *q)]
         return out
 
     def object_distances(self) -> np.ndarray:

@@ -67,7 +67,8 @@ def _at_decision(info, path: Path, scene, history: list[dict], k: int, last: boo
     ee = info.final_ee if last else info.ee[n0]
     # a cut run's gripper stands back at the end of the scripted part (the return is simulated for the uncut run)
     res = attempt_grasps(scene, poses, ee, info.target, belief.poses, belief.weights, belief.best,
-                         around if last else around.moved(ee), next_set=next_set)
+                         around if last else around.moved(ee), next_set=next_set,
+                         tilted=info.final_tilted if last else None)
     pose = info.target.canonical(belief.poses[belief.best])
     pe, ye = pose_error(info.target, pose, poses[info.target_id])
     return res, pe, ye
