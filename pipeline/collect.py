@@ -218,7 +218,7 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
         pos0, _ = world.gripper_pose()
         initial = {"ee_xy_m": pos0[:2].tolist(), "obj_pose": world.object_poses().tolist()}
         n_limit = mover.plan()
-        last_contact = False
+        last_contact, observe = False, getattr(mover, "observe", None)
         for k in range(n_limit):
             u = mover.action(world, k, last_contact)
             if u is None:
@@ -228,6 +228,8 @@ def collect_run(scene: Scene, seed: int, *, root_seed: int = 0, policy: str | No
             sim_s += time.perf_counter() - ts
             row = summarize_action(trace, det)
             last_contact = row["in_contact"]
+            if observe is not None:
+                observe(row)
             row.update(cmd_ux=float(u[0]), cmd_uy=float(u[1]), cmd_dx_m=float(u[0] * scale),
                        cmd_dy_m=float(u[1] * scale), obj_pose=world.object_poses(),
                        obj_distance_m=world.object_distances())

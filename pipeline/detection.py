@@ -22,6 +22,7 @@ from pipeline.constraints import Params
 from pipeline.portable import argmin_tolerant
 
 __all__ = ["DetectionParams", "IsolationParams", "scene_detection", "TORQUE_TIE_NM", "residual", "step_in_contact",
+           "window_force",
            "window_in_contact", "contact_window", "isolate_point", "contact_forces", "fixed_column"]
 
 #: Torque errors (N m) closer than this are a tie between surface points (the lower index wins): far above the
@@ -205,13 +206,18 @@ def contact_forces(table, det: DetectionParams = DetectionParams(), iso: Isolati
     no contact was detected. How hard the touched object resisted (docs/estimators.md, "Which segment resisted")."""
     n = table.num_rows
     win = fixed_column(table, "win_wrench", (n, -1, 6))
-    flags = step_in_contact(win, det)
-    out = np.full(n, np.nan)
-    for i in range(n):
-        idx = contact_window(flags[i], iso.max_wrenches, det.window)
-        if len(idx):
-            out[i] = float(np.max(np.hypot(win[i, idx, 0], win[i, idx, 1])))
-    return out
+    return np.array([window_force(win[i], det, iso) for i in range(n)], dtype=np.float64).reshape(n)
+
+
+def window_force(win: np.ndarray, det: DetectionParams = DetectionParams(),
+                 iso: IsolationParams = IsolationParams()) -> float:
+    """The contact force one action met, N: the largest in-plane magnitude of its sensed wrenches ``win`` (S, 6)
+    over the sim steps isolation uses (:func:`contact_window`); NaN where no contact was detected. What a policy
+    reads of the action it just made (:meth:`pipeline.policies.ScriptedPolicy.observe`), as the later stages read
+    it from the run (:func:`contact_forces`)."""
+    win = np.asarray(win, dtype=np.float64).reshape(-1, 6)
+    idx = contact_window(step_in_contact(win, det), iso.max_wrenches, det.window)
+    return float(np.max(np.hypot(win[idx, 0], win[idx, 1]))) if len(idx) else math.nan
 
 
 def fixed_column(table, name: str, shape: tuple[int, ...]) -> np.ndarray:

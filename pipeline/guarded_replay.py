@@ -9,10 +9,12 @@ position control does not drift: it is sent to positions. Here the sequence is c
 consecutive actions); each leg's planned end, from the start plus the sum of the actions before it, is a waypoint
 the gripper is driven to, at most one action's length per step. A leg is given up when two consecutive actions
 in contact advance less than ``stall_share`` of their commanded length (the gripper is pressing on something it
-cannot move), and the next leg is driven to its own planned end, so a stopped poke's retreat ends on the approach
-line it started from.
+cannot move), or, where the scene sets a force limit, after an action in contact that met it (what the hand pushes
+resists: a heavy object pushed on tips over before it slides), and the next leg is driven to its own planned end, so
+a stopped poke's retreat ends on the approach line it started from.
 
-Only the gripper's own position and each action's contact verdict are read (what a robot knows); never an object.
+Only the gripper's own position and each action's contact verdict and force are read (what a robot knows); never
+an object.
 """
 from __future__ import annotations
 
@@ -66,22 +68,27 @@ class GuardedReplay:
         An action in contact that advances less than this share of its commanded length is stalled
         (:data:`STALL_SHARE`; infinite: every action in contact, so a leg with ``stall_actions`` 1 ends at its
         first contact).
+    stop_force_n : float, N
+        A leg is also given up after an action in contact that met at least this force: what the hand pushes
+        resists, and is pushed no further (infinite: never; the scene's ``[actions] stop_force_n``).
     """
 
     def __init__(self, actions: np.ndarray, start: np.ndarray, scale: float, noise_rng: np.random.Generator,
-                 noise_mm: float, stall_actions: int = STALL_ACTIONS, stall_share: float = STALL_SHARE) -> None:
+                 noise_mm: float, stall_actions: int = STALL_ACTIONS, stall_share: float = STALL_SHARE,
+                 stop_force_n: float = math.inf) -> None:
         self.waypoints = legs(actions, start, scale)
         self.scale, self.noise_rng, self.noise_mm = scale, noise_rng, noise_mm
         self.limit = MAX_ACTIONS_FACTOR * len(np.asarray(actions).reshape(-1, 2))
         self.leg = 0
         self.stalls = 0
         self.stall_actions, self.stall_share = int(stall_actions), float(stall_share)
+        self.stop_force_n = float(stop_force_n)
         self.given_up: list[int] = []  # legs given up, in order
         self._last: tuple[np.ndarray, np.ndarray] | None = None  # (position before, displacement commanded)
 
-    def next(self, here: np.ndarray, last_contact: bool) -> np.ndarray | None:
-        """The next normalised action (2,) from the gripper's position ``here`` (2,), metres, and whether the last
-        action ended in contact; None when the path is done."""
+    def next(self, here: np.ndarray, last_contact: bool, last_force_n: float = math.nan) -> np.ndarray | None:
+        """The next normalised action (2,) from the gripper's position ``here`` (2,), metres, whether the last
+        action ended in contact and the force it met (N; NaN: not measured); None when the path is done."""
         here = np.asarray(here, dtype=np.float64)
         if self._last is not None:
             before, cmd = self._last
@@ -89,7 +96,7 @@ class GuardedReplay:
             moved = here - before
             advance = (moved[0] * cmd[0] + moved[1] * cmd[1]) / length if length > 0.0 else 0.0
             self.stalls = self.stalls + 1 if last_contact and advance < self.stall_share * length else 0
-            if self.stalls >= self.stall_actions:
+            if self.stalls >= self.stall_actions or (last_contact and last_force_n >= self.stop_force_n):
                 self.given_up.append(self.leg)
                 self.leg += 1
                 self.stalls = 0

@@ -32,6 +32,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from pipeline.constraints import Constraint, Params, integer
+from pipeline.detection import scene_detection, window_force
 from pipeline.guarded_replay import GuardedReplay
 from pipeline.scenes import Scene
 from pipeline.sim import World, action_noise
@@ -65,6 +66,9 @@ class Policy(Protocol):
     def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
         """Normalised action (2,) in [-1, 1] of step ``k``, or None to stop."""
 
+    # Optional: ``observe(row)``, called with each action's ``sim_run`` row before the next :meth:`action`, for a
+    # policy that reads more of it than the contact verdict (the scripted policy's guarded replay: its force).
+
 
 class ScriptedPolicy:
     """The scene's action sequence with replay noise (``noise_rng``): drawn once before the run and added to each
@@ -78,6 +82,8 @@ class ScriptedPolicy:
                  max_actions: int | None = None, params: Any = None) -> None:
         self.scene, self.noise_rng, self.max_actions = scene, noise_rng, max_actions
         self.gripper_start = scene.gripper_start
+        self.detection = scene_detection(scene)
+        self.last_force_n = math.nan  # the force the last action met (N; :meth:`observe`)
 
     def start(self, world) -> None:
         pass
@@ -88,7 +94,8 @@ class ScriptedPolicy:
         if self.scene.replay == "guarded":
             # Closed loop on the gripper's position; noise drawn per action as it is made.
             self.guarded = GuardedReplay(seq, np.asarray(self.scene.gripper_start, dtype=np.float64),
-                                         self.scene.action_scale, self.noise_rng, eff.noise_mm)
+                                         self.scene.action_scale, self.noise_rng, eff.noise_mm,
+                                         stop_force_n=self.scene.stop_force_n or math.inf)
             limit = self.guarded.limit
             return limit if self.max_actions is None else min(limit, self.max_actions)
         if self.max_actions is not None:
@@ -98,9 +105,14 @@ class ScriptedPolicy:
                                -1.0, 1.0)
         return len(self.actions)
 
+    def observe(self, row: dict) -> None:
+        """Read the action just made (its ``sim_run`` row): the force it met, for the guarded replay's limit."""
+        if self.scene.replay == "guarded" and self.scene.stop_force_n:
+            self.last_force_n = window_force(row["win_wrench"], self.detection)
+
     def action(self, world, k: int, last_contact: bool) -> np.ndarray | None:
         if self.scene.replay == "guarded":
-            return self.guarded.next(world.gripper_pose()[0][:2], last_contact)
+            return self.guarded.next(world.gripper_pose()[0][:2], last_contact, self.last_force_n)
         return self.actions[k]
 
 

@@ -166,3 +166,30 @@ def test_stall_actions_sets_how_many_stalled_actions_give_a_leg_up(stall_actions
     trail = _drive(replay, (0.0, 0.0), blocked=blocked)
     assert replay.given_up == [0] and trail[:, 0].max() <= 0.1 + 1e-9
     assert sum(hits) == stall_actions
+
+
+def test_a_leg_is_given_up_after_an_action_that_met_the_force_limit():
+    # a poke along +x into something that gives way (the gripper advances in contact): without a force limit the
+    # leg goes on to its end; with one, the first action in contact that met it ends the leg
+    actions = [[1.0, 0.0]] * 8 + [[0.0, 1.0]] * 2
+
+    def drive(replay, force_n):
+        here, contact, force, trail = np.zeros(2), False, np.nan, []
+        while (u := replay.next(here, contact, force)) is not None:
+            here = here + u * SCALE
+            contact = here[0] > 0.1 and here[1] < 0.005  # an object along the first leg only
+            force = force_n if contact else np.nan
+            trail.append(here.copy())
+        return np.array(trail)
+
+    def replay(**kw):
+        return GuardedReplay(np.asarray(actions), np.zeros(2), SCALE, np.random.default_rng(0), 0.0, **kw)
+
+    free = replay()
+    assert drive(free, 20.0)[:, 0].max() == pytest.approx(0.24) and free.given_up == []
+    light = replay(stop_force_n=10.0)
+    assert drive(light, 3.0)[:, 0].max() == pytest.approx(0.24) and light.given_up == []
+    heavy = replay(stop_force_n=10.0)
+    trail = drive(heavy, 20.0)
+    assert heavy.given_up == [0] and trail[trail[:, 1] < 0.005, 0].max() == pytest.approx(0.12)
+    assert trail[-1] == pytest.approx([0.24, 0.06])  # the next leg is driven to its own planned end

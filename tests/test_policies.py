@@ -52,6 +52,32 @@ def test_scripted_noise_is_drawn_once_from_the_noise_stream_and_clipped():
     assert np.all(np.abs(a.actions) <= 1.0)
 
 
+def test_the_guarded_replay_gives_a_leg_up_where_the_observed_action_met_the_scenes_force_limit():
+    # a guarded sequence of two legs; the policy observes each action's row and ends the first leg after one that
+    # met the scene's stop_force_n, not after one that met less, and never without the limit
+    seq = ((1.0, 0.0),) * 6 + ((0.0, 1.0),) * 2
+    base = dataclasses.replace(_quiet(load_scene("FB")), actions=seq, replay="guarded")
+    win = np.zeros((8, 6))
+    win[-4:, 0] = 1e3  # in contact (residual far past the threshold) with an in-plane force of 1000 N
+
+    def first_leg(scene, force_scale):
+        policy = ScriptedPolicy(scene, np.random.default_rng(0), np.random.default_rng(1))
+        policy.plan()
+        world, moves = FakeWorld(at=scene.gripper_start), 0
+        for k in range(20):
+            u = policy.action(world, k, k > 0)
+            if u is None or u[1] > 0:
+                return moves
+            world.place(*(world.at[:2] + u * scene.action_scale))
+            policy.observe({"win_wrench": win * force_scale, "in_contact": True})
+            moves += 1
+        return moves
+
+    assert first_leg(base, 1.0) == 6  # no limit: the whole leg (every action in contact advances fully)
+    assert first_leg(dataclasses.replace(base, stop_force_n=10.0), 1e-3) == 6  # 1 N: pushed along
+    assert first_leg(dataclasses.replace(base, stop_force_n=10.0), 1.0) == 1  # 1000 N: given up after one
+
+
 def _walk_scene(**walk):
     scene = _quiet(load_scene("SELECT1"))
     return dataclasses.replace(scene, walk=dataclasses.replace(scene.walk or WalkSpec(), **walk))

@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.detection import contact_forces
+from pipeline.detection import contact_forces, fixed_column, window_force
 from pipeline.estimators.estimate import Segment, estimate, paper_choice, paper_segment
 from pipeline.estimators.pushtrack.estimator import observed_actions
 from pipeline.estimators.run_info import load_run, retrieval_rng
@@ -77,6 +77,16 @@ def test_contact_forces_of_a_run_file(fb):
     mine, other = f[(oid == info.target_id)], f[(oid >= 0) & (oid != info.target_id) & (oid < 5)]
     assert np.nanmedian(mine) > 3 * np.nanmedian(other)
     assert target_mass(info.scene) == 10.0
+
+
+def test_one_actions_force_is_its_row_of_the_runs_forces(fb):
+    # what a policy reads of the action it just made (window_force) is what the run's later stages read of it
+    info, _ = fb
+    table = pq.read_table(info.path)
+    win = fixed_column(table, "win_wrench", (table.num_rows, -1, 6))
+    each = np.array([window_force(w) for w in win])
+    assert np.array_equal(each, contact_forces(table), equal_nan=True)
+    assert np.isnan(window_force(np.zeros((0, 6)))) and np.isnan(window_force(np.full((3, 6), np.nan)))
 
 
 def test_a_heavy_targets_segment_wins_over_a_light_object_that_fits_as_well(fb):

@@ -23,7 +23,7 @@ from pipeline.scenes.catalogue import MODEL_BY_KEY, MODELS, TASK_WALLS
 from pipeline.scenes.coverage import FAR_SLACK_M, SIDE_CLEARANCE_M, SIDES, coverage_passes, coverage_waypoints, lanes
 from pipeline.scenes.footprint import GRIPPER_OUTLINE_M, hidden_fraction, object_outline, separation, wall_outline
 from pipeline.scenes.generate import GAP_MIN_M, DrawRejected, GeneratorSpec, GeneratorSpecError, sample_layout
-from pipeline.scenes.generated_toml import layout_actions
+from pipeline.scenes.generated_toml import STOP_FORCE_N, layout_actions
 from pipeline.sim import World
 from pipeline.sim.generate import generate_scenes, iter_generated, settle_problem
 from stucco_cli.main import cli
@@ -170,7 +170,7 @@ def test_the_rummage_is_made_from_region_start_and_walls_only(batch):
     scene = scene_from_text(batch[0].text, Path("x.toml"))
     assert scene.actions == coverage_passes(scene.target_region, scene.gripper_start, sides=SIDES,
                                             walls=[wall_outline(w) for w in scene.walls])
-    assert scene.replay == "guarded"
+    assert scene.replay == "guarded" and scene.stop_force_n == STOP_FORCE_N
     assert scene.action_scale == 0.03 and all(abs(u) <= 1.0 for a in scene.actions for u in a)
 
 

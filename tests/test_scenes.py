@@ -113,6 +113,10 @@ target = true
     (lambda t: t + '[effects]\nmovable = ["b"]\n', r"key 'effects\.movable': no object named 'b'"),
     (lambda t: t + '[effects]\nwrench = 1\n', r"key 'effects\.wrench': expected true or false"),
     (lambda t: t.replace('target = true', 'target = false'), r"key 'objects': a retrieval scene needs exactly one"),
+    (lambda t: t.replace('sequence = [[1, 0]]', 'sequence = [[1, 0]]\nstop_force_n = 10.0'),
+     r"key 'actions\.stop_force_n': a force limit needs replay = \"guarded\""),
+    (lambda t: t.replace('sequence = [[1, 0]]', 'sequence = [[1, 0]]\nreplay = "guarded"\nstop_force_n = -1'),
+     r"key 'actions\.stop_force_n': expected a positive number"),
 ])
 def test_malformed_scene_file_names_file_and_key(tmp_path, edit, match):
     path = tmp_path / "bad.toml"

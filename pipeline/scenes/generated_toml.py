@@ -17,6 +17,10 @@ __all__ = ["layout_actions", "layout_toml", "describe"]
 #: Replay noise and settling of the generated scenes: the tasks' (docs/simulation.md, "Effects").
 NOISE_MM = 0.5
 SETTLE_STEPS = 1000
+#: The rummage's force limit, N (``[actions] stop_force_n``): a leg is given up after an action that met it, above the
+#: few newtons that push the clutter along and below the forces at which a heavy target pushed at the hand's height
+#: tips over rather than slides (docs/scene_generator.md, "Guarded replay").
+STOP_FORCE_N = 10.0
 _ACTIONS_PER_LINE = 6
 
 
@@ -74,6 +78,7 @@ def layout_toml(layout: Layout, spec: GeneratorSpec) -> str:
         "[actions]",
         f"scale = {_num(DEFAULT_ACTION_SCALE)}",
         'replay = "guarded"  # waypoints followed in closed loop, a leg given up where an object stops it',
+        f"stop_force_n = {_num(STOP_FORCE_N)}  # N: or where what the hand pushes resists that much",
         "sequence = [",
     ]
     for k in range(0, len(actions), _ACTIONS_PER_LINE):

@@ -27,7 +27,7 @@ from pipeline.scenes.types import (
 )
 
 __all__ = ["parse_scene", "NAME_PATTERN", "MAX_EXTENT_M", "MAX_SIZE_M", "MAX_MASS_KG", "MAX_FRICTION",
-           "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS"]
+           "MAX_ACTION_SCALE_M", "MAX_NOISE_MM", "MAX_SETTLE_STEPS", "MAX_ACTIONS", "MAX_STOP_FORCE_N"]
 
 #: A scene name is a plain identifier: it becomes part of file names (``<out>/<scene>-<seed>.parquet``), so a
 #: path separator or ``..`` could write outside ``--out``, and ``-`` would make those names ambiguous.
@@ -45,6 +45,8 @@ MAX_FRICTION = 10.0
 MAX_ACTION_SCALE_M = 0.5
 #: Replay noise half-width, mm.
 MAX_NOISE_MM = 50.0
+#: The guarded replay's force limit, N (the gripper holds 30 N per finger; the wrench reaches a few hundred).
+MAX_STOP_FORCE_N = 1000.0
 #: Sim steps of settling before the first action (1000 by default; 100000 is 7 minutes of simulated time).
 MAX_SETTLE_STEPS = 100_000
 #: Actions of a scripted sequence or of a walk (a shipped scene has at most about 300; 100,000 actions would run
@@ -215,10 +217,10 @@ def _parse_effects(r: _Reader | None, object_names: list[str]) -> Effects:
     )
 
 
-def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] | None, float, str]:
+def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] | None, float, str, float | None]:
     if r is None:
-        return None, DEFAULT_ACTION_SCALE, "open"
-    r.check_keys({"scale", "sequence", "replay"})
+        return None, DEFAULT_ACTION_SCALE, "open", None
+    r.check_keys({"scale", "sequence", "replay", "stop_force_n"})
     scale = r.number("scale", DEFAULT_ACTION_SCALE, positive=True, maximum=MAX_ACTION_SCALE_M)
     seq = r.get("sequence")
     if not isinstance(seq, list) or not seq or len(seq) > MAX_ACTIONS:
@@ -230,7 +232,11 @@ def _parse_actions(r: _Reader | None) -> tuple[tuple[tuple[float, float], ...] |
         if not ok:
             raise r.fail(f"sequence[{i}]", f"expected [u_x, u_y] with each in [-1, 1], got {a!r}")
         out.append((float(a[0]), float(a[1])))
-    return tuple(out), scale, r.string("replay", "open", choices=REPLAYS)
+    replay = r.string("replay", "open", choices=REPLAYS)
+    stop = r.number("stop_force_n", None, positive=True, maximum=MAX_STOP_FORCE_N)
+    if stop is not None and replay != "guarded":
+        raise r.fail("stop_force_n", 'a force limit needs replay = "guarded" (an open replay never gives a leg up)')
+    return tuple(out), scale, replay, stop
 
 
 def _parse_walk(r: _Reader | None) -> WalkSpec | None:
@@ -313,7 +319,7 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
     if dup:
         raise r.fail("objects", f"duplicate object/wall names: {', '.join(dup)}")
     effects = _parse_effects(r.sub("effects"), [o.name for o in objects])
-    actions, scale, replay = _parse_actions(r.sub("actions"))
+    actions, scale, replay, stop_force = _parse_actions(r.sub("actions"))
     walk = _parse_walk(r.sub("walk"))
     region = _parse_target_region(r.sub("target_region"), objects)
     if kind == "retrieval":
@@ -334,6 +340,7 @@ def parse_scene(data: dict[str, Any], path: Path) -> Scene:
         raise r.fail("objects", impossible)
     return Scene(name=name, description=desc.strip(), kind=kind, path=path, gripper_start=start, plane=plane,
                  objects=objects, walls=walls, effects=effects, actions=actions, action_scale=scale, replay=replay,
+                 stop_force_n=stop_force,
                  walk=walk, sensors=parse_sensors(r.sub("sensors")),
                  hardware=parse_hardware(r.sub("detection"), r.sub("methods")),
                  target_region=region, notes=r.string("notes", ""))

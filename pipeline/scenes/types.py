@@ -284,6 +284,9 @@ class Scene:
         How the scripted policy replays ``actions``: ``open`` adds each action to wherever the gripper is (the
         paper's tasks); ``guarded`` follows the sequence's waypoints in closed loop and gives up a leg an object
         stops (:mod:`pipeline.guarded_replay`; the generated scenes).
+    stop_force_n : float or None, N
+        With the guarded replay, a leg is also given up after an action in contact that met this force (a heavy
+        object pushed on tips over before it slides); None: never (``[actions] stop_force_n``).
     walk : WalkSpec or None
     target_region : ((float, float), (float, float)), metres
         ((x_min, y_min), (x_max, y_max)): the rectangle of the plane the user knows the target lies in (prior
@@ -307,6 +310,7 @@ class Scene:
     hardware: Hardware = field(default_factory=Hardware, compare=False)
     action_scale: float = DEFAULT_ACTION_SCALE
     replay: str = "open"
+    stop_force_n: float | None = None
     walk: WalkSpec | None = None
     target_region: tuple[tuple[float, float], tuple[float, float]] = WORKSPACE_M
     notes: str = field(default="", compare=False)
