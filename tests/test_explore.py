@@ -188,6 +188,9 @@ def test_bench_explore_from_the_cli_gives_gs_against_the_budget(tmp_path):
     assert again.exit_code == 0 and (out / "explore_budget.csv").read_text() == first
     bad = CliRunner().invoke(cli, args[:-4] + ["--budgets", "0", "--out", str(out)])
     assert bad.exit_code != 0 and "--budgets" in bad.output and "Traceback" not in bad.output
+    other = CliRunner().invoke(cli, ["--seed", "1"] + args[3:])  # the runs of root seed 0 are not read as seed 1's
+    assert other.exit_code != 0 and "TCSMALL-000.parquet" in other.output and "Traceback" not in other.output
+    assert (out / "explore_budget.csv").read_text() == first
 
 
 def test_evaluate_runs_the_explore_policy_end_to_end(tmp_path):

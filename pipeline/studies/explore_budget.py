@@ -19,7 +19,7 @@ from pipeline.atomic import save_figure, together, write_csv_rows
 from pipeline.collect import collect_file, output_path
 from pipeline.estimators.run_info import load_run
 from pipeline.estimators.target_model import pose_error
-from pipeline.evaluate.freshness import check_run_settings
+from pipeline.evaluate.freshness import check_run_identity, check_run_settings
 from pipeline.parallel import run_calls
 from pipeline.probe.explore import ExploreParams
 from pipeline.probe.report import run_stats
@@ -42,13 +42,9 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         collect_file(scene, seed, path, root_seed=root_seed, policy="explore", policy_params=params)
-    meta = schema.read_metadata(path)
-    recorded = meta.get("params") or {}
-    if recorded.get("policy") != "explore" or (recorded.get("probe") or {}).get("params", {}).get(
-            "action_budget") != budget or meta.get("seed") != root_seed:
-        raise ValueError(f"{path}: not a run of the explore policy with an action budget of {budget} and root seed "
-                         f"{root_seed}; use another --runs directory")
-    check_run_settings(path, scene, "explore", None, params)  # the scene, its effects, the whole run, every parameter
+    # The run, its root seed, the scene, its effects and every parameter of the policy (the budget too).
+    check_run_identity(path, scene.name, seed, root_seed)
+    check_run_settings(path, scene, "explore", None, params)
     info = load_run(path)
     r = active_grasp(info, root_seed)
     pe, ye = pose_error(info.target, r.pose, info.true_pose)
