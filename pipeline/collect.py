@@ -284,8 +284,7 @@ def collect_file(scene: Scene, seed: int, path: str | Path, *, root_seed: int = 
     table, params, result = collect_run(scene, seed, root_seed=root_seed, policy=policy, max_actions=max_actions,
                                         policy_params=policy_params)
     if result.discarded is None or keep_discarded:
-        for suffix in registry.side_suffixes():
-            registry.side_path(path, suffix).unlink(missing_ok=True)
+        registry.remove_side_files(path)
         write_table(table, path, stage="collect", params=params, seed=root_seed, kind=RUN_KIND)
         result.path = Path(path)
         save = registry.policy(policy or registry.default_policy(scene.kind)).save_side_files

@@ -22,7 +22,7 @@ from typing import Any
 __all__ = ["TrackerSpec", "EstimatorSpec", "PolicySpec", "register", "registers", "unregister", "tracker",
            "estimator", "policy", "trackers", "estimators", "policies", "tracker_names", "baseline_names", "tune_grid",
            "estimator_names", "policy_names", "default_policy", "method_title", "resolve", "build_params", "choices",
-           "side_path", "side_suffixes", "DEFAULT_ESTIMATOR"]
+           "side_path", "side_suffixes", "remove_side_files", "DEFAULT_ESTIMATOR"]
 
 #: An object, or ``"package.module:attribute"`` resolved on first use.
 Ref = str | Callable[..., Any] | type | None
@@ -235,6 +235,13 @@ def policies() -> tuple[PolicySpec, ...]:
 def side_suffixes() -> tuple[str, ...]:
     """The side-file suffixes every registered policy declares, each once (a run file may come from any of them)."""
     return tuple(dict.fromkeys(s for spec in policies() for s in spec.side_files))
+
+
+def remove_side_files(run_file: str | Path) -> None:
+    """Remove every side file any registered policy could have written beside ``run_file`` (absent ones are
+    fine): done before a run file is replaced, so that a side file never outlives its run."""
+    for suffix in side_suffixes():
+        side_path(run_file, suffix).unlink(missing_ok=True)
 
 
 def tracker_names() -> tuple[str, ...]:

@@ -73,3 +73,14 @@ def test_stucco_collect_writes_the_policys_side_file_and_never_leaves_a_stale_on
     collect("--force-overwrite")  # the scene's own policy, scripted: no side file of its own
     assert run.is_file() and not times_path(run).exists()
     assert run_stats(run)["decision_s"] == []
+
+
+def test_remove_side_files_removes_every_policys_and_keeps_the_run(tmp_path):
+    run = tmp_path / "TC-000.parquet"
+    run.write_bytes(b"run")
+    sides = [registry.side_path(run, s) for s in registry.side_suffixes()]
+    for side in sides:
+        side.write_text("{}")
+    registry.remove_side_files(run)
+    registry.remove_side_files(run)  # none left: nothing to do, no error
+    assert run.read_bytes() == b"run" and not any(side.exists() for side in sides)

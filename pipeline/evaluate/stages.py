@@ -59,8 +59,7 @@ def run_collect(paths: JobPaths, cfg: EvalConfig) -> float | None:
         sides = [(side, registry.side_path(dest, suffix)) for suffix in registry.side_suffixes()
                  if optional_file(side := registry.side_path(src, suffix), "the run's side file") is not None]
         # the run and its side files appear together (a side file of an older copy never outlives its run)
-        for suffix in registry.side_suffixes():
-            registry.side_path(dest, suffix).unlink(missing_ok=True)
+        registry.remove_side_files(dest)
         with all_or_none([dest, *(d for _, d in sides)]) as tmps:
             for (from_, _), tmp in zip([(src, dest), *sides], tmps):
                 shutil.copyfile(regular_file(from_, "the stored run"), tmp)
