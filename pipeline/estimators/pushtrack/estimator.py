@@ -89,7 +89,8 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
     (F, 2) of the gripper's slice (lattice (G, 2)) at the end of the actions ``rows`` and along those that did not
     touch the target (every ``sweep_spacing``), within ``radius`` of ``centre``, one per ``free_resolution`` cell."""
     reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)
-    trails: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # (every start and island asks for the same actions)
+    # slice poses (P, 2) and lattice points (P, G, 2) of each action, made once: every start and island asks for them
+    trails: dict[int | None, tuple[np.ndarray, np.ndarray]] = {}
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
@@ -97,18 +98,17 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
             rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
         if len(rows) == 0 or len(lattice) == 0:
             return np.zeros((0, 2))
-        # slice poses (P, 2), lattice points (P, G, 2) made once per action; not kept for a start's long prefix
-        one = int(rows[0]) if len(rows) == 1 else -1
-        made = trails.get(one) if one >= 0 else None
+        key = int(rows[0]) if len(rows) == 1 else None  # (a start's long prefix is not kept)
+        made = trails.get(key)
         if made is None:
             poses = actions.slice_poses(rows, params.sweep_spacing)
             made = poses, poses[:, None, :] + lattice[None, :, :]
-            trails.update({one: made} if one >= 0 else {})
-        poses, pts = made
-        near = np.hypot(*(poses - centre).T) <= reach
+            if key is not None:
+                trails[key] = made
+        near = np.hypot(*(made[0] - centre).T) <= reach
         if not near.any():
             return np.zeros((0, 2))
-        pts = pts[near].reshape(-1, 2)
+        pts = made[1][near].reshape(-1, 2)
         return first_per_cell(pts[np.hypot(*(pts - centre).T) <= radius], params.free_resolution)
 
     return free_points
