@@ -46,6 +46,25 @@ def test_the_prior_lies_in_the_region_and_off_the_swept_space(sdf):
     assert np.array_equal(again.poses, s.poses)
 
 
+def test_the_prior_keeps_clear_of_other_objects_contacts(sdf):
+    # A row of contacts on another object across the region's middle: no hypothesis of the box holds one of them.
+    from pipeline.estimators.estimate import Segment
+    from pipeline.probe.attribution import no_target
+
+    ee = _sweep()
+    wall_of_cans = np.column_stack([np.linspace(0.2, 0.6, 41), np.full(41, 0.2)])
+    none = no_target([Segment(3, wall_of_cans[:20], np.arange(20)), Segment(5, wall_of_cans[20:], np.arange(21))])
+    assert none.segment == -1 and np.array_equal(none.others, wall_of_cans)
+    s = pose_set(none, BOX, ee, np.arange(len(ee) - 1), sdf, np.random.default_rng(0), np.zeros((0, 2)),
+                 np.zeros(0), np.zeros((0, 2)), plausible=PlausibleParams(), region=REGION)
+    assert s.notes == ["no_segment"] and len(s.poses) == 48
+    held = [BOX.signed_distance(wall_of_cans, pose).min() for pose in s.poses]
+    assert min(held) > -PlausibleParams().free_tolerance
+    free = prior_set(BOX, ee, np.arange(len(ee) - 1), sdf, PlausibleParams(), np.random.default_rng(0), region=REGION)
+    assert min(BOX.signed_distance(wall_of_cans, pose).min() for pose in free.poses) < -0.01  # without them: some do
+    assert no_target([]).others.shape == (0, 2)
+
+
 def test_without_a_region_the_prior_is_around_the_visited_positions(sdf):
     ee = _sweep()
     s = prior_set(BOX, ee, np.arange(len(ee) - 1), sdf, PlausibleParams(), np.random.default_rng(0))

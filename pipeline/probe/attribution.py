@@ -5,6 +5,7 @@ probing policy (:mod:`pipeline.probe.policy`) asks these at every decision.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from functools import partial
 
@@ -14,13 +15,23 @@ from pipeline.estimators.estimate import Segment
 from pipeline.estimators.params import RetrievalParams
 from pipeline.estimators.run_info import retrieval_rng
 from pipeline.estimators.segment_choice import point_forces
-from pipeline.geometry import Primitive
-from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, choose_target, explaining, pose_set, surface_distance
+from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
+from pipeline.probe.belief import (
+    NO_TARGET,
+    PoseSet,
+    Sensing,
+    TargetChoice,
+    choose_target,
+    explaining,
+    pose_set,
+    surface_distance,
+)
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement
 
-__all__ = ["light_limit", "is_light", "heavy_choices", "current_set", "set_from_steps", "prior_for", "mine_now",
-           "probe_points_at", "set_share", "bunched", "give_way_at_budget", "required_contacts"]
+__all__ = ["light_limit", "is_light", "heavy_choices", "no_target", "misfit", "current_set", "set_from_steps",
+           "prior_for", "mine_now", "probe_points_at", "set_share", "bunched", "give_way_at_budget",
+           "required_contacts"]
 
 
 def light_limit(params: ProbeParams, mass: float,
@@ -66,6 +77,24 @@ def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, 
     return [TargetChoice(c.segment, c.points, c.steps,
                          np.vstack([c.others] + [lt for i, lt in zip(ids, light) if i != c.segment]), c.seeds,
                          c.resisted) for c in rank(heavy)]
+
+
+def no_target(segments: list[Segment]) -> TargetChoice:
+    """The choice of no segment (its set: :func:`pipeline.probe.belief.prior_set` in the region): every segment's
+    points, light ones too, are other objects' contacts, so the target's hypotheses keep clear of them and the
+    planned grasp takes them as obstacles."""
+    points = [np.asarray(s.points, dtype=np.float64).reshape(-1, 2) for s in segments]
+    return dataclasses.replace(NO_TARGET, others=np.vstack(points) if points else NO_TARGET.others)
+
+
+def misfit(target: Primitive, belief: PoseSet, points: np.ndarray) -> float:
+    """Median distance (m) of points (P, 2) to the surface of the set's estimate (0 without points)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(points) == 0:
+        return 0.0
+    pp = primitive_pose(target, belief.poses[belief.best])
+    sd, _ = primitive_sdf(target, rotate(points - pp[:2], pp[2], inverse=True))
+    return float(np.median(np.abs(sd)))
 
 
 def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_seed: int, run: str,

@@ -45,7 +45,7 @@ from pipeline.schema import step_bounds
 from pipeline.seeds import run_rng
 from pipeline.track.stage import TrackConfig, make_tracker, warm_up
 
-__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "misfit", "pose_set",
+__all__ = ["Sensing", "PoseSet", "TargetChoice", "NO_TARGET", "choose_target", "pose_set",
            "explaining", "surface_distance", "prior_set"]
 
 
@@ -259,16 +259,6 @@ def choose_target(segments: Sequence[Segment], target: Primitive, ee: np.ndarray
 NO_TARGET = TargetChoice(-1, np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
 
 
-def misfit(target: Primitive, belief: PoseSet, points: np.ndarray) -> float:
-    """Median distance (m) of points (P, 2) to the surface of the set's estimate (0 without points)."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(points) == 0:
-        return 0.0
-    pp = primitive_pose(target, belief.poses[belief.best])
-    sd, _ = primitive_sdf(target, rotate(points - pp[:2], pp[2], inverse=True))
-    return float(np.median(np.abs(sd)))
-
-
 def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf,
              rng: np.random.Generator, probe_points: np.ndarray, probe_steps: np.ndarray, probe_others: np.ndarray,
              plausible: PlausibleParams = PlausibleParams(n_hypotheses=16, iterations=20), probe_growth: float = 1.25,
@@ -299,7 +289,8 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
     probe_steps = np.asarray(probe_steps, dtype=np.int64).reshape(-1)
     if choice.segment < 0 and len(probe_points) == 0:
-        return prior_set(target, ee, steps, sdf, plausible, rng, region=region)
+        return prior_set(target, ee, steps, sdf, plausible, rng, region=region,
+                         others=np.vstack([choice.others, np.asarray(probe_others).reshape(-1, 2)]))
     all_steps = np.concatenate([choice.steps, probe_steps]).astype(np.int64)
     sigma_old = recency_sigma(all_steps, plausible)[:len(choice.steps)]
     later = len(probe_steps) - 1 - np.arange(len(probe_steps))
@@ -370,11 +361,12 @@ def _surface_at(target: Primitive, poses: np.ndarray, point: np.ndarray):
 
 
 def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausible: PlausibleParams,
-              rng: np.random.Generator, n: int = 48, reach: float = 0.25, region=None) -> PoseSet:
+              rng: np.random.Generator, n: int = 48, reach: float = 0.25, region=None, others=None) -> PoseSet:
     """A set when no segment fits the target (no contact yet, or none accepted): poses uniform, any yaw, equally
-    likely, kept clear of the space the gripper swept (all kept when fewer than four are; ``notes`` = ``no_segment``),
-    within ``reach`` of the visited positions' centroid, or in ``region`` ((x_min, y_min), (x_max, y_max), m: the
-    scene's target region), where four times as many are drawn, for the rummage swept much of it."""
+    likely, kept clear of the space the gripper swept and of the contacts on other objects ``others`` (M, 2) (all
+    kept when fewer than four are; ``notes`` = ``no_segment``), within ``reach`` of the visited positions' centroid,
+    or in ``region`` ((x_min, y_min), (x_max, y_max), m: the scene's target region), where four times as many are
+    drawn, for the rummage swept much of it."""
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     if region is None:
         centre = ee.mean(axis=0)
@@ -386,9 +378,11 @@ def prior_set(target: Primitive, ee: np.ndarray, steps: np.ndarray, sdf, plausib
         cand = np.column_stack([rng.uniform(low, high, (16 * n, 2)), rng.uniform(-np.pi, np.pi, 16 * n)])
         radius = math.hypot(*(high - low)) / 2.0 + 0.2
     lattice = cached_gripper_lattice(sdf, 2 * plausible.free_resolution)
-    free = free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, radius)
-    if len(free):
-        local = rotate(free[None, :, :] - target.centre_world(cand)[:, None, :], (cand[:, 2] + target.yaw)[:, None],
+    # the target is not where the gripper swept, nor where another object was touched (the heavy target stays)
+    taken = np.vstack([free_space_points(lattice, ee[:-1], ee[1:], np.asarray(steps), -1, plausible, centre, radius),
+                       np.zeros((0, 2)) if others is None else np.asarray(others, dtype=np.float64).reshape(-1, 2)])
+    if len(taken):
+        local = rotate(taken[None, :, :] - target.centre_world(cand)[:, None, :], (cand[:, 2] + target.yaw)[:, None],
                        inverse=True)
         sd, _ = primitive_sdf(target, local)
         clear = sd.min(axis=1) > -plausible.free_tolerance

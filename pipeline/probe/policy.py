@@ -29,12 +29,14 @@ from pipeline.probe.attribution import (
     heavy_choices,
     light_limit,
     mine_now,
+    misfit,
+    no_target,
     prior_for,
     required_contacts,
     set_from_steps,
     set_share,
 )
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, misfit
+from pipeline.probe.belief import PoseSet, Sensing
 from pipeline.probe.history import history_prior
 from pipeline.probe.moves import BLOCK_RADIUS, Act, guarded_move, reaching, retrace, return_to_start, transit_limits
 from pipeline.probe.params import ProbeLog, ProbeParams
@@ -108,7 +110,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     t0 = time.perf_counter()  # the first decision includes the segment choice
     choices = heavy_choices(segments, target, sensing, root_seed, run, params, mass)
     rank = since = 0
-    choice = choices[0] if choices else NO_TARGET
+    none = no_target(segments)
+    choice = choices[0] if choices else none
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
     need = required_contacts(target, params)
     belief = None
@@ -131,7 +134,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
             # attribute every probe contact afresh against its set.
             since = log.probes
             rank += 1
-            choice = choices[rank] if rank < len(choices) else NO_TARGET
+            choice = choices[rank] if rank < len(choices) else none
             log.switches += 1
             log.target_steps, log.other_steps = [], []
             belief = current_set(choice, target, sensing, root_seed, run, log,

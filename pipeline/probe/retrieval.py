@@ -28,10 +28,11 @@ from pipeline.probe.attribution import (
     give_way_at_budget,
     heavy_choices,
     light_limit,
+    no_target,
     set_from_steps,
     set_share,
 )
-from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice
+from pipeline.probe.belief import PoseSet, Sensing, TargetChoice
 from pipeline.probe.grasp_attempts import NO_REACHABLE_GRASP, Attempts, attempt_grasps
 from pipeline.probe.grasp_plan import PlannedGrasp, PlanningParams, Surroundings, plan_grasp
 from pipeline.probe.history import HistoryPrior, history_prior
@@ -147,7 +148,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
                             upto=n_scripted)
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
-    choice = next((c for c in choices if c.segment == segment), NO_TARGET)
+    choice = next((c for c in choices if c.segment == segment), no_target(segments))
     belief = set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"])
     steps = state["target_steps"]
     if budget_end is not None and decision is not None:
