@@ -55,7 +55,7 @@ class ProbeParams(Params):
         For a heavy target (its known mass at least ``RetrievalParams.heavy_target_kg``), a probe contact that met
         less force than this (the sensed wrench, :func:`pipeline.detection.contact_forces`) is another object's
         whatever the set says: the heavy target does not give way at a few newtons, the household clutter does
-        (3.0; 0: off; docs/active.md, "Whose contact (attribution)").
+        (5.0; 0: off; docs/active.md, "Whose contact (attribution)").
     light_refutations : int
         After this many probe actions with such a light contact that the set explained (it put the target there),
         the segment is not the target's: the next-ranked one is taken (2; 0: never).
@@ -114,7 +114,7 @@ class ProbeParams(Params):
     min_span: float = 0.6
     min_target_contacts: int = 3
     switch_probes: int = 3
-    light_contact_n: float = 3.0
+    light_contact_n: float = 5.0
     light_refutations: int = 2
     light_scripted_n: float = 5.0
     clutter_cost: float = 0.3
