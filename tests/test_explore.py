@@ -190,6 +190,7 @@ def test_bench_explore_from_the_cli_gives_gs_against_the_budget(tmp_path):
     assert bad.exit_code != 0 and "--budgets" in bad.output and "Traceback" not in bad.output
     other = CliRunner().invoke(cli, ["--seed", "1"] + args[3:])  # the runs of root seed 0 are not read as seed 1's
     assert other.exit_code != 0 and "TCSMALL-000.parquet" in other.output and "Traceback" not in other.output
+    assert "--runs" in other.output
     assert (out / "explore_budget.csv").read_text() == first
 
 

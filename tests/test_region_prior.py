@@ -63,6 +63,18 @@ def test_the_prior_keeps_clear_of_other_objects_contacts(sdf):
     free = prior_set(BOX, ee, np.arange(len(ee) - 1), sdf, PlausibleParams(), np.random.default_rng(0), region=REGION)
     assert min(BOX.signed_distance(wall_of_cans, pose).min() for pose in free.poses) < -0.01  # without them: some do
     assert no_target([]).others.shape == (0, 2)
+    assert no_target([Segment(3, wall_of_cans, np.arange(41))], clear_of_others=False).others.shape == (0, 2)
+
+
+def test_a_run_probed_before_the_rule_is_retrieved_without_it():
+    from pipeline.probe.params import ProbeParams
+    from pipeline.probe.retrieval import _recorded_params
+
+    old = {k: v for k, v in ProbeParams().to_dict().items() if k != "prior_clear_of_others"}
+    assert _recorded_params(old).prior_clear_of_others is False
+    assert _recorded_params(ProbeParams().to_dict()).prior_clear_of_others is True
+    with pytest.raises(ValueError, match="prior_clear_of_others"):
+        ProbeParams(prior_clear_of_others=1)
 
 
 def test_without_a_region_the_prior_is_around_the_visited_positions(sdf):

@@ -79,6 +79,7 @@ def test_remove_side_files_removes_every_policys_and_keeps_the_run(tmp_path):
     run = tmp_path / "TC-000.parquet"
     run.write_bytes(b"run")
     sides = [registry.side_path(run, s) for s in registry.side_suffixes()]
+    assert sides  # the probing policies declare one
     for side in sides:
         side.write_text("{}")
     registry.remove_side_files(run)

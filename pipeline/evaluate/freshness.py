@@ -133,9 +133,10 @@ def shared_stale_stages(out: Path, scene: str, seed: int, digest: Digests, sourc
     return () if fresh else (isolate.name,)
 
 
-def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None) -> None:
+def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None, folder: str = "--out") -> None:
     """ValueError (one line naming ``path``) unless the run file holds the run of ``scene`` and ``seed``, collected
-    with ``root_seed`` (None: any); its rows agree with its metadata (:func:`pipeline.schema.read_run`)."""
+    with ``root_seed`` (None: any); its rows agree with its metadata (:func:`pipeline.schema.read_run`). ``folder``
+    is the option the error tells the user to change."""
     meta = schema.read_metadata(path)
     params = meta.get("params") or {}
     have = (params.get("scene"), params.get("run_seed"))
@@ -143,7 +144,7 @@ def check_run_identity(path: Path, scene: str, seed: int, root_seed: int | None)
         raise ValueError(f"{path}: holds the run {have[0]}/{have[1]}, not {scene}/{seed}; a run file stands for "
                          "the scene and seed of its name (remove it to collect the right one)")
     if root_seed is not None:
-        check_root_seed(path, meta, root_seed, ", this evaluation's is {root}; use another --out")
+        check_root_seed(path, meta, root_seed, ", this evaluation's is {root}; use another " + folder)
 
 
 def check_run_settings(path: Path, scene, policy: str | None, max_actions: int | None, policy_params,

@@ -79,11 +79,12 @@ def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, 
                          c.resisted) for c in rank(heavy)]
 
 
-def no_target(segments: list[Segment]) -> TargetChoice:
-    """The choice of no segment (its set: :func:`pipeline.probe.belief.prior_set` in the region): every segment's
-    points, light ones too, are other objects' contacts, so the target's hypotheses keep clear of them and the
-    planned grasp takes them as obstacles."""
-    points = [np.asarray(s.points, dtype=np.float64).reshape(-1, 2) for s in segments]
+def no_target(segments: list[Segment], clear_of_others: bool = True) -> TargetChoice:
+    """The choice of no segment (its set: :func:`pipeline.probe.belief.prior_set` in the region, then the fit to
+    the probes' contacts): with ``clear_of_others`` every segment's points, light ones too, are other objects'
+    contacts, so the target's hypotheses keep clear of them and the planned grasp takes them as obstacles
+    (``ProbeParams.prior_clear_of_others``); without, it has no others."""
+    points = [np.asarray(s.points, dtype=np.float64).reshape(-1, 2) for s in segments] if clear_of_others else []
     return dataclasses.replace(NO_TARGET, others=np.vstack(points) if points else NO_TARGET.others)
 
 

@@ -62,8 +62,10 @@ class ProbeParams(Params):
     light_scripted_n : float, N
         The same rule on the scripted part: its tracked points whose action met less than this are the clutter's,
         left out of the segments the target is chosen from and fitted to, kept as obstacles
-        (:func:`pipeline.probe.attribution.heavy_choices`; 5.0; 0: off). Higher than the probes' limit: the
-        scripted part pushes the clutter on at a few newtons where a probe only taps it.
+        (:func:`pipeline.probe.attribution.heavy_choices`; 5.0; 0: off), the probes' limit too.
+    prior_clear_of_others : bool
+        Under the no-segment prior, no hypothesis holds a point of a segment set aside, and the planned grasp takes
+        them as obstacles (:func:`pipeline.probe.attribution.no_target`; True; runs probed before: False).
     switch_probes : int
         Probes of its own for a segment taken when the budget is spent (:func:`give_way_at_budget`), beyond
         the budget: its set rests on the scripted part's drifted points otherwise.
@@ -117,6 +119,7 @@ class ProbeParams(Params):
     light_contact_n: float = 5.0
     light_refutations: int = 2
     light_scripted_n: float = 5.0
+    prior_clear_of_others: bool = True
     clutter_cost: float = 0.3
     reattribute: str = "fit"
     method: str = "stucco"
@@ -137,6 +140,7 @@ class ProbeParams(Params):
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
         "clutter_cost": number(0), "light_contact_n": number(0), "light_scripted_n": number(0),
         "light_refutations": integer(0),
+        "prior_clear_of_others": rule("true or false", lambda v: isinstance(v, bool)),
         "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),
         "history": rule("pushtrack or off", lambda v: v in ("pushtrack", "off")),

@@ -110,7 +110,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     t0 = time.perf_counter()  # the first decision includes the segment choice
     choices = heavy_choices(segments, target, sensing, root_seed, run, params, mass)
     rank = since = 0
-    none = no_target(segments)
+    none = no_target(segments, params.prior_clear_of_others)
     choice = choices[0] if choices else none
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
     need = required_contacts(target, params)

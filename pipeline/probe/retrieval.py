@@ -108,10 +108,13 @@ def active_set(info: RunInfo, root_seed: int, method: str = "stucco", decision: 
 
 def _recorded_params(recorded: dict) -> ProbeParams:
     """The probing policy's parameters a run recorded (its ``probe.params``: the scalar ones; the defaults for the
-    rest, and for a key a run file written before it existed, but the light-contact rule: off for such a run)."""
+    rest, and for a key a run file written before it existed, but the light-contact rules and the no-segment prior's
+    others: off for such a run)."""
     names = [f.name for f in fields(ProbeParams) if f.name != "plan"]
     # a run probed before light contacts were told apart (the probes', then the scripted part's) was probed without
-    before = {"light_contact_n": 0.0, "light_refutations": 0, "light_scripted_n": 0.0} if recorded else {}
+    # (and before the no-segment prior kept clear of the other segments)
+    before = {"light_contact_n": 0.0, "light_refutations": 0, "light_scripted_n": 0.0,
+              "prior_clear_of_others": False} if recorded else {}
     return ProbeParams(**{**before, **{k: recorded[k] for k in names if k in recorded}})
 
 
@@ -148,7 +151,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
                             upto=n_scripted)
     same = method == (meta.get("params") or {}).get("method", "stucco") and state["segment"] is not None
     segment = int(state["segment"]) if same else (choices[0].segment if choices else -1)
-    choice = next((c for c in choices if c.segment == segment), no_target(segments))
+    choice = next((c for c in choices if c.segment == segment), no_target(segments, params.prior_clear_of_others))
     belief = set_from_steps(choice, info.target, sensing, root_seed, info.run, state["target_steps"])
     steps = state["target_steps"]
     if budget_end is not None and decision is not None:

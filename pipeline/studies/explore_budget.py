@@ -43,7 +43,7 @@ def _one(scene_ref: str, seed: int, runs: Path, budget: int, root_seed: int, par
         path.parent.mkdir(parents=True, exist_ok=True)
         collect_file(scene, seed, path, root_seed=root_seed, policy="explore", policy_params=params)
     # The run, its root seed, the scene, its effects and every parameter of the policy (the budget too).
-    check_run_identity(path, scene.name, seed, root_seed)
+    check_run_identity(path, scene.name, seed, root_seed, folder="--runs")
     check_run_settings(path, scene, "explore", None, params)
     info = load_run(path)
     r = active_grasp(info, root_seed)
