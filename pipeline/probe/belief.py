@@ -288,9 +288,9 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     ee = np.asarray(ee, dtype=np.float64).reshape(-1, 2)
     probe_points = np.asarray(probe_points, dtype=np.float64).reshape(-1, 2)
     probe_steps = np.asarray(probe_steps, dtype=np.int64).reshape(-1)
+    others = np.vstack([choice.others, np.asarray(probe_others, dtype=np.float64).reshape(-1, 2)])
     if choice.segment < 0 and len(probe_points) == 0:
-        return prior_set(target, ee, steps, sdf, plausible, rng, region=region,
-                         others=np.vstack([choice.others, np.asarray(probe_others).reshape(-1, 2)]))
+        return prior_set(target, ee, steps, sdf, plausible, rng, region=region, others=others)
     all_steps = np.concatenate([choice.steps, probe_steps]).astype(np.int64)
     sigma_old = recency_sigma(all_steps, plausible)[:len(choice.steps)]
     later = len(probe_steps) - 1 - np.arange(len(probe_steps))
@@ -300,7 +300,6 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     after = int(np.max(choice.steps)) if len(choice.steps) else int(np.min(probe_steps)) - 1
     lattice = cached_gripper_lattice(sdf, plausible.free_resolution)
     free = free_space_points(lattice, ee[:-1], ee[1:], steps, after, plausible, centre, radius)
-    others = np.vstack([choice.others, np.asarray(probe_others, dtype=np.float64).reshape(-1, 2)])
     others = others[np.linalg.norm(others - centre, axis=1) <= radius]
     # At most max_seeds ICP starts besides the random ones: a decision must take well under half a second.
     seeds = choice.seeds[:max_seeds] if len(choice.seeds) else None

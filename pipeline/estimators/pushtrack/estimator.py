@@ -90,7 +90,7 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
     touch the target (every ``sweep_spacing``), within ``radius`` of ``centre``, one per ``free_resolution`` cell."""
     reach = radius + (float(np.max(np.hypot(lattice[:, 0], lattice[:, 1]))) if len(lattice) else 0.0)
     # slice poses (P, 2) and lattice points (P, G, 2) of each action, made once: every start and island asks for them
-    trails: dict[int | None, tuple[np.ndarray, np.ndarray]] = {}
+    trails: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
