@@ -59,11 +59,17 @@ class GraspPlan:
         BC/IB [-pi, 0]).
     fixed_yaw : float or None
         Yaw used whatever the estimate says (TC: -pi/2, approach from -x).
+    guarded_steps : int
+        Actions the approach may go on for after its planned advance while the hand still moves freely: it stops at
+        the first that advances less than :data:`GUARD_STALL_SHARE` of its command (the palm met the target's near
+        end), so a target lying further along the approach than estimated is still reached (0: the paper's script,
+        a fixed advance; docs/retrieval.md, "Grasp in simulation").
     """
 
     offset: float = 0.25
     yaw_range: tuple[float, float] | None = (-math.pi / 2, math.pi / 2)
     fixed_yaw: float | None = None
+    guarded_steps: int = 0
 
 
 PLANS: dict[str, GraspPlan] = {
@@ -81,8 +87,12 @@ PLANS: dict[str, GraspPlan] = {
 #: "Grasp in simulation"). TC's 0.2 m for a can is this offset to 5 mm.
 DEEP_OFFSET = GraspParams().approach_steps * GRASP_STEP_M + (PAD_FROM_BASE[0] + PAD_FROM_BASE[1]) / 2.0
 
-#: The plan of a box target in a scene without a paper plan: FB's yaw range, :data:`DEEP_OFFSET`.
+#: The plan of a box target in a scene without a paper plan: FB's yaw range, :data:`DEEP_OFFSET`; :func:`plan_for`
+#: lets its approach go on along the box's length (:attr:`GraspPlan.guarded_steps`).
 DEEP_BOX = GraspPlan(DEEP_OFFSET, (-math.pi / 2, math.pi / 2))
+
+#: A guarded approach action that advances less than this share of its command has met something (the palm stops).
+GUARD_STALL_SHARE = 0.5
 
 
 def plan_for(scene) -> GraspPlan:
@@ -93,7 +103,12 @@ def plan_for(scene) -> GraspPlan:
     tgt = scene.target
     if tgt is None:
         raise ValueError(f"{scene.path}: scene {scene.name} has no target to grasp")
-    return PLANS["TC"] if tgt.shape == "cylinder" else DEEP_BOX
+    if tgt.shape == "cylinder":
+        return PLANS["TC"]
+    # As far again as the box is long (the whole actions of it): an estimate off along the approach by up to that is
+    # still met by the palm.
+    length = 2.0 * float(primitive_of(tgt).half[1])  # along the approach (the box's y)
+    return dataclasses.replace(DEEP_BOX, guarded_steps=int(length // GRASP_STEP_M))
 
 
 @dataclass
@@ -249,7 +264,7 @@ def grasp_at(scene, poses: np.ndarray, ee: np.ndarray, estimate: np.ndarray,
     plan = plan_for(scene)
     target = primitive_of(next(o for o in scene.objects if o.target))
     yaw, pre, approach = pregrasp(plan, target, estimate)
-    return grasp_with(scene, poses, ee, yaw, pre, approach, params, tilted=tilted)
+    return grasp_with(scene, poses, ee, yaw, pre, approach, params, tilted=tilted, guarded_steps=plan.guarded_steps)
 
 
 #: Grasps already simulated in this process (:func:`grasp_with`), most recent last; at most 64.
@@ -262,11 +277,12 @@ def _bits(a) -> bytes:
 
 def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.ndarray, approach: np.ndarray,
                params: GraspParams = GraspParams(), approach_steps: int | None = None,
-               via: np.ndarray | None = None, tilted: dict | None = None) -> GraspResult:
+               via: np.ndarray | None = None, tilted: dict | None = None, guarded_steps: int = 0) -> GraspResult:
     """The grasp script of :func:`grasp_at` for a given grasp yaw, pre-grasp point (2,) and unit approach
     direction (2,), advancing ``approach_steps`` actions of the action scale (default ``params.approach_steps``);
     the success rule is the same. ``via`` (V, 2), metres: points moved to first, in order, as to the pre-grasp point;
-    ``tilted``: the bodies restored as they lay (:func:`restore_world`).
+    ``tilted``: the bodies restored as they lay (:func:`restore_world`); ``guarded_steps``: the approach's guarded
+    extension (:attr:`GraspPlan.guarded_steps`).
 
     A grasp is simulated once per process: the same run, pose and parameters again (two estimators that give
     the same pose, the active protocol's set grasp under each estimator) return a copy of the first result, whose
@@ -277,11 +293,12 @@ def grasp_with(scene, poses: np.ndarray, ee: np.ndarray, yaw: float, pre: np.nda
     via = np.zeros((0, 2)) if via is None else np.asarray(via, dtype=np.float64).reshape(-1, 2)
     key = (repr(dataclasses.replace(scene, path=None)), hashlib.sha256(scene.source.encode()).digest(), _bits(poses),
            _bits(ee), _bits([yaw]), _bits(pre), _bits(approach), params, steps) + \
-        ((_bits(via),) if len(via) else ()) + tuple((i, _bits(v)) for i, v in sorted((tilted or {}).items()))
+        ((_bits(via),) if len(via) else ()) + tuple((i, _bits(v)) for i, v in sorted((tilted or {}).items())) + \
+        ((("guarded", int(guarded_steps)),) if guarded_steps else ())
     if key in _MEMO:
         _MEMO.move_to_end(key)
         return dataclasses.replace(copy.deepcopy(_MEMO[key]), wall_s=time.perf_counter() - t0)
-    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps, via, tilted)
+    result = _simulate_grasp(scene, poses, ee, yaw, pre, approach, params, steps, via, tilted, int(guarded_steps))
     result.wall_s = time.perf_counter() - t0
     _MEMO[key] = copy.deepcopy(result)
     while len(_MEMO) > 64:
@@ -308,18 +325,25 @@ def move_to(world, goal: np.ndarray, params: GraspParams, scale: float, stall_sh
 
 
 def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: np.ndarray, steps: int,
-                    scale: float, params: GraspParams) -> tuple[list[FingerContacts], np.ndarray, bool, str]:
+                    scale: float, params: GraspParams, guarded_steps: int = 0
+                    ) -> tuple[list[FingerContacts], np.ndarray, bool, str]:
     """The script from the pre-grasp point on: turn the hand to ``yaw`` (fingers along the unit ``approach`` (2,)),
-    open, advance ``steps`` actions of ``scale`` (m), close; then the success rule on the target (``body``, of
-    shape ``target``). Returns (each finger's contacts, the target's COM pose (3,), success, why)."""
+    open, advance ``steps`` actions of ``scale`` (m), and, while the last of them advanced freely, up to
+    ``guarded_steps`` more until one stalls (:attr:`GraspPlan.guarded_steps`; the hand's own motion, as a robot
+    feels it); close; then the success rule on the target (``body``, of shape ``target``). Returns (each finger's
+    contacts, the target's COM pose (3,), success, why)."""
     p = _pybullet()
     # Fingers along the approach: hand z -> world at angle yaw + pi/2 (Euler (0, pi/2, yaw + pi/2)).
     world.gripper.orientation = tuple(p.getQuaternionFromEuler((0.0, math.pi / 2, yaw + math.pi / 2)))
     world.advance(0.0, 0.0)
     set_fingers(world, OPEN)
     world.advance(0.0, 0.0)
-    for _ in range(steps):
+    for k in range(steps + guarded_steps):
+        here = world.gripper_pose()[0][:2]
         world.advance(float(approach[0] * scale), float(approach[1] * scale))
+        if k >= steps - 1 and guarded_steps and \
+                dot2(world.gripper_pose()[0][:2] - here, approach) < GUARD_STALL_SHARE * scale:
+            break
     set_fingers(world, 0.0)
     world.advance(0.0, 0.0)
     fingers = finger_contacts(world, body)
@@ -335,7 +359,7 @@ def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: n
 
 
 def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, steps: int, via,
-                    tilted: dict | None = None) -> GraspResult:
+                    tilted: dict | None = None, guarded_steps: int = 0) -> GraspResult:
     """The simulation of :func:`grasp_with` (``wall_s`` left at 0)."""
     tid = next(i for i, o in enumerate(scene.objects) if o.target)
     target = primitive_of(scene.objects[tid])
@@ -349,7 +373,7 @@ def _simulate_grasp(scene, poses, ee, yaw, pre, approach, params: GraspParams, s
             move_to(world, point, params, scale)
         reached = move_to(world, pre, params, scale)
         fingers, pose, ok, why = close_and_judge(world, world.body_of[tid], target, yaw, approach, steps, scale,
-                                                 params)
+                                                 params, guarded_steps)
     if not ok and not reached:
         why = f"{why}; pre-grasp point not reached"
     return GraspResult(success=ok, outcome=why, yaw=yaw, pregrasp=pre, reached=reached, target_pose=pose,

@@ -126,9 +126,12 @@ def test_plans_follow_the_reference_grasp_offsets():
 
 
 def test_a_box_scene_without_a_paper_plan_approaches_deeper():
-    from pipeline.grasp import DEEP_BOX, DEEP_OFFSET, PAD_FROM_BASE
+    from pipeline.grasp import DEEP_OFFSET, PAD_FROM_BASE
 
-    assert plan_for(load_scene("REAL")) is DEEP_BOX and DEEP_BOX.yaw_range == PLANS["FB"].yaw_range
+    real = plan_for(load_scene("REAL"))
+    assert (real.offset, real.yaw_range) == (DEEP_OFFSET, PLANS["FB"].yaw_range)
+    assert real.guarded_steps == 5  # the cracker box's 15.75 cm in whole 3 cm actions
+    assert all(PLANS[name].guarded_steps == 0 for name in PLANS)  # the paper's script: a fixed advance
     assert all(plan_for(load_scene(name)) is PLANS[name] for name in PLANS)  # the paper's tasks keep theirs
     # the offset that would centre the pads' span on the estimate after the script's advance
     assert DEEP_OFFSET == pytest.approx(GraspParams().approach_steps * 0.03 + sum(PAD_FROM_BASE) / 2, abs=1e-12)
@@ -151,6 +154,22 @@ def test_the_deeper_approach_still_reaches_a_box_further_than_estimated(fb_run):
         yaw, pre, app = pregrasp(plan, _box(), short)
         held[name] = grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, app).success
     assert held == {"FB": False, "deep": True}
+
+
+def test_the_guarded_approach_goes_on_to_a_box_further_than_the_deep_offset_reaches(fb_run):
+    """Estimated 12 cm short along the approach: the deep plan's fixed advance closes on the box's near end, the
+    guarded approach goes on until the palm meets it; at the true pose it stops there too and holds."""
+    from pipeline.grasp import DEEP_BOX, grasp_with
+
+    true = np.asarray(fb_run.true_pose, dtype=np.float64)
+    _, _, approach = pregrasp(DEEP_BOX, _box(), true)
+    held = {}
+    for name, est in (("short", np.r_[true[:2] - 0.12 * approach, true[2]]), ("true", true)):
+        yaw, pre, app = pregrasp(DEEP_BOX, _box(), est)
+        for guarded in (0, 5):
+            g = grasp_with(fb_run.scene, fb_run.final_poses, fb_run.final_ee, yaw, pre, app, guarded_steps=guarded)
+            held[name, guarded] = g.success
+    assert held == {("short", 0): False, ("short", 5): True, ("true", 0): True, ("true", 5): True}
 
 
 def test_restore_world_puts_objects_at_their_recorded_final_poses(fb_run):
