@@ -268,9 +268,12 @@ def test_the_active_protocol_senses_with_the_scenes_robot_and_takes_every_contac
 
 
 def test_a_force_floor_leaves_the_weak_wrench_contacts_unisolated(real_run):
-    plain = isolate_runs([real_run])
+    shipped = isolate_runs([real_run])
+    assert shipped.detection.min_force_n == 5.0  # REAL's own detector places no weak wrench contact
+    plain = isolate_runs([real_run], dataclasses.replace(shipped.detection, min_force_n=0.0))
     det = dataclasses.replace(plain.detection, min_force_n=5.0)
     floored = isolate_runs([real_run], det)
+    assert floored.table.equals(shipped.table)
     a, b = plain.table.to_pydict(), floored.table.to_pydict()
     weak = [i for i, s in enumerate(a["sensor"]) if s == -1 and a["force_n"][i] < 5.0]
     assert weak, "the noisy wrench detects weak contacts"
