@@ -200,3 +200,19 @@ def test_grasp_is_refused_for_a_log(routes, tmp_path):
     last = _fails("retrieve", "--segments", routes / "log-segments.parquet", "--contacts", routes / "log.parquet",
                   "--target", "FB:cracker_box", "--grasp", "--out", tmp_path / "r.parquet")
     assert "--grasp needs a simulated run" in last
+
+
+def test_a_pose_from_a_log_is_drawn_without_a_scene(routes, tmp_path):
+    # the README's log route ends with a picture: the trail from the log, the segments, the estimated outline
+    d = routes
+    pose = tmp_path / "pose.parquet"
+    _ok("retrieve", "--segments", d / "log-segments.parquet", "--contacts", d / "log.parquet",
+        "--target", "box:0.0616x0.1575@10", "--out", pose)
+    shutil.copy(d / "log.parquet", tmp_path / "log.parquet")
+    shutil.copy(d / "log-segments.parquet", tmp_path / "log-segments.parquet")
+    _ok("plot", "--in", pose, "--out", tmp_path / "pose.png")
+    assert (tmp_path / "pose.png").stat().st_size > 10_000
+    from pipeline.figures.tables import _log_of
+
+    log = _log_of(pose, pq.read_table(pose).column("run")[0].as_py())
+    assert log["spec"] == "box:0.0616x0.1575@10" and log["target"].kind == "box" and len(log["ee"]) > 0

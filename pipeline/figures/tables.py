@@ -127,10 +127,33 @@ def _layer(kind: str, t: pa.Table, run: str) -> dict:
                          + ("; marker: true object" if truth is not None else ""))
     r = t.to_pylist()[0]  # retrieval: one row per run
     grasp = {True: "grasp held", False: f"grasp failed ({r['grasp_outcome']})", None: "grasp not simulated"}
+    error = "no ground truth to score it" if r["position_error_m"] is None else \
+        f"position error {100 * r['position_error_m']:.1f} cm, yaw error {r['yaw_error_rad']:.2f} rad"
     return dict(xy=np.zeros((0, 2)), key=np.zeros(0, np.int64), estimate=r,
-                line=f"{r['estimator']} estimate: position error {100 * r['position_error_m']:.1f} cm, yaw error "
-                     f"{r['yaw_error_rad']:.2f} rad; {grasp[r['grasp_success']]}"
-                     + (f"; notes {r['notes']}" if r["notes"] else ""))
+                line=f"{r['estimator']} estimate ({r['x_m']:.3f}, {r['y_m']:.3f}) m, {r['yaw_rad']:.2f} rad: {error}; "
+                     f"{grasp[r['grasp_success']]}" + (f"; notes {r['notes']}" if r["notes"] else ""))
+
+
+def _log_of(retrieval_path: Path, run: str) -> dict | None:
+    """For a retrieval made from a robot log (`stucco retrieve --target`, no run file): its target spec ``spec``,
+    primitive ``target`` and the gripper's trail ``ee`` (K, 2) from the contacts table it records, when that lies
+    beside it (an empty trail otherwise); None for a retrieval of simulated runs."""
+    meta = schema.read_metadata(retrieval_path)
+    spec = (meta.get("params") or {}).get("target")
+    if not spec:
+        return None
+    from pipeline.estimators.log_run import parse_target
+
+    target = parse_target(spec)[0]
+    ee = np.zeros((0, 2))
+    rec = (meta.get("inputs") or {}).get("contacts") or {}
+    path = retrieval_path.parent / str(rec.get("file") or "")
+    if rec.get("file") and path.is_file() and schema.file_digest(path) == rec.get("sha256"):
+        t = schema.read_contacts(path)
+        t = t.filter(pc.equal(t.column("run"), run))
+        ee = np.column_stack([np.asarray(t.column(c).to_pylist(), dtype=float) for c in ("ee_x_m", "ee_y_m")]) \
+            if t.num_rows else ee
+    return {"spec": spec, "target": target, "ee": ee}
 
 
 def _with_segments(retrieval_path: Path, run: str, layer: dict) -> None:
@@ -147,13 +170,16 @@ def _with_segments(retrieval_path: Path, run: str, layer: dict) -> None:
     layer["line"] += f"; segments of {path.name}, the chosen one ringed"
 
 
-def _panel(ax, info, probe: np.ndarray | None, layer: dict) -> list:
-    """Draw one run's layer over its scene (``info`` None: no scene found, points only); legend handles."""
+def _panel(ax, info, probe: np.ndarray | None, layer: dict, log: dict | None = None) -> list:
+    """Draw one run's layer over its scene (``info`` None: no scene found, points only; with ``log``, a robot log's
+    retrieval: its trail ``ee`` (K, 2) and its target ``target``, :func:`_log_of`); legend handles."""
     names = list(info.scene.body_names) if info is not None else None
     shapes = scene_shapes(info) if info is not None else []
     if info is not None:
         draw_scene(ax, shapes, names=True)
         draw_trail(ax, info.ee, probe)
+    elif log is not None and len(log["ee"]):
+        draw_trail(ax, log["ee"])
     handles = []
     if len(layer["xy"]) or "estimate" not in layer or "label" in layer:
         if layer.get("by_object"):
@@ -163,11 +189,13 @@ def _panel(ax, info, probe: np.ndarray | None, layer: dict) -> list:
             handles = draw_points(ax, layer["xy"], layer["key"], layer["label"], truth=layer.get("truth"),
                                   body_names=names, ringed=layer.get("ringed"))
     r = layer.get("estimate")
-    if r is not None and info is not None and r["segment"] >= 0:
+    if r is not None and r["segment"] >= 0 and (info is not None or log is not None):
         pose = np.array([r["x_m"], r["y_m"], r["yaw_rad"]])
-        draw_estimate(ax, info.target, pose, label=f"{r['estimator']} estimate")
-        draw_grasp(ax, info.scene, info.target, pose, r["grasp_success"])
-    lo, hi = window(shapes, layer["xy"], *(() if info is None else (info.ee,)))
+        draw_estimate(ax, info.target if info is not None else log["target"], pose, label=f"{r['estimator']} estimate")
+        if info is not None:
+            draw_grasp(ax, info.scene, info.target, pose, r["grasp_success"])
+    trail = info.ee if info is not None else log["ee"] if log is not None else np.zeros((0, 2))
+    lo, hi = window(shapes, layer["xy"], trail)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
@@ -200,19 +228,22 @@ def plot_table(in_path: str | Path, out_path: str | Path, run: str | None = None
         shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
         raise ValueError(f"--run {run}: not in {in_path} (its runs: {shown})")
     rows = t.filter(pc.equal(t.column("run"), run))
-    run_path = in_path if kind == "sim_run" else find_run_file(in_path, run, runs)
-    info = load_run(run_path)
-    probe = probe_actions(run_path, len(info.ee) - 1)
+    log = _log_of(in_path, run) if kind == "retrieval" and runs is None else None
+    run_path = None if log is not None else in_path if kind == "sim_run" else find_run_file(in_path, run, runs)
+    info = None if run_path is None else load_run(run_path)
+    probe = None if run_path is None else probe_actions(run_path, len(info.ee) - 1)
     layer = _layer(kind, rows, run)
     if kind == "retrieval":
         _with_segments(in_path, run, layer)
-    lo, hi = window(scene_shapes(info), layer["xy"], info.ee)
+    lo, hi = window(scene_shapes(info) if info is not None else [], layer["xy"],
+                    info.ee if info is not None else log["ee"])
     ratio = float(np.clip((hi[1] - lo[1]) / (hi[0] - lo[0]), 0.6, 1.6))
     fig, ax = pyplot().subplots(figsize=(5.0 + 2.8, 5.0 * ratio + 1.2))
-    handles = _panel(ax, info, probe, layer)
+    handles = _panel(ax, info, probe, layer, log)
     legend_outside(ax, handles)
-    title = (f"{in_path.name}: {PLOTTABLE[kind]} table, run {run} (scene {info.scene.name}, seed {info.seed}, "
-             f"{info.policy} policy)\n{layer['line']}")
+    where = f"scene {info.scene.name}, seed {info.seed}, {info.policy} policy" if info is not None else \
+        f"a robot log, target {log['spec']}, no scene"
+    title = f"{in_path.name}: {PLOTTABLE[kind]} table, run {run} ({where})\n{layer['line']}"
     fig.suptitle(wrap(title, 7.4, 9), fontsize=9)
     fig.tight_layout()
     save_figure(fig, out_path, dpi=110, image_format=out_path.suffix.lstrip(".") or "png")
