@@ -10,7 +10,8 @@ contacts at least ``corner_margin`` from the face's ends; a can grasp when its c
 the fingers can close around it. The simulated rule (:func:`pipeline.grasp.judge_box`, :func:`~pipeline.grasp.
 judge_can`) is the judge; this form is what a planner can afford per hypothesis: arrays (grasps, hypotheses), the
 box's finger rule compiled (numba), summing in numpy's order so that it gives the bits of the array form it
-replaced (tests/test_grasp_rule.py keeps that form as the reference).
+replaced (tests/test_grasp_rule.py keeps that form as the reference). It models the script's fixed advance, not a
+plan's guarded extension (:attr:`pipeline.grasp.GraspPlan.guarded_steps`), which only reaches further.
 """
 from __future__ import annotations
 

@@ -29,6 +29,7 @@ from pipeline.figures.draw import (
     draw_scene,
     draw_trail,
     legend_outside,
+    outline,
     pyplot,
     scene_shapes,
     window,
@@ -156,6 +157,14 @@ def _log_of(retrieval_path: Path, run: str) -> dict | None:
     return {"spec": spec, "target": target, "ee": ee}
 
 
+def _log_points(log: dict, layer: dict) -> np.ndarray:
+    """What a log's figure must hold besides its points (M, 2): the trail, and the estimated outline."""
+    r = layer.get("estimate")
+    est = outline(log["target"], np.array([r["x_m"], r["y_m"], r["yaw_rad"]])) if r is not None and \
+        r["segment"] >= 0 else np.zeros((0, 2))
+    return np.vstack([log["ee"], est])
+
+
 def _with_segments(retrieval_path: Path, run: str, layer: dict) -> None:
     """Add to a retrieval layer the final segments it was estimated from (its recorded segments file, beside it and
     byte for byte the recorded one), the chosen one ringed; nothing when that file is not found."""
@@ -194,7 +203,7 @@ def _panel(ax, info, probe: np.ndarray | None, layer: dict, log: dict | None = N
         draw_estimate(ax, info.target if info is not None else log["target"], pose, label=f"{r['estimator']} estimate")
         if info is not None:
             draw_grasp(ax, info.scene, info.target, pose, r["grasp_success"])
-    trail = info.ee if info is not None else log["ee"] if log is not None else np.zeros((0, 2))
+    trail = info.ee if info is not None else _log_points(log, layer) if log is not None else np.zeros((0, 2))
     lo, hi = window(shapes, layer["xy"], trail)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -228,7 +237,7 @@ def plot_table(in_path: str | Path, out_path: str | Path, run: str | None = None
         shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
         raise ValueError(f"--run {run}: not in {in_path} (its runs: {shown})")
     rows = t.filter(pc.equal(t.column("run"), run))
-    log = _log_of(in_path, run) if kind == "retrieval" and runs is None else None
+    log = _log_of(in_path, run) if kind == "retrieval" else None
     run_path = None if log is not None else in_path if kind == "sim_run" else find_run_file(in_path, run, runs)
     info = None if run_path is None else load_run(run_path)
     probe = None if run_path is None else probe_actions(run_path, len(info.ee) - 1)
@@ -236,7 +245,7 @@ def plot_table(in_path: str | Path, out_path: str | Path, run: str | None = None
     if kind == "retrieval":
         _with_segments(in_path, run, layer)
     lo, hi = window(scene_shapes(info) if info is not None else [], layer["xy"],
-                    info.ee if info is not None else log["ee"])
+                    info.ee if info is not None else _log_points(log, layer))
     ratio = float(np.clip((hi[1] - lo[1]) / (hi[0] - lo[0]), 0.6, 1.6))
     fig, ax = pyplot().subplots(figsize=(5.0 + 2.8, 5.0 * ratio + 1.2))
     handles = _panel(ax, info, probe, layer, log)
