@@ -317,11 +317,16 @@ def move_to(world, goal: np.ndarray, params: GraspParams, scale: float, stall_sh
             return True
         step = np.clip(d / scale, -1.0, 1.0) * scale
         world.advance(float(step[0]), float(step[1]))
-        if stall_share is not None:
-            moved = world.gripper_pose()[0][:2] - here
-            if dot2(moved, step) < stall_share * dot2(step, step):
-                return False
+        if stall_share is not None and _stalled(world, here, step, stall_share):
+            return False
     return bool(math.hypot(*(goal - world.gripper_pose()[0][:2])) < params.reach_tolerance)
+
+
+def _stalled(world, here: np.ndarray, step: np.ndarray, share: float) -> bool:
+    """Whether the action ``step`` (2,), m, just made from ``here`` (2,) moved the gripper less than ``share`` of it
+    along itself: the hand met something (what a robot's controller feels)."""
+    moved = world.gripper_pose()[0][:2] - here
+    return bool(dot2(moved, step) < share * dot2(step, step))
 
 
 def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: np.ndarray, steps: int,
@@ -338,11 +343,11 @@ def close_and_judge(world, body: int, target: Primitive, yaw: float, approach: n
     world.advance(0.0, 0.0)
     set_fingers(world, OPEN)
     world.advance(0.0, 0.0)
+    step = np.asarray(approach, dtype=np.float64) * scale
     for k in range(steps + guarded_steps):
-        here = world.gripper_pose()[0][:2]
-        world.advance(float(approach[0] * scale), float(approach[1] * scale))
-        if k >= steps - 1 and guarded_steps and \
-                dot2(world.gripper_pose()[0][:2] - here, approach) < GUARD_STALL_SHARE * scale:
+        here = world.gripper_pose()[0][:2] if guarded_steps and k >= steps - 1 else None
+        world.advance(float(step[0]), float(step[1]))
+        if here is not None and _stalled(world, here, step, GUARD_STALL_SHARE):
             break
     set_fingers(world, 0.0)
     world.advance(0.0, 0.0)

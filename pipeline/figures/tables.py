@@ -157,8 +157,13 @@ def _log_of(retrieval_path: Path, run: str) -> dict | None:
     return {"spec": spec, "target": target, "ee": ee}
 
 
-def _log_points(log: dict, layer: dict) -> np.ndarray:
-    """What a log's figure must hold besides its points (M, 2): the trail, and the estimated outline."""
+def _framed(info, log: dict | None, layer: dict) -> np.ndarray:
+    """What a figure must hold besides its layer's points (M, 2): the run's trail, or a log's trail and estimated
+    outline (nothing for a run drawn without its scene)."""
+    if info is not None:
+        return info.ee
+    if log is None:
+        return np.zeros((0, 2))
     r = layer.get("estimate")
     est = outline(log["target"], np.array([r["x_m"], r["y_m"], r["yaw_rad"]])) if r is not None and \
         r["segment"] >= 0 else np.zeros((0, 2))
@@ -203,8 +208,7 @@ def _panel(ax, info, probe: np.ndarray | None, layer: dict, log: dict | None = N
         draw_estimate(ax, info.target if info is not None else log["target"], pose, label=f"{r['estimator']} estimate")
         if info is not None:
             draw_grasp(ax, info.scene, info.target, pose, r["grasp_success"])
-    trail = info.ee if info is not None else _log_points(log, layer) if log is not None else np.zeros((0, 2))
-    lo, hi = window(shapes, layer["xy"], trail)
+    lo, hi = window(shapes, layer["xy"], _framed(info, log, layer))
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
@@ -244,8 +248,7 @@ def plot_table(in_path: str | Path, out_path: str | Path, run: str | None = None
     layer = _layer(kind, rows, run)
     if kind == "retrieval":
         _with_segments(in_path, run, layer)
-    lo, hi = window(scene_shapes(info) if info is not None else [], layer["xy"],
-                    info.ee if info is not None else _log_points(log, layer))
+    lo, hi = window(scene_shapes(info) if info is not None else [], layer["xy"], _framed(info, log, layer))
     ratio = float(np.clip((hi[1] - lo[1]) / (hi[0] - lo[0]), 0.6, 1.6))
     fig, ax = pyplot().subplots(figsize=(5.0 + 2.8, 5.0 * ratio + 1.2))
     handles = _panel(ax, info, probe, layer, log)
