@@ -247,3 +247,52 @@ def test_a_lane_through_a_wall_is_never_taken():
     wall = [(np.array([0.0, -0.16]), np.array([0.2, 0.01]), 0.0)]
     g = plan_grasp(BOX, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around([0.3, 0.0], walls=wall))
     assert g.reachable and g.approach[1] < 0  # from the +y end
+
+
+def test_a_can_is_not_approached_with_a_sensed_object_between_the_fingers():
+    # the gripper below the can, an object sensed just below it: the short lane from below would close the fingers
+    # on that object (or push it into the can); the plan pays to come in from a side with nothing between them
+    here = [0.0, -0.45]
+    visited = [[0.0, -0.45], [0.0, -0.25]]
+    blocker = [[0.0, -0.09]]
+    open_way = plan_grasp(CAN, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around(here, visited=visited))
+    assert open_way.approach[1] > 0.9  # from below when nothing was sensed there
+    g = plan_grasp(CAN, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around(here, visited=visited, obstacles=blocker))
+    assert g.reachable
+    disc = np.asarray(blocker[0]) + [0.0, grasp_plan.PlanningParams().object_radius]  # beyond, seen from below
+    rel = disc - g.pregrasp
+    along = float(np.dot(rel, g.approach))
+    across = abs(float(np.dot(rel, [g.approach[1], -g.approach[0]])))
+    short_of_target = approach_offset(CAN) - CAN.half[0] + PlanningParams().object_radius
+    assert not (0.0 <= along <= short_of_target and across <= grasp_plan.OPEN)  # not between the open fingers
+    # priced out only as a cost: with the lane costs off, the short lane is taken again
+    cheap = dataclasses.replace(PlanningParams(), between_cost=0.0, lane_cost=0.0)
+    g0 = plan_grasp(CAN, 0.03, np.zeros((1, 3)), np.ones(1), 0, _around(here, visited=visited, obstacles=blocker),
+                    cheap)
+    assert g0.approach[1] > 0.9
+
+
+def test_a_way_round_a_sensed_object_is_not_cut_short_through_it():
+    # the grid path goes round a costly block (a sensed object, 5 per metre); a shortcut checked for free space only
+    # cuts straight through it, the priced one keeps the way's cost (a corner at most grazed, never crossed)
+    from pipeline.probe.plane_grid import simplify_path
+
+    def weight(q):
+        return np.where((np.abs(q[:, 0] - 0.5) < 0.3) & (np.abs(q[:, 1]) < 0.12), 5.0, 1.0)
+
+    up = np.column_stack([np.zeros(16), np.linspace(0.0, 0.15, 16)])
+    across = np.column_stack([np.linspace(0.0, 1.0, 101), np.full(101, 0.15)])
+    down = np.column_stack([np.ones(16), np.linspace(0.15, 0.0, 16)])
+    path = np.vstack([up, across[1:], down[1:]])
+
+    def cost(points):
+        pts = np.vstack([path[:1], points]) if points is not path else points
+        line = np.vstack([a + np.linspace(0, 1, 400)[:, None] * (b - a) for a, b in zip(pts[:-1], pts[1:])])
+        return float(np.sum(np.hypot(*np.diff(line, axis=0).T) * weight(0.5 * (line[1:] + line[:-1]))))
+
+    free_only = simplify_path(path, lambda q: np.ones(len(q), dtype=bool))
+    assert len(free_only) == 1 and cost(free_only) > cost(path) + 1.0  # straight through the block
+    priced = simplify_path(path, lambda q: np.ones(len(q), dtype=bool), weight)
+    assert cost(priced) <= cost(path) + 0.02 * len(priced) + 1e-9
+    assert priced[-1] == pytest.approx(path[-1])
+    assert len(priced) <= 4  # still simplified: a few corners, not every cell

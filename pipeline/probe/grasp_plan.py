@@ -57,6 +57,9 @@ class PlanningParams:
         the paper's script does, but a free way is preferred).
     lane_cost : float
         Cost (metres of free path) of a lane that passes a sensed object.
+    between_cost : float
+        Further cost (metres of free path) of a lane with a sensed object between the open fingers, short of the
+        target: the fingers would close on it, or push it into the target.
     can_directions : int
         Approach directions tried around a can.
     advances : tuple of int
@@ -78,6 +81,7 @@ class PlanningParams:
     unknown_cost: float = 1.5
     object_cost: float = 5.0
     lane_cost: float = 1.0
+    between_cost: float = 3.0
     can_directions: int = 16
     advances: tuple[int, ...] = (4, 3, 5)
     attempts: int = 3
@@ -268,6 +272,19 @@ def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: fl
     return ~inside.any(axis=1)
 
 
+def _between_fingers(yaw: np.ndarray, pre: np.ndarray, discs: np.ndarray, depth: float) -> np.ndarray:
+    """Whether a disc centre (B, 2) lies between the open fingers of each lane (pre-grasp (G, 2), yaw (G,)) within
+    ``depth`` (m) of the pre-grasp point along the approach. Returns bool (G,)."""
+    if len(discs) == 0:
+        return np.zeros(len(yaw), dtype=bool)
+    approach = np.column_stack([-np.sin(yaw), np.cos(yaw)])
+    closing = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    rel = discs[None, :, :] - pre[:, None, :]
+    along = np.sum(rel * approach[:, None, :], axis=-1)
+    across = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
+    return ((along >= 0.0) & (along <= depth) & (across <= OPEN)).any(axis=1)
+
+
 def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.ndarray, best: int,
                surroundings: Surroundings, params: PlanningParams = PlanningParams(),
                grasp: GraspParams = GraspParams()) -> PlannedGrasp:
@@ -326,6 +343,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     reach_cost = np.where(free[pre_cell], cost[pre_cell], np.inf)
     lane_margin = params.object_radius + params.clearance
     lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin)
+    reach = prim.half[1] if prim.kind == "box" else prim.half[0]
+    between = _between_fingers(g_yaw, pre, discs, offset - reach + params.object_radius)
     lane_in_wall = ~_lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
     fresh = np.ones(len(g_yaw), dtype=bool)
     for yaw_t, cx, cy in s.tried:
@@ -337,7 +356,7 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
         # extra (argmin keeps the estimate's own grasp first among equals).
         top = np.max(share[feasible])
         pick = np.flatnonzero(feasible & (share >= top - 1e-12))
-        total = reach_cost + params.lane_cost * ~lane_ok
+        total = reach_cost + params.lane_cost * ~lane_ok + params.between_cost * between
         j = int(pick[np.argmin(total[pick])])
         node, path = int(pre_cell[j]), []
         while node >= 0:
@@ -345,7 +364,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
             node = int(pred[node])
         path = np.array(path[::-1])
         path[0], path[-1] = s.here, pre[j]
-        via = simplify_path(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here))
+        via = simplify_path(path, lambda q: free[grid.index(q)] | (np.linalg.norm(q - s.here, axis=1) <= near_here),
+                            lambda q: weight[grid.index(q)])
         reachable, c = True, float(reach_cost[j])
     else:
         j = int(np.argmax(share))

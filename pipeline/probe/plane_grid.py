@@ -48,15 +48,29 @@ class PlaneGrid:
         return dijkstra(g, indices=source, return_predecessors=True)
 
 
-def simplify_path(path: np.ndarray, free_at) -> np.ndarray:
-    """Waypoints (W, 2) of a grid path (P, 2): the farthest point in sight of each, greedily."""
+def simplify_path(path: np.ndarray, free_at, weight_at=None, slack: float = 0.02) -> np.ndarray:
+    """Waypoints (W, 2) of a grid path (P, 2): the farthest point in sight of each, greedily.
+
+    ``free_at(points (N, 2))`` says which points the gripper may occupy. With ``weight_at`` (the path cost per
+    metre at each point, as :meth:`PlaneGrid.graph` weighs cells), a shortcut is taken only if it costs at most
+    the grid path it replaces plus ``slack`` (metres of visited space): the gripper follows the way the search
+    priced, and a straight line between two points of a path that went round a sensed object does not cut
+    through it."""
+    step = 0.005
+    if weight_at is not None:
+        seg = np.hypot(*np.diff(path, axis=0).T)
+        mid = 0.5 * (path[1:] + path[:-1])
+        along = np.r_[0.0, np.cumsum(seg * weight_at(mid))] if len(path) > 1 else np.zeros(1)
     out, i = [], 0
     while i < len(path) - 1:
         j = len(path) - 1
         while j > i + 1:
-            n = max(2, int(np.ceil(math.hypot(*(path[j] - path[i])) / 0.005)))
+            length = math.hypot(*(path[j] - path[i]))
+            n = max(2, int(np.ceil(length / step)))
             line = path[i] + np.linspace(0.0, 1.0, n)[:, None] * (path[j] - path[i])
-            if np.all(free_at(line)):
+            if np.all(free_at(line)) and (
+                    weight_at is None
+                    or length * float(np.mean(weight_at(0.5 * (line[1:] + line[:-1])))) <= along[j] - along[i] + slack):
                 break
             j -= 1
         out.append(path[j])
