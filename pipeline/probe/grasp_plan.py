@@ -166,12 +166,16 @@ class PlannedGrasp:
     cost: float
 
 
+def _half_along(prim: Primitive) -> float:
+    """How far (m) the target extends from its centre along the approach: a box's long half, a can's radius."""
+    return float(prim.half[1] if prim.kind == "box" else prim.half[0])
+
+
 def approach_offset(prim: Primitive) -> float:
     """Pre-grasp distance (m) from the target's centre: the open fingers' tips (``PAD_FROM_BASE[1]`` ahead of the
     hand's base) stay 5 cm short of the target's far extent along the approach (0.24 m for the cracker box, the
     paper's script 0.25; 0.2 m for a can)."""
-    reach = prim.half[1] if prim.kind == "box" else prim.half[0]
-    return max(0.2, round(reach + PAD_FROM_BASE[1] + 0.05, 2))
+    return max(0.2, round(_half_along(prim) + PAD_FROM_BASE[1] + 0.05, 2))
 
 
 def held_by(prim: Primitive, scale: float, yaw: np.ndarray, centre: np.ndarray, advance: np.ndarray,
@@ -343,8 +347,8 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     reach_cost = np.where(free[pre_cell], cost[pre_cell], np.inf)
     lane_margin = params.object_radius + params.clearance
     lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin)
-    reach = prim.half[1] if prim.kind == "box" else prim.half[0]
-    between = _between_fingers(g_yaw, pre, discs, offset - reach + params.object_radius)
+    # an object's disc centred up to its radius beyond the target's near face still lies in the fingers' way
+    between = _between_fingers(g_yaw, pre, discs, offset - _half_along(prim) + params.object_radius)
     lane_in_wall = ~_lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
     fresh = np.ones(len(g_yaw), dtype=bool)
     for yaw_t, cx, cy in s.tried:
@@ -353,7 +357,7 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     feasible = np.isfinite(reach_cost) & (share > 0) & fresh & ~lane_in_wall  # the open hand cannot sweep a wall
     if feasible.any():
         # The largest share first; among equal shares the cheapest way in, a lane past a sensed object costing
-        # extra (argmin keeps the estimate's own grasp first among equals).
+        # extra, and more with one between the fingers (argmin keeps the estimate's own grasp first among equals).
         top = np.max(share[feasible])
         pick = np.flatnonzero(feasible & (share >= top - 1e-12))
         total = reach_cost + params.lane_cost * ~lane_ok + params.between_cost * between
