@@ -259,17 +259,22 @@ def _wall_points(walls: list, spacing: float) -> np.ndarray:
     return np.vstack(out)
 
 
+def _in_lane_frame(yaw: np.ndarray, pre: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point (B, 2) in each lane's frame (pre-grasp (G, 2), yaw (G,)): how far along the approach from the
+    pre-grasp point, and how far across it (absolute), both (G, B), metres."""
+    approach = np.column_stack([-np.sin(yaw), np.cos(yaw)])
+    closing = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    rel = points[None, :, :] - pre[:, None, :]
+    return np.sum(rel * approach[:, None, :], axis=-1), np.abs(np.sum(rel * closing[:, None, :], axis=-1))
+
+
 def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: float, blockers: np.ndarray,
                 margin: float) -> np.ndarray:
     """Whether the open hand's swept footprint along each lane (pre-grasp (G, 2) to ``advance`` actions on) keeps
     ``margin`` from every blocker point (B, 2). Returns bool (G,)."""
     if len(blockers) == 0:
         return np.ones(len(yaw), dtype=bool)
-    approach = np.column_stack([-np.sin(yaw), np.cos(yaw)])
-    closing = np.column_stack([np.cos(yaw), np.sin(yaw)])
-    rel = blockers[None, :, :] - pre[:, None, :]
-    along = np.sum(rel * approach[:, None, :], axis=-1)
-    across = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
+    along, across = _in_lane_frame(yaw, pre, blockers)
     half_width = OPEN + 0.012 + margin  # the open fingers and their thickness
     inside = (along >= -0.03 - margin) & (along <= advance[:, None] * scale + PAD_FROM_BASE[1] + margin) & \
         (across <= half_width)
@@ -281,11 +286,7 @@ def _between_fingers(yaw: np.ndarray, pre: np.ndarray, discs: np.ndarray, depth:
     ``depth`` (m) of the pre-grasp point along the approach. Returns bool (G,)."""
     if len(discs) == 0:
         return np.zeros(len(yaw), dtype=bool)
-    approach = np.column_stack([-np.sin(yaw), np.cos(yaw)])
-    closing = np.column_stack([np.cos(yaw), np.sin(yaw)])
-    rel = discs[None, :, :] - pre[:, None, :]
-    along = np.sum(rel * approach[:, None, :], axis=-1)
-    across = np.abs(np.sum(rel * closing[:, None, :], axis=-1))
+    along, across = _in_lane_frame(yaw, pre, discs)
     return ((along >= 0.0) & (along <= depth) & (across <= OPEN)).any(axis=1)
 
 
