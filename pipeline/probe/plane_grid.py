@@ -60,7 +60,7 @@ def simplify_path(path: np.ndarray, free_at, weight_at=None, slack: float = 0.02
     if weight_at is not None:
         seg = np.hypot(*np.diff(path, axis=0).T)
         mid = 0.5 * (path[1:] + path[:-1])
-        along = np.r_[0.0, np.cumsum(seg * weight_at(mid))] if len(path) > 1 else np.zeros(1)
+        along = np.r_[0.0, np.cumsum(seg * weight_at(mid))]  # the grid path's cost from its start to each point
     out, i = [], 0
     while i < len(path) - 1:
         j = len(path) - 1
