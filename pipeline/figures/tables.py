@@ -135,6 +135,14 @@ def _layer(kind: str, t: pa.Table, run: str) -> dict:
                      f"{grasp[r['grasp_success']]}" + (f"; notes {r['notes']}" if r["notes"] else ""))
 
 
+def _recorded_input(retrieval_path: Path, meta: dict, kind: str) -> Path | None:
+    """The input file of ``kind`` (``contacts``, ``segments``) a retrieval table's metadata ``meta`` records, when
+    it lies beside the table byte for byte as recorded (its SHA-256); None otherwise."""
+    rec = (meta.get("inputs") or {}).get(kind) or {}
+    path = retrieval_path.parent / str(rec.get("file") or "")
+    return path if rec.get("file") and path.is_file() and schema.file_digest(path) == rec.get("sha256") else None
+
+
 def _log_of(retrieval_path: Path, run: str) -> dict | None:
     """For a retrieval made from a robot log (`stucco retrieve --target`, no run file): its target spec ``spec``,
     primitive ``target`` and the gripper's trail ``ee`` (K, 2) from the contacts table it records, when that lies
@@ -147,9 +155,8 @@ def _log_of(retrieval_path: Path, run: str) -> dict | None:
 
     target = parse_target(spec)[0]
     ee = np.zeros((0, 2))
-    rec = (meta.get("inputs") or {}).get("contacts") or {}
-    path = retrieval_path.parent / str(rec.get("file") or "")
-    if rec.get("file") and path.is_file() and schema.file_digest(path) == rec.get("sha256"):
+    path = _recorded_input(retrieval_path, meta, "contacts")
+    if path is not None:
         t = schema.read_contacts(path)
         t = t.filter(pc.equal(t.column("run"), run))
         ee = np.column_stack([np.asarray(t.column(c).to_pylist(), dtype=float) for c in ("ee_x_m", "ee_y_m")]) \
@@ -173,9 +180,8 @@ def _framed(info, log: dict | None, layer: dict) -> np.ndarray:
 def _with_segments(retrieval_path: Path, run: str, layer: dict) -> None:
     """Add to a retrieval layer the final segments it was estimated from (its recorded segments file, beside it and
     byte for byte the recorded one), the chosen one ringed; nothing when that file is not found."""
-    rec = (schema.read_metadata(retrieval_path).get("inputs") or {}).get("segments") or {}
-    path = retrieval_path.parent / str(rec.get("file") or "")
-    if not rec.get("file") or not path.is_file() or schema.file_digest(path) != rec.get("sha256"):
+    path = _recorded_input(retrieval_path, schema.read_metadata(retrieval_path), "segments")
+    if path is None:
         return
     t = schema.read_segments(path)
     seg = _layer("segments", t.filter(pc.equal(t.column("run"), run)), run)
