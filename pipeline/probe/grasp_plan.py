@@ -268,25 +268,21 @@ def _in_lane_frame(yaw: np.ndarray, pre: np.ndarray, points: np.ndarray) -> tupl
     return np.sum(rel * approach[:, None, :], axis=-1), np.abs(np.sum(rel * closing[:, None, :], axis=-1))
 
 
-def _lane_clear(yaw: np.ndarray, pre: np.ndarray, advance: np.ndarray, scale: float, blockers: np.ndarray,
-                margin: float) -> np.ndarray:
-    """Whether the open hand's swept footprint along each lane (pre-grasp (G, 2) to ``advance`` actions on) keeps
-    ``margin`` from every blocker point (B, 2). Returns bool (G,)."""
-    if len(blockers) == 0:
-        return np.ones(len(yaw), dtype=bool)
-    along, across = _in_lane_frame(yaw, pre, blockers)
+def _lane_clear(along: np.ndarray, across: np.ndarray, advance: np.ndarray, scale: float, margin: float
+                ) -> np.ndarray:
+    """Whether the open hand's swept footprint along each lane (from its pre-grasp point to ``advance`` (G,)
+    actions on) keeps ``margin`` from every blocker point, given the points in the lanes' frames (``along``,
+    ``across`` (G, B), :func:`_in_lane_frame`). Returns bool (G,)."""
     half_width = OPEN + 0.012 + margin  # the open fingers and their thickness
     inside = (along >= -0.03 - margin) & (along <= advance[:, None] * scale + PAD_FROM_BASE[1] + margin) & \
         (across <= half_width)
     return ~inside.any(axis=1)
 
 
-def _between_fingers(yaw: np.ndarray, pre: np.ndarray, discs: np.ndarray, depth: float) -> np.ndarray:
-    """Whether a disc centre (B, 2) lies between the open fingers of each lane (pre-grasp (G, 2), yaw (G,)) within
-    ``depth`` (m) of the pre-grasp point along the approach. Returns bool (G,)."""
-    if len(discs) == 0:
-        return np.zeros(len(yaw), dtype=bool)
-    along, across = _in_lane_frame(yaw, pre, discs)
+def _between_fingers(along: np.ndarray, across: np.ndarray, depth: float) -> np.ndarray:
+    """Whether a disc centre lies between the open fingers of each lane within ``depth`` (m) of its pre-grasp point
+    along the approach, given the centres in the lanes' frames (``along``, ``across`` (G, B), :func:`_in_lane_frame`).
+    Returns bool (G,)."""
     return ((along >= 0.0) & (along <= depth) & (across <= OPEN)).any(axis=1)
 
 
@@ -347,10 +343,11 @@ def plan_grasp(prim: Primitive, scale: float, poses: np.ndarray, weights: np.nda
     # Nearest-cell rounding may land a pre-grasp point a few millimetres inside a blocked cell: require the cell.
     reach_cost = np.where(free[pre_cell], cost[pre_cell], np.inf)
     lane_margin = params.object_radius + params.clearance
-    lane_ok = _lane_clear(g_yaw, pre, g_adv, scale, discs, lane_margin)
+    disc_along, disc_across = _in_lane_frame(g_yaw, pre, discs)  # once, for both tests on the discs
+    lane_ok = _lane_clear(disc_along, disc_across, g_adv, scale, lane_margin)
     # an object's disc centred up to its radius beyond the target's near face still lies in the fingers' way
-    between = _between_fingers(g_yaw, pre, discs, offset - _half_along(prim) + params.object_radius)
-    lane_in_wall = ~_lane_clear(g_yaw, pre, g_adv, scale, walls, params.clearance)
+    between = _between_fingers(disc_along, disc_across, offset - _half_along(prim) + params.object_radius)
+    lane_in_wall = ~_lane_clear(*_in_lane_frame(g_yaw, pre, walls), g_adv, scale, params.clearance)
     fresh = np.ones(len(g_yaw), dtype=bool)
     for yaw_t, cx, cy in s.tried:
         turn = np.abs(wrap_angle(g_yaw - yaw_t))
