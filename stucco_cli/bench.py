@@ -182,6 +182,11 @@ def parse_methods(text: str, param_hint: str = "--methods", allow_none: bool = F
 @click.option("--pushtrack-select", "pt_select", default="held_mean,grasp", show_default=True,
               help="How the pushtrack estimator chooses its estimate among the refined particles: cost, posterior, "
                    "grasp, mode, held_mean ('' for none).")
+@click.option("--pushtrack-sweep-substeps", "pt_sweep_substeps", default="", show_default=True,
+              help="Steps of the gripper's sweep over one push in the pushtrack estimator ('' for none).")
+@click.option("--pushtrack-free-stretches", "pt_free_stretches", default="", show_default=True,
+              help="on: the free space of the actions between two touches counted once per cell; off: once per "
+                   "action ('' for none).")
 @click.option("--baselines", default=None,
               help="Comma-separated methods run at their defaults ('' for none) [every registered method but "
                    "the first: " + ",".join(registry.baseline_names()) + "].")
@@ -195,8 +200,8 @@ def parse_methods(text: str, param_hint: str = "--methods", allow_none: bool = F
 @global_options(own_jobs=True)
 @pass_settings
 def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_list, free_list, paper_estimator,
-                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_motion, pt_select, stream_list,
-                   baselines, out_dir, jobs) -> None:
+                   pt_particles, pt_refine, pt_substeps, pt_starts, pt_islands, pt_motion, pt_select,
+                   pt_sweep_substeps, pt_free_stretches, stream_list, baselines, out_dir, jobs) -> None:
     """What accuracy costs in time: every knob setting and baseline on a (scene, seed) grid; a table and a Pareto
     PNG of time per run against CE, FMI and grasp success."""
     writable_dir("--out", out_dir)
@@ -227,7 +232,11 @@ def bench_accuracy(settings, scenes, seeds, n_list, restart_list, sdf_list, hyp_
                                          ("islands", parse_ints("--pushtrack-islands", pt_islands, 1, 64)),
                                          ("motion", parse_choices("--pushtrack-motion", pt_motion, MOTIONS, "choice")),
                                          ("select", parse_choices("--pushtrack-select", pt_select, SELECT_RULES,
-                                                             "choice"))),
+                                                             "choice")),
+                                         ("sweep_substeps", parse_ints("--pushtrack-sweep-substeps",
+                                                                       pt_sweep_substeps, 1, 256)),
+                                         ("free_stretches", tuple(v == "on" for v in parse_choices(
+                                             "--pushtrack-free-stretches", pt_free_stretches, ("on", "off"))))),
                               baselines=None if baselines is None else parse_methods(baselines, "--baselines", True))
     with user_errors("bench accuracy"):
         table = accuracy_bench(out_dir, scene_list, seed_list, sweep, root_seed=settings.seed,

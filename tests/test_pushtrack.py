@@ -424,3 +424,39 @@ def test_bad_parameters_are_refused():
         PushTrackParams(starts=0)
     with pytest.raises(ValueError):
         PushTrackParams(start_margin=-1.0)
+
+
+def _with_passes(a: Actions, after: int, passes: int, start: np.ndarray, end: np.ndarray) -> Actions:
+    """``a`` with ``passes`` actions inserted after action ``after``, each moving the gripper from ``start`` to
+    ``end`` (2,) without touching anything."""
+    k = after + 1
+    ins = lambda x, v: np.concatenate([x[:k], np.repeat(np.asarray(v)[None], passes, axis=0), x[k:]])  # noqa: E731
+    return Actions(ee_start=ins(a.ee_start, start), ee_end=ins(a.ee_end, end), touch=ins(a.touch, False),
+                   contact=ins(a.contact, [np.nan, np.nan]), push=ins(a.push, [0.0, 0.0]), gripper=a.gripper)
+
+
+def test_free_space_between_two_touches_counts_once_per_cell():
+    # Between two touches the gripper passes the same way across the box's near side, once or three times: the
+    # particles stay where they are, so with free_stretches three passes weigh as one; counted per action they
+    # weigh three times as much
+    local, _ = _faces(6)
+    truth = np.array([[0.43, 0.0, 0.2]] * 6)
+    a = _pushes(truth, local, np.zeros((6, 2)))
+    lattice = np.array([[x, y] for x in np.arange(-0.02, 0.021, 0.01) for y in np.arange(-0.02, 0.021, 0.01)])
+    start, end = np.array([0.37, -0.12]), np.array([0.37, 0.12])
+
+    def filtered(passes, params):
+        b = _with_passes(a, 2, passes, start, end)
+        _, radius = target_reach(BOX, b.contact[b.touch])
+        return run_filter(BOX, b, free_space_of(b, lattice, params, radius), params, np.random.default_rng(2))
+
+    stretches = PushTrackParams(motion="push", free_stretches=True)
+    once, thrice = filtered(1, stretches), filtered(3, stretches)
+    assert thrice.log_evidence == once.log_evidence
+    np.testing.assert_array_equal(thrice.poses, once.poses)
+    np.testing.assert_array_equal(thrice.log_w, once.log_w)
+    per_action = PushTrackParams(motion="push", free_stretches=False)
+    assert filtered(1, per_action).log_evidence == once.log_evidence  # one action: the same observation
+    assert filtered(3, per_action).log_evidence < once.log_evidence  # the passes cut into some particles
+    none = filtered(0, stretches)
+    assert none.log_evidence > once.log_evidence and np.all(np.isfinite(once.log_w))

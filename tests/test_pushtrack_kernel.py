@@ -8,6 +8,8 @@ and so change a reported pose.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -19,6 +21,7 @@ from pipeline.estimators.pushtrack import filter as pushmodel
 from pipeline.estimators.pushtrack import kernel as pushtrack_kernel
 from pipeline.estimators.pushtrack.filter import PushTrackParams, free_loglik
 from pipeline.geometry import Primitive, primitive_sdf, rotate
+from pipeline.portable import logsumexp
 
 BOX = Primitive(kind="box", half=(0.05, 0.08), centre=np.array([0.004, -0.002]), yaw=0.3, name="box")
 CAN = Primitive(kind="cylinder", half=(0.034,), centre=np.array([0.011, 0.0]), yaw=0.0, name="can")
@@ -153,3 +156,65 @@ def test_plain_python_kernels_give_the_compiled_bits(monkeypatch):
         np.testing.assert_array_equal(t2.total, t.total)
         np.testing.assert_array_equal(H2, H)
         np.testing.assert_array_equal(g2, g)
+
+
+def _normalised_numpy(log_w):
+    """The filter's numpy normalisation that :func:`pushtrack_kernel.reweigh` replaced, kept as its reference."""
+    log_w = np.where(np.isnan(log_w), -np.inf, log_w)
+    if not np.any(np.isfinite(log_w)):
+        return np.full(len(log_w), -np.log(len(log_w))), -np.inf
+    total = logsumexp(log_w)
+    return log_w - total, float(total)
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 9, 129, 512, 2048])
+def test_reweigh_is_the_numpy_normalisation_bit_for_bit(n):
+    """Weights across numpy's pairwise-summation branches, with -inf, NaN, underflowing and +-0 entries."""
+    rng = np.random.default_rng(n)
+    log_w = rng.normal(-math.log(n), 3.0, n)
+    ll = -0.5 * rng.gamma(0.5, 40.0, n)
+    ll[rng.uniform(size=n) < 0.1] = 0.0
+    ll[rng.uniform(size=n) < 0.05] = -np.inf
+    ll[rng.uniform(size=n) < 0.02] = np.nan
+    ll[rng.uniform(size=n) < 0.05] = -1e308
+    for a, b in ((log_w, ll), (log_w, np.zeros(n)), (np.full(n, -0.0), -0.0 * ll), (log_w, np.full(n, -np.inf)),
+                 (log_w, np.full(n, -1e4))):
+        out = np.empty(n)
+        total, before = pushtrack_kernel.reweigh(a, b, out, np.empty(n))
+        want, want_total = _normalised_numpy(a + b)
+        np.testing.assert_array_equal(out, want)
+        assert total == want_total or (np.isnan(total) and np.isnan(want_total))
+        assert before == float(logsumexp(a))
+        assert pushtrack_kernel.log_sum_exp(a, 2.0, np.empty(n)) == float(logsumexp(2.0 * a))
+        assert not np.any(np.isnan(out)) and np.any(np.isfinite(out))  # all inconsistent: uniform, finite
+
+
+def test_near_points_is_the_numpy_selection():
+    rng = np.random.default_rng(3)
+    poses = rng.normal(0.0, 0.2, (40, 2))
+    pts = poses[:, None, :] + rng.normal(0.0, 0.05, (40, 17, 2))
+    pts[3, 4] = [np.nan, 0.0]
+    centre = np.array([0.05, -0.02])
+    for reach, radius in ((0.25, 0.12), (0.0, 0.1), (1.0, 0.0), (np.inf, np.inf)):
+        near = np.hypot(*(poses - centre).T) <= reach
+        want = pts[near].reshape(-1, 2)
+        want = want[np.hypot(*(want - centre).T) <= radius]
+        got = pushtrack_kernel.near_points(poses, pts, centre[0], centre[1], reach, radius)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_plain_python_weights_and_free_points_give_the_compiled_bits(monkeypatch):
+    """What NUMBA_DISABLE_JIT=1 runs for the filter's weights update and the free-space cut."""
+    rng = np.random.default_rng(5)
+    log_w, ll = rng.normal(-5.0, 2.0, 300), -rng.gamma(0.5, 30.0, 300)
+    poses = rng.normal(0.0, 0.2, (30, 2))
+    pts = poses[:, None, :] + rng.normal(0.0, 0.05, (30, 9, 2))
+    out = np.empty(300)
+    got = pushtrack_kernel.reweigh(log_w, ll, out, np.empty(300))
+    near = pushtrack_kernel.near_points(poses, pts, 0.01, 0.0, 0.2, 0.1)
+    monkeypatch.setattr(pushtrack_kernel, "pairwise_sum", pushtrack_kernel.pairwise_sum.py_func)
+    monkeypatch.setattr(pushtrack_kernel, "log_sum_exp", pushtrack_kernel.log_sum_exp.py_func)
+    out2 = np.empty(300)
+    assert pushtrack_kernel.reweigh.py_func(log_w, ll, out2, np.empty(300)) == got
+    np.testing.assert_array_equal(out2, out)
+    np.testing.assert_array_equal(pushtrack_kernel.near_points.py_func(poses, pts, 0.01, 0.0, 0.2, 0.1), near)

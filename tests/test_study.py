@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from pipeline.estimators.pushtrack.params import PushTrackParams
 from pipeline.studies.accuracy_settings import accuracy_settings
 from pipeline.studies.pareto import knee, pareto_front
 from pipeline.studies.training import run_ambiguity
@@ -109,6 +110,25 @@ def test_pushtrack_motion_is_a_choice_the_default_tip_runs_once():
     assert [s.name for s in mine] == ["stucco pushtrack estimator", "stucco pushtrack motion=push",
                                       "stucco pushtrack motion=sweep"]
     assert mine[1].estimator_params == (("motion", "push"),)
+
+
+def test_pushtrack_free_stretches_and_sweep_substeps_are_knobs():
+    own = PushTrackParams()
+    other = 15 if own.sweep_substeps != 15 else 8
+    sweep = accuracy_settings((100,), (30,), (1,), (32,), (5,), paper_estimator=False, baselines=(),
+                              pushtrack=(("free_stretches", (own.free_stretches, not own.free_stretches)),
+                                         ("sweep_substeps", (own.sweep_substeps, other))))
+    mine = [s for s in sweep if s.estimator == "pushtrack"]
+    assert [s.name for s in mine] == ["stucco pushtrack estimator",
+                                      f"stucco pushtrack free_stretches={int(not own.free_stretches)}",
+                                      f"stucco pushtrack sweep_substeps={other}"]
+    assert mine[1].estimator_params == (("free_stretches", not own.free_stretches),)
+
+
+def test_bench_accuracy_rejects_an_unknown_free_stretches_value(tmp_path):
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--pushtrack-free-stretches", "maybe", "--out",
+                                   str(tmp_path)])
+    assert res.exit_code != 0 and "maybe" in res.output and "Traceback" not in res.output
 
 
 def test_bench_accuracy_rejects_an_unknown_motion(tmp_path):

@@ -30,8 +30,9 @@ from pipeline.probe.params import ProbeParams
 __all__ = ["HistoryPrior", "history_prior", "PRIOR_PUSHTRACK"]
 
 #: The filter behind the prior: the point pusher and its push noise, with which the prior was chosen and checked
-#: (docs/active.md, "What the pushes said: a prior from pushtrack"); pushtrack's own defaults moved on since.
-PRIOR_PUSHTRACK = PushTrackParams(motion="push", trans_noise=0.3, yaw_noise=3.0)
+#: (docs/active.md, "What the pushes said: a prior from pushtrack"), and the free space counted once per action
+#: that covered it, as when the active protocol's figures were measured; pushtrack's own defaults moved on since.
+PRIOR_PUSHTRACK = PushTrackParams(motion="push", trans_noise=0.3, yaw_noise=3.0, free_stretches=False)
 
 
 @dataclass(frozen=True)

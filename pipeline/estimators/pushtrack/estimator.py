@@ -35,6 +35,7 @@ from pipeline.estimators.plausible.evidence import (
 )
 from pipeline.estimators.plausible.params import PlausibleParams
 from pipeline.estimators.pushtrack.filter import SLICE_MOTIONS, Actions, FilterResult, PushTrackParams, run_filter
+from pipeline.estimators.pushtrack.kernel import near_points
 from pipeline.estimators.pushtrack.slice_pusher import cached_gripper_slice
 from pipeline.estimators.run_info import RunInfo
 from pipeline.geometry import Primitive, apply_pose, com_pose, primitive_pose, primitive_sdf, rotate, wrap_symmetric
@@ -94,22 +95,20 @@ def free_space_of(actions: Actions, lattice: np.ndarray, params: PushTrackParams
 
     def free_points(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
         rows = np.asarray(rows, dtype=np.int64)
+        # (a start's long prefix is not kept; a stretch of actions between touches is asked for by every filter)
+        key = (int(rows[0]), int(rows[-1]), len(rows)) if len(rows) and (len(rows) == 1 or rows[0] > 0) else None
         if not params.free_in_contact:  # another segment's contact may be the target's, mis-segmented
             rows = rows[actions.touch[rows] | ~np.all(np.isfinite(actions.contact[rows]), axis=1)]
         if len(rows) == 0 or len(lattice) == 0:
             return np.zeros((0, 2))
-        key = int(rows[0]) if len(rows) == 1 else None  # (a start's long prefix is not kept)
         made = trails.get(key)
         if made is None:
             poses = actions.slice_poses(rows, params.sweep_spacing)
-            made = poses, poses[:, None, :] + lattice[None, :, :]
+            made = np.ascontiguousarray(poses), np.ascontiguousarray(poses[:, None, :] + lattice[None, :, :])
             if key is not None:
                 trails[key] = made
-        near = np.hypot(*(made[0] - centre).T) <= reach
-        if not near.any():
-            return np.zeros((0, 2))
-        pts = made[1][near].reshape(-1, 2)
-        return first_per_cell(pts[np.hypot(*(pts - centre).T) <= radius], params.free_resolution)
+        pts = near_points(made[0], made[1], float(centre[0]), float(centre[1]), reach, radius)
+        return first_per_cell(pts, params.free_resolution)
 
     return free_points
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.estimators.pushtrack.kernel import free_depth_sums
+from pipeline.estimators.pushtrack.kernel import free_depth_sums, log_sum_exp, reweigh
 from pipeline.estimators.pushtrack.params import MAX_PARTICLES, MOTIONS, SELECT_RULES, SLICE_MOTIONS, PushTrackParams
 from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
 from pipeline.estimators.pushtrack.slice_pusher import GripperSlice, sweep_push, target_outline
@@ -34,8 +34,8 @@ from pipeline.track.resampling import systematic
 
 # (the parameters live in pipeline.estimators.pushtrack.params; re-exported here, where the filter's callers look)
 __all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "Actions", "FilterResult", "push",
-           "model_length", "model_push", "contact_loglik", "free_loglik", "initial_particles", "run_filter",
-           "MAX_PARTICLES"]
+           "model_length", "model_push", "contact_loglik", "particle_frames", "free_loglik", "initial_particles",
+           "run_filter", "MAX_PARTICLES"]
 
 
 @dataclass(frozen=True)
@@ -98,21 +98,28 @@ def contact_loglik(prim: Primitive, pose: np.ndarray, point: np.ndarray, params:
     return -0.5 * c2 * u2 / (c2 + u2)
 
 
-def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams) -> np.ndarray:
+def particle_frames(prim: Primitive, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The primitive's centre (N, 2), metres, and the cosines and sines (N,) of its axes' yaw at COM poses
+    (N, 3): what :func:`free_loglik` reads of the poses, made once while the particles stay put."""
+    centre = np.ascontiguousarray(prim.centre_world(pose))
+    yaw = (pose[:, 2] + prim.yaw)[:, None]  # the array rotate() takes its cosines from in _local
+    return centre, np.cos(yaw)[:, 0].copy(), np.sin(yaw)[:, 0].copy()
+
+
+def free_loglik(prim: Primitive, pose: np.ndarray, free: np.ndarray, params: PushTrackParams,
+                frames: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Log-likelihood (N,) of gripper points (F, 2) lying outside the target at COM poses (N, 3): -1/2 the sum of
     the squared depths beyond ``free_tolerance`` over ``free_sigma``, through the compiled loop
     (:func:`pipeline.estimators.pushtrack.kernel.free_depth_sums`: the same bits as the numpy form it replaced,
-    tests/test_pushtrack_kernel.py)."""
+    tests/test_pushtrack_kernel.py). ``frames``: :func:`particle_frames` of ``pose``, when already made."""
     if len(free) == 0:
         return np.zeros(len(pose))
-    centre = prim.centre_world(pose)
-    yaw = (pose[:, 2] + prim.yaw)[:, None]  # the array rotate() takes its cosines from in _local
-    cos_t, sin_t = np.cos(yaw)[:, 0].copy(), np.sin(yaw)[:, 0].copy()
+    centre, cos_t, sin_t = particle_frames(prim, pose) if frames is None else frames
     hx, hy = float(prim.half[0]), float(prim.half[1]) if len(prim.half) > 1 else 0.0
     # outside the circumscribed circle a point is outside the target: its term is exactly 0
     reach = math.hypot(hx, hy) + 1e-6
     out = np.empty(len(pose))
-    free_depth_sums(prim.kind == "cylinder", hx, hy, np.ascontiguousarray(centre), cos_t, sin_t,
+    free_depth_sums(prim.kind == "cylinder", hx, hy, centre, cos_t, sin_t,
                     np.ascontiguousarray(free, dtype=np.float64), float(params.free_tolerance),
                     float(params.free_sigma), reach, out, np.empty(len(free)))
     return -0.5 * out
@@ -214,6 +221,8 @@ def _move(prim: Primitive, pose: np.ndarray, sel: np.ndarray, contact: np.ndarra
     particles' earlier contacts ``seen[:, :j]`` (N, T, 2) move with the model's rigid displacement, in place: not
     with the noise floors; with the push noise too where ``noisy`` (N,) bool (``carry``). ``share`` (N,): the part
     of the model's displacement each particle gets (default all)."""
+    if sel.all():
+        sel = slice(None)  # every particle (a push of the target): views, not copies; the same values
     out = pose.copy()
     a = pose[sel]
     b = model_push(prim, a, params, contact, d, c, sweep)
@@ -260,12 +269,25 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     if outline is not None and actions.gripper is None:
         raise ValueError(f"PushTrackParams.motion {params.motion!r} needs the gripper's slice (Actions.gripper)")
     j = 0
-    for t in range(first, len(actions.touch)):
-        centre = np.mean(pose[:, :2], axis=0)
+    scratch = np.empty(len(pose))
+    # (the poses array, its mean position, its particle_frames): most actions push nothing and leave the particles
+    # where they were (every move makes a new array; the injection writes into the one a move has just made)
+    kept: list = [None, None, None]
+    K = len(actions.touch)
+    # the first touching action at or after each action (K after the last): a stretch of actions that push
+    # nothing ends there (free_stretches)
+    next_touch = np.searchsorted(touched, np.arange(K + 1))
+    next_touch = np.where(next_touch < len(touched), touched[np.minimum(next_touch, len(touched) - 1)], K)
+    t = first - 1
+    while t + 1 < K:
+        t = t + 1
+        if kept[0] is not pose:
+            kept = [pose, np.mean(pose[:, :2], axis=0), None]
+        centre = kept[1]
         d = actions.push[t]
         sweep = None if outline is None else (actions.gripper, outline, actions.ee_end[t])
         if actions.touch[t]:
-            if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
+            if math.exp(-log_sum_exp(log_w, 2.0, scratch)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
                 pose, seen, noisy, choice = pose[ancestors], seen[ancestors], noisy[ancestors], choice[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
@@ -303,10 +325,20 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
                     gap = np.maximum(sd, 0.0) / max(math.hypot(d[0], d[1]), 1e-12)
                     pose = _move(prim, pose, moved, actions.contact[t], d, c, params, rng, seen, j, noisy,
                                  None if sweep is not None else np.clip(1.0 - gap, 0.0, 1.0), sweep=sweep)
-            ll = free_loglik(prim, pose, free_points(np.array([t]), centre), params)
-        updated, total = _normalised(log_w + ll)
+            rows = np.array([t])
+            if params.free_stretches and not params.other_push:
+                rows = np.arange(t, next_touch[t])  # one observation: the particles stay where they are
+                t = int(rows[-1])
+            free = free_points(rows, centre)
+            if len(free) and kept[0] is pose and kept[2] is None:
+                kept[2] = particle_frames(prim, pose)
+            ll = free_loglik(prim, pose, free, params, kept[2] if kept[0] is pose else None)
+        # the weights normalised (_normalised) and the step's evidence, compiled: the same bits
         # (log_w need not sum to one here: the particles injected at a push were weighted apart)
-        evidence += total - float(logsumexp(log_w))
+        updated = np.empty(len(pose))
+        total, before = reweigh(np.ascontiguousarray(log_w, dtype=np.float64),
+                                np.ascontiguousarray(ll, dtype=np.float64), updated, scratch)
+        evidence += total - before
         if evidence < give_up_below:
             return None
         log_w = updated

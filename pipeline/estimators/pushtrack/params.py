@@ -78,6 +78,10 @@ class PushTrackParams(Params):
     free_in_contact : bool
         The sweeps of actions in contact with other segments are free space too; False (default): only the actions
         without contact and the end poses of the target's (a contact of another segment may be the target's).
+    free_stretches : bool
+        The free space of consecutive actions that do not touch the target, which leave the particles where they
+        were, is one observation: each cell of it counted once (True), as the free space before the first touch
+        is; False (default): once per action that covered it (docs/estimators.md, "The pushtrack estimator").
     ess_threshold : float
         Resample before a push when the effective sample size falls below this share of the particles (0.5).
     inject : float
@@ -164,6 +168,7 @@ class PushTrackParams(Params):
     free_resolution: float = 0.01
     sweep_spacing: float = 0.01
     free_in_contact: bool = False
+    free_stretches: bool = False
     ess_threshold: float = 0.5
     inject: float = 0.03
     other_push: float = 0.0
