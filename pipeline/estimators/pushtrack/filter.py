@@ -278,9 +278,8 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     # nothing ends there (free_stretches)
     next_touch = np.searchsorted(touched, np.arange(K + 1))
     next_touch = np.where(next_touch < len(touched), touched[np.minimum(next_touch, len(touched) - 1)], K)
-    t = first - 1
-    while t + 1 < K:
-        t = t + 1
+    t = first
+    while t < K:
         if kept[0] is not pose:
             kept = [pose, np.mean(pose[:, :2], axis=0), None]
         centre = kept[1]
@@ -342,6 +341,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         if evidence < give_up_below:
             return None
         log_w = updated
+        t += 1
     pose[:, 2] = wrap_angle(pose[:, 2])
     local = rotate(seen - pose[:, None, :2], pose[:, 2, None], inverse=True)
     return FilterResult(poses=pose, log_w=log_w, local=local, choice=choice, pushed=pushed, n_pushes=len(touched),
