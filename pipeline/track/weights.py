@@ -35,9 +35,9 @@ def _max(a):
 
 
 @njit(cache=True)
-def _logsumexp(a):
+def logsumexp(a):
     """:func:`pipeline.portable.logsumexp` of a float64 vector (N,), as :func:`pipeline.track.resampling.normalise`
-    computes it."""
+    computes it (the pushtrack filter's weights use it too)."""
     top = _max(a)
     if not np.isfinite(top):
         return top
@@ -50,7 +50,7 @@ def _logsumexp(a):
 @njit(cache=True)
 def _normalise(a):
     """:func:`pipeline.track.resampling.normalise`: log-weights (N,) that sum to one in linear space."""
-    total = _logsumexp(a)
+    total = logsumexp(a)
     if not np.isfinite(total):
         raise ValueError("cannot normalise log-weights: no particle has a finite weight")
     return a - total
@@ -119,7 +119,7 @@ def reweight(log_weights, eps, may_skip, reference, penetration_length, floor, l
     # Normalised once more, as resampling.effective_sample_size does with its input: the weights' bits, not their
     # meaning, can change on the second pass, and the ESS must keep numpy's bits.
     lw = _normalise(log_w)
-    ess = math.exp(-_logsumexp(2.0 * lw)) / n
+    ess = math.exp(-logsumexp(2.0 * lw)) / n
     # Round-off puts a perfectly even set of weights a hair above or below 1: "all particles equal" reads 1.
     ess = 1.0 if abs(ess - 1.0) < 1e-12 else min(ess, 1.0)
     return False, log_w, ess, _argmax(log_w)

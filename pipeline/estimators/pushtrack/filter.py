@@ -24,13 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.estimators.pushtrack.kernel import free_depth_sums, log_sum_exp, reweigh
+from pipeline.estimators.pushtrack.kernel import free_depth_sums, reweigh
 from pipeline.estimators.pushtrack.params import MAX_PARTICLES, MOTIONS, SELECT_RULES, SLICE_MOTIONS, PushTrackParams
 from pipeline.estimators.pushtrack.quasistatic import limit_surface_length, push_step
 from pipeline.estimators.pushtrack.slice_pusher import GripperSlice, sweep_push, target_outline
 from pipeline.geometry import Primitive, outline_point, primitive_sdf, rotate, wrap_angle
-from pipeline.portable import atan2, logsumexp
+from pipeline.portable import atan2
 from pipeline.track.resampling import systematic
+from pipeline.track.weights import logsumexp
 
 # (the parameters live in pipeline.estimators.pushtrack.params; re-exported here, where the filter's callers look)
 __all__ = ["PushTrackParams", "MOTIONS", "SLICE_MOTIONS", "SELECT_RULES", "Actions", "FilterResult", "push",
@@ -184,16 +185,6 @@ class FilterResult:
     log_evidence: float = 0.0
 
 
-def _normalised(log_w: np.ndarray) -> tuple[np.ndarray, float]:
-    """Log-weights that sum to one (uniform when none is finite: every particle inconsistent), and the log of the
-    weights' total before normalising (-inf then): the filter's evidence needs it."""
-    log_w = np.where(np.isnan(log_w), -np.inf, log_w)
-    if not np.any(np.isfinite(log_w)):
-        return np.full(len(log_w), -math.log(len(log_w))), -math.inf
-    total = logsumexp(log_w)
-    return log_w - total, float(total)
-
-
 def model_length(prim: Primitive, params: PushTrackParams) -> float:
     """The limit surface's characteristic length (m) of the pushing model ``params.motion``."""
     scale = params.sweep_limit_scale if params.motion in SLICE_MOTIONS else params.limit_scale
@@ -254,8 +245,11 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     first = int(touched[0])
     start = actions.contact[first] - actions.push[first]
     pose = initial_particles(prim, start, actions.push[first], params.n_particles, rng)
-    log_w, total = _normalised(free_loglik(prim, pose, free_points(np.arange(first), start), params))
-    evidence = total - math.log(len(pose))
+    # uniform weights times the free space before the first touch (log N: the weights' total before)
+    log_w = np.empty(len(pose))
+    total, before = reweigh(np.zeros(len(pose)), free_loglik(prim, pose, free_points(np.arange(first), start), params),
+                            log_w)
+    evidence = total - before
     if evidence < give_up_below:
         return None
     resampled = 0
@@ -269,7 +263,6 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
     if outline is not None and actions.gripper is None:
         raise ValueError(f"PushTrackParams.motion {params.motion!r} needs the gripper's slice (Actions.gripper)")
     j = 0
-    scratch = np.empty(len(pose))
     # (the poses array, its mean position, its particle_frames): most actions push nothing and leave the particles
     # where they were (every move makes a new array; the injection writes into the one a move has just made)
     kept: list = [None, None, None]
@@ -286,7 +279,7 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
         d = actions.push[t]
         sweep = None if outline is None else (actions.gripper, outline, actions.ee_end[t])
         if actions.touch[t]:
-            if math.exp(-log_sum_exp(log_w, 2.0, scratch)) < params.ess_threshold * len(pose):
+            if math.exp(-logsumexp(2.0 * log_w)) < params.ess_threshold * len(pose):
                 ancestors = systematic(log_w, rng)
                 pose, seen, noisy, choice = pose[ancestors], seen[ancestors], noisy[ancestors], choice[ancestors]
                 log_w = np.full(len(pose), -math.log(len(pose)))
@@ -332,11 +325,10 @@ def run_filter(prim: Primitive, actions: Actions, free_points, params: PushTrack
             if len(free) and kept[0] is pose and kept[2] is None:
                 kept[2] = particle_frames(prim, pose)
             ll = free_loglik(prim, pose, free, params, kept[2] if kept[0] is pose else None)
-        # the weights normalised (_normalised) and the step's evidence, compiled: the same bits
         # (log_w need not sum to one here: the particles injected at a push were weighted apart)
         updated = np.empty(len(pose))
         total, before = reweigh(np.ascontiguousarray(log_w, dtype=np.float64),
-                                np.ascontiguousarray(ll, dtype=np.float64), updated, scratch)
+                                np.ascontiguousarray(ll, dtype=np.float64), updated)
         evidence += total - before
         if evidence < give_up_below:
             return None

@@ -21,8 +21,9 @@ from numba import njit
 
 from pipeline.estimators.plausible.kernel import local_sdf
 from pipeline.pairwise_sum import pairwise_sum
+from pipeline.track.weights import logsumexp
 
-__all__ = ["free_depth_sums", "log_sum_exp", "reweigh", "near_points", "warm_up"]
+__all__ = ["free_depth_sums", "reweigh", "near_points", "warm_up"]
 
 
 @njit(cache=True)
@@ -73,39 +74,11 @@ def free_depth_sums(cylinder, hx, hy, centre, cos_t, sin_t, pts, tol, sigma, rea
 
 
 @njit(cache=True)
-def log_sum_exp(a, scale, scratch):
-    """:func:`pipeline.portable.logsumexp` of ``scale * a`` (a (N,) float64, N >= 1), the same bits: the max
-    shift (0 when it is not finite), the exponentials summed in numpy's pairwise order into ``scratch`` (N,),
-    the C library's exp and log (as :mod:`pipeline.portable`)."""
-    n = a.shape[0]
-    top = scale * a[0]
-    nan = math.isnan(top)
-    for i in range(1, n):
-        v = scale * a[i]
-        if math.isnan(v):
-            nan = True
-        elif v > top:
-            top = v
-    if nan:
-        top = math.nan  # np.max propagates a NaN
-    if not math.isfinite(top):
-        top = 0.0
-    for i in range(n):
-        scratch[i] = math.exp(scale * a[i] - top)
-    s = pairwise_sum(scratch, 0, n)
-    if s < 0.0:
-        return math.nan
-    if s == 0.0:
-        return -math.inf + top
-    return math.log(s) + top
-
-
-@njit(cache=True)
-def reweigh(log_w, ll, out, scratch):
+def reweigh(log_w, ll, out):
     """One update of the filter's log-weights, into ``out`` (N,): log_w + ll normalised (NaN read as -inf;
     uniform when none is finite), as :func:`pipeline.estimators.pushtrack.filter.run_filter` wrote it in numpy,
-    bit for bit. Returns (the log of the updated weights' total before normalising, -inf when none is finite;
-    the log of ``log_w``'s total): their difference is the step's evidence."""
+    bit for bit (:func:`pipeline.track.weights.logsumexp`). Returns (the log of the updated weights' total before
+    normalising, -inf when none is finite; the log of ``log_w``'s total): their difference is the step's evidence."""
     n = log_w.shape[0]
     finite = False
     for i in range(n):
@@ -115,13 +88,13 @@ def reweigh(log_w, ll, out, scratch):
         out[i] = v
         if math.isfinite(v):
             finite = True
-    prev = log_sum_exp(log_w, 1.0, scratch)
+    prev = logsumexp(log_w)
     if not finite:
         u = -math.log(n)
         for i in range(n):
             out[i] = u
         return -math.inf, prev
-    total = log_sum_exp(out, 1.0, scratch)
+    total = logsumexp(out)
     for i in range(n):
         out[i] = out[i] - total
     return total, prev
@@ -154,6 +127,5 @@ def warm_up() -> None:
     for cylinder in (False, True):
         free_depth_sums(cylinder, 0.1, 0.1, np.zeros((1, 2)), one, np.zeros(1), np.zeros((1, 2)), 0.004, 0.003,
                         0.2, np.empty(1), np.empty(1))
-    reweigh(np.zeros(2), np.zeros(2), np.empty(2), np.empty(2))
-    log_sum_exp(np.zeros(2), 2.0, np.empty(2))
+    reweigh(np.zeros(2), np.zeros(2), np.empty(2))
     near_points(np.zeros((1, 2)), np.zeros((1, 1, 2)), 0.0, 0.0, 1.0, 1.0)
