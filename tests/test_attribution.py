@@ -29,6 +29,7 @@ class _Sensing:
         self.probe_forces = [np.full(2, np.nan)]
         self.probe_force_n = [np.nan]
         self.light_n = 0.0
+        self.probe_pinned = [False]
 
 
 @pytest.fixture
@@ -118,6 +119,7 @@ class _Contacts:
         self.probe_forces = [np.full(2, np.nan) for _ in points]
         self.probe_force_n = [np.nan for _ in points]
         self.light_n = 0.0
+        self.probe_pinned = [False for _ in points]
 
 
 def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(fits):
@@ -138,3 +140,13 @@ def test_no_contact_is_tried_again_by_a_fit_when_a_new_contact_needed_one(fits):
                            ProbeParams(reattribute="fit", clutter_cost=2.0))
     assert log.target_steps == [42] and log.other_steps == [40]
     assert sorted(fits["calls"]) == [(), (42,)]
+
+
+def test_a_pinned_contact_is_another_objects_even_where_every_hypothesis_puts_the_target(fits):
+    # a carried object pressed against something heavy (ProbeParams.push_through): its contact is not the target's
+    # surface, and it refutes nothing
+    sensing = _Sensing(ON_LONG_FACE)
+    sensing.probe_pinned, sensing.probe_force_n, sensing.light_n = [True], [12.0], 5.0
+    log = ProbeLog()
+    attribution_mod.current_set(CHOICE, BOX, sensing, 0, "FB/100", log, _previous(UPRIGHT), ProbeParams())
+    assert log.target_steps == [] and log.other_steps == [40] and log.refuted == 0

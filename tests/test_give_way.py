@@ -32,6 +32,7 @@ class _Sensing:
     probe_steps = [10, 20, 30]
     probe_forces = [np.full(2, np.nan)] * 3  # no wrench measured: attributed by position alone
     probe_force_n = [np.nan] * 3
+    probe_pinned = [False] * 3
     light_n = 0.0
 
 

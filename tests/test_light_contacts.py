@@ -30,6 +30,7 @@ class _Sensing:
         self.probe_points = [np.asarray(p, dtype=np.float64) for p, _ in contacts.values()]
         self.probe_forces = [np.full(2, np.nan) for _ in contacts]
         self.probe_force_n = [float(f) for _, f in contacts.values()]
+        self.probe_pinned = [False] * len(contacts)
         self.light_n = light_n
 
 
@@ -118,7 +119,7 @@ def test_the_contacts_of_one_action_refute_once():
     sensing.probe_steps = [40, 40, 41]
     sensing.probe_points = [ON_LONG_FACE, ON_LONG_FACE + [0.0, 0.01], ON_LONG_FACE]
     sensing.probe_forces = [np.full(2, np.nan)] * 3
-    sensing.probe_force_n = [1.0, 1.0, 1.0]
+    sensing.probe_force_n, sensing.probe_pinned = [1.0, 1.0, 1.0], [False] * 3
     attribution_mod.current_set(CHOICE, BOX, sensing, 0, "REAL/0", log, _upright(), ProbeParams())
     assert log.other_steps == [40, 40, 41] and log.refuted == 2
     log = ProbeLog()

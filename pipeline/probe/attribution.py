@@ -29,8 +29,8 @@ from pipeline.probe.belief import (
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement
 
-__all__ = ["light_limit", "is_light", "heavy_choices", "no_target", "misfit", "current_set", "set_from_steps",
-           "prior_for", "mine_now", "probe_points_at", "set_share", "bunched", "give_way_at_budget",
+__all__ = ["light_limit", "set_limits", "is_light", "heavy_choices", "no_target", "misfit", "current_set",
+           "set_from_steps", "prior_for", "mine_now", "probe_points_at", "set_share", "bunched", "give_way_at_budget",
            "required_contacts"]
 
 
@@ -42,6 +42,15 @@ def light_limit(params: ProbeParams, mass: float,
     light)."""
     heavy = heavy_target_kg is not None and bool(mass >= heavy_target_kg)
     return float(params.light_scripted_n if scripted else params.light_contact_n) if heavy else 0.0
+
+
+def set_limits(sensing: Sensing, params: ProbeParams, mass: float) -> None:
+    """Tell ``sensing`` what the probes' contacts mean before it observes them: the light limit
+    (:func:`light_limit` for a target of known ``mass``, kg) and, with ``params.push_through``, that a probe's
+    light contacts after its first are a carried object's and the contact that stops the push may be that object
+    pinned (``params.pinned_within``)."""
+    sensing.light_n = light_limit(params, mass)
+    sensing.pushes.on, sensing.pushes.within = params.push_through > 0, float(params.pinned_within)
 
 
 def is_light(sensing: Sensing, force_n: float) -> bool:
@@ -124,10 +133,13 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
 
     earlier = list(log.other_steps)
     refuting: set[int] = set()  # actions that refuted the set: the contacts of one action (two pads) count once
-    for q, step, f, fn in zip(sensing.probe_points[done:], sensing.probe_steps[done:], sensing.probe_forces[done:],
-                              sensing.probe_force_n[done:]):
+    for q, step, f, fn, pinned in zip(sensing.probe_points[done:], sensing.probe_steps[done:],
+                                      sensing.probe_forces[done:], sensing.probe_force_n[done:],
+                                      sensing.probe_pinned[done:]):
         mine = True
-        if previous is not None and previous.segment >= 0:
+        if pinned:
+            mine = False  # a carried object pressed against something heavy: not the target's surface
+        elif previous is not None and previous.segment >= 0:
             hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
                              params.attribute_corner)
             mine = bool(hit.any())
@@ -154,11 +166,15 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
     estimate's surface among the others is tried by the cost rule of :func:`current_set` (``costs_little``; with
     ``explained`` only if some hypothesis explains it), if ``spare`` (no fit beyond the set's own was made for
     this decision's contacts): one fit more per decision at most, for a decision must stay under half a second."""
-    at = {int(st): (q, f, fn) for q, st, f, fn in zip(sensing.probe_points, sensing.probe_steps,
-                                                       sensing.probe_forces, sensing.probe_force_n)}
+    at = {int(st): (q, f, fn) for q, st, f, fn, pinned in zip(sensing.probe_points, sensing.probe_steps,
+                                                               sensing.probe_forces, sensing.probe_force_n,
+                                                               sensing.probe_pinned) if not pinned}
     best = previous.poses[previous.best]
-    ranked = sorted(earlier, key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
+    ranked = sorted((st for st in earlier if st in at),
+                    key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
     for step in ranked:
+        if step not in at:
+            continue  # a pinned carried object's
         q, f, fn = at[step]
         if is_light(sensing, fn):
             continue

@@ -39,6 +39,7 @@ from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
 from pipeline.portable import exp
+from pipeline.probe.carry import Pushes
 from pipeline.robot import load_robot
 from pipeline.scenes import declared_region
 from pipeline.schema import step_bounds
@@ -92,8 +93,7 @@ class Sensing:
         params = {} if scene is None else scene.hardware.method_params(method)
         config = TrackConfig(method=method, robot=robot, params=params)
         warm_up(config, self.sdf)
-        self.method = method
-        self.n_scripted = int(n_scripted)
+        self.method, self.n_scripted = method, int(n_scripted)
         self.tracker = make_tracker(config, self.sdf, run_rng(root_seed, run))
         self.surface = isolation_surface(self.sdf, IsolationParams(robot=robot))
         self.ee = [np.asarray(start, dtype=np.float64)[:2].copy()]
@@ -105,6 +105,8 @@ class Sensing:
         self.probe_forces: list[np.ndarray] = []  # the contact force (N) on the gripper, NaN without a wrench
         self.probe_force_n: list[float] = []  # the force (N) each probe contact's action met, NaN without
         self.light_n = 0.0  # probe contacts under this force (N) are the clutter's (attribution.light_limit)
+        self.pushes = Pushes()  # probes pushing light clutter aside (ProbeParams.push_through)
+        self.probe_pinned: list[bool] = []  # per probe contact: a carried object's, pinned (pipeline.probe.carry)
         self.prior: Any = None
 
     def observe(self, table: pa.Table) -> None:
@@ -114,6 +116,7 @@ class Sensing:
         first, self.forces = len(self.forces), self.forces + contact_forces(table, self.detection).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
+        cmd = np.column_stack([table.column(c).to_numpy(zero_copy_only=False) for c in ("cmd_dx_m", "cmd_dy_m")])
         step = np.asarray(cols["step"], dtype=np.int64)
         for a, (i, j) in enumerate(zip(*step_bounds(step))):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])
@@ -121,15 +124,19 @@ class Sensing:
             self.ee.append(x)
             self.steps.append(int(step[i]))
             inc = bool(cols["in_contact"][i])
-            # Only a probe's contact leaves its object where it was, against that position; the scripted part's
-            # pushes moved theirs on, and its positions are the transit's only links.
-            self.touching.append(inc and not scripted)
+            p = np.array([cols["contact_x_m"][i:j], cols["contact_y_m"][i:j]], dtype=np.float64).T  # (K, 2)
+            carried, pinned = self.pushes.judge(inc and not scripted, self.forces[first + a] < self.light_n,
+                                                cmd[a], p - x)
+            # Only a probe's contact leaves its object where it was: the scripted part's pushes and a carry moved
+            # theirs on (the scripted positions are the transit's only links).
+            self.touching.append(inc and not scripted and not carried)
             self.blocked.append(False)
+            if carried:
+                continue
             if not inc:
                 if scripted:
                     self.tracker.update(x, None, None)
                 continue
-            p = np.array([cols["contact_x_m"][i:j], cols["contact_y_m"][i:j]], dtype=np.float64).T  # (K, 2)
             if scripted:
                 self.tracker.update(x, np.array([cols["dx_m"][i:j], cols["dy_m"][i:j]], dtype=np.float64).T, p)
                 self.point_steps += [int(step[i])] * (j - i)
@@ -138,6 +145,7 @@ class Sensing:
             self.probe_steps += [int(step[i])] * (j - i)
             self.probe_forces += [force[a].copy() for _ in range(j - i)]
             self.probe_force_n += [float(self.forces[first + a])] * (j - i)
+            self.probe_pinned += [pinned] * (j - i)
 
     @property
     def visited(self) -> np.ndarray:

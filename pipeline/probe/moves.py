@@ -20,12 +20,15 @@ __all__ = ["Act", "retrace", "guarded_move", "transit_limits", "reaching", "retu
 Act = Callable[[float, float], dict]
 
 
-def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: float
-            ) -> tuple[np.ndarray, int, bool]:
+def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: float,
+            light: Callable[[dict], bool] | None = None, push_through: float = 0.0) -> tuple[np.ndarray, int, bool]:
     """Move through the waypoints ``path`` (P, 2) in actions no longer than ``step`` per axis; at the first action
-    detected in contact, back off by ``backoff`` and stop. Returns (position, actions, contact)."""
+    detected in contact, back off by ``backoff`` and stop. With ``light`` (an action's row -> whether its contact
+    met less than the light limit), a light contact does not stop the move for the first ``push_through`` metres
+    moved in contact: a light object that came to lie across visited space is pushed on, as the guarded move
+    does (:func:`guarded_move`). Returns (position, actions, contact)."""
     pts = np.vstack([here[None, :], np.asarray(path, dtype=np.float64).reshape(-1, 2)])
-    n = 0
+    n, pushed = 0, 0.0
     for a, b in zip(pts[:-1], pts[1:]):
         d = b - a
         k = int(np.ceil(np.max(np.abs(d)) / step - 1e-9))
@@ -33,6 +36,9 @@ def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: 
             row = act(float(d[0] / k), float(d[1] / k))
             n += 1
             here = np.array([row["ee_x_m"], row["ee_y_m"]])
+            if row["in_contact"] and light is not None and pushed < push_through and light(row):
+                pushed += math.hypot(*d) / k
+                continue
             if row["in_contact"]:
                 u = -d / math.hypot(*d) * backoff
                 row = act(float(u[0]), float(u[1]))
@@ -40,31 +46,37 @@ def retrace(act: Act, here: np.ndarray, path: np.ndarray, step: float, backoff: 
     return here, n, False
 
 
-def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: np.ndarray, params
-                 ) -> tuple[np.ndarray, int, bool, float]:
+def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: np.ndarray, params,
+                 light: Callable[[dict], bool] | None = None) -> tuple[np.ndarray, int, bool, float]:
     """Advance along ``direction`` until contact, then back off. Returns (position, actions, contact, travel to the
     contact in metres (inf without one)).
 
     ``params`` is a :class:`pipeline.probe.policy.ProbeParams`. ``predicted`` (H,): each hypothesis's travel to
     contact (inf: none); the move is fast until ``slow_zone`` before the earliest and gives up ``overshoot`` past
-    the latest finite one (or at ``plan.max_travel``).
+    the latest finite one (or at ``plan.max_travel``). With ``params.push_through`` and ``light`` (an action's row
+    -> whether its contact met less than the light limit), a light contact does not stop the move: it goes on in
+    fine steps, pushing what it met (or past it, once it slid aside), for at most ``push_through`` metres from
+    the first contact, and stops at the first contact that is not light (travel: to the first contact).
     """
     fin = predicted[np.isfinite(predicted)]
     slow = max(0.0, float(fin.min()) - params.slow_zone) if len(fin) else 0.0
     limit = min(params.plan.max_travel, float(fin.max()) + params.overshoot) if len(fin) else params.plan.max_travel
     t, n = 0.0, 0
     d = np.asarray(direction, dtype=np.float64)
-    contact = False
+    contact, first, carry = False, math.inf, params.push_through if light is not None else 0.0
     while t < limit:
-        step = params.coarse_step if t + params.coarse_step <= slow else params.fine_step
+        step = params.coarse_step if t + params.coarse_step <= slow and first == math.inf else params.fine_step
         row = act(float(d[0] * step), float(d[1] * step))
         n += 1
         t += step
         here = np.array([row["ee_x_m"], row["ee_y_m"]])
         if row["in_contact"]:
+            first = min(first, t)
+            if t - first < carry and light(row):
+                continue  # a light object: push it aside
             contact = True
             break
-    travel = t if contact else np.inf
+    travel = first if contact else np.inf
     if contact:
         row = act(float(-d[0] * params.backoff), float(-d[1] * params.backoff))
         n += 1

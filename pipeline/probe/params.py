@@ -59,6 +59,17 @@ class ProbeParams(Params):
     light_refutations : int
         After this many probe actions with such a light contact that the set explained (it put the target there),
         the segment is not the target's: the next-ranked one is taken (2; 0: never).
+    push_through : float, metres
+        How far a probe's guarded move goes on pushing what it met while the contact stays light
+        (``light_contact_n``): the clutter round a hidden target moves at a few newtons, and a probe that stops at
+        the first can spends itself on the clutter. The push's first contact is a probe contact (light, so
+        another object's); the contacts of the object carried after it are not (it moves on); the contact that
+        stops the push is one, and is another object's when it lies where the carried object touched the hand
+        (``pinned_within``): the carried object pinned against something heavy (0: off, every probe stops at its
+        first contact; docs/active.md, "Pushing light clutter aside").
+    pinned_within : float, metres
+        A contact that stops a push is the carried object's when it lies within this distance of the carried
+        object's last contact, in the gripper's frame (0.015).
     light_scripted_n : float, N
         The same rule on the scripted part: its tracked points whose action met less than this are the clutter's,
         left out of the segments the target is chosen from and fitted to, kept as obstacles
@@ -119,6 +130,8 @@ class ProbeParams(Params):
     light_contact_n: float = 5.0
     light_refutations: int = 2
     light_scripted_n: float = 5.0
+    push_through: float = 0.0
+    pinned_within: float = 0.015
     prior_clear_of_others: bool = True
     clutter_cost: float = 0.3
     reattribute: str = "fit"
@@ -139,7 +152,7 @@ class ProbeParams(Params):
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
         "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
         "clutter_cost": number(0), "light_contact_n": number(0), "light_scripted_n": number(0),
-        "light_refutations": integer(0),
+        "light_refutations": integer(0), "push_through": number(0, 1), "pinned_within": number(0),
         "prior_clear_of_others": rule("true or false", lambda v: isinstance(v, bool)),
         "reattribute": rule("off, explained or fit", lambda v: v in ("off", "explained", "fit")),
         "min_target_contacts": integer(0),

@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 import pyarrow as pa
 
+from pipeline.detection import window_force
 from pipeline.estimators.segment_choice import target_mass
 from pipeline.geometry import Primitive, primitive_of
 from pipeline.probe.attribution import (
@@ -27,13 +28,13 @@ from pipeline.probe.attribution import (
     current_set,
     give_way_at_budget,
     heavy_choices,
-    light_limit,
     mine_now,
     misfit,
     no_target,
     prior_for,
     required_contacts,
     set_from_steps,
+    set_limits,
     set_share,
 )
 from pipeline.probe.belief import PoseSet, Sensing
@@ -95,7 +96,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     """
     rows = table()
     sensing = Sensing(run, root_seed, start, rows.num_rows, method=params.method, scene=scene)
-    sensing.light_n = light_limit(params, mass)
+    set_limits(sensing, params, mass)
     sensing.observe(rows)
     seen = rows.num_rows
     log = ProbeLog()
@@ -113,6 +114,10 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     none = no_target(segments, params.prior_clear_of_others)
     choice = choices[0] if choices else none
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
+
+    def light(row: dict) -> bool:  # what the recorded row will say of the action's force (Sensing.observe)
+        return bool(window_force(row["win_wrench"], sensing.detection) < sensing.light_n)
+
     need = required_contacts(target, params)
     belief = None
     limit, gave_way = params.budget, False  # the limit is raised once, when the segment gives way
@@ -180,14 +185,15 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
                     grasp_path=None if grasp_path is None else grasp_path(belief))
             return log
         here = sensing.visited[-1]
-        here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff)
+        here, n, contact = retrace(act, here, plan.path, params.transit_step, params.backoff, light,
+                                   params.push_through)
         log.actions += n
         if contact:
             # An object (often the target, pushed where the gripper once passed) lies across the retraced path:
             # the positions there are not free any more, or every later transit would stop at the same point.
             sensing.block_near(here, BLOCK_RADIUS)
         else:  # a contact during the transit is this probe's outcome (the policy goes on)
-            here, n, contact, _ = guarded_move(act, here, plan.direction, plan.predicted, params)
+            here, n, contact, _ = guarded_move(act, here, plan.direction, plan.predicted, params, light)
             log.actions += n
         log.probes += 1
         log.contacts.append(bool(contact))

@@ -27,9 +27,9 @@ from pipeline.probe.attribution import (
     current_set,
     give_way_at_budget,
     heavy_choices,
-    light_limit,
     no_target,
     set_from_steps,
+    set_limits,
     set_share,
 )
 from pipeline.probe.belief import PoseSet, Sensing, TargetChoice
@@ -142,7 +142,7 @@ def active_state(info: RunInfo, root_seed: int, method: str = "stucco", decision
         {"rows": table.num_rows, "segment": meta.get("segment"), "target_steps": meta.get("target_steps", [])}
     params = _recorded_params(meta.get("params") or {})
     sensing = Sensing(info.run, root_seed, info.ee[0], n_scripted, method=method, scene=info.scene)
-    sensing.light_n = light_limit(params, target_mass(info.scene))
+    set_limits(sensing, params, target_mass(info.scene))
     sensing.observe(table.slice(0, int(state["rows"])))
     segments = sensing.segments()  # the scripted part's: the tracker is never fed the probes
     sensing.prior = recorded_prior(info, table.slice(0, n_scripted), segments, sensing.sdf, root_seed, method,
