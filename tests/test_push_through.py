@@ -134,3 +134,10 @@ def test_a_transit_pushes_a_light_object_on_and_stops_at_a_heavy_one():
     arm = ClutterArm(light_from=0.05, slips_at=0.12, wall=5.0)
     here, n, contact = retrace(arm, np.zeros(2), path, 0.03, 0.015, _light, 0.3)
     assert not contact and here[0] == pytest.approx(0.3)  # the object slid aside: the transit reached its end
+
+
+def test_a_push_still_under_way_at_the_moves_limit_is_a_contact_and_backs_off():
+    arm = ClutterArm(light_from=0.1, wall=5.0)
+    (here, n, contact, travel), p = _move(arm, 0.15, predicted=(0.15,))  # gives up 4 cm past 0.15 m
+    assert contact and 0.1 <= travel <= 0.1 + p.coarse_step
+    assert arm.moves[-1][0] == pytest.approx(-p.backoff) and arm.pos[0] + p.backoff <= 0.19 + p.fine_step + 1e-9

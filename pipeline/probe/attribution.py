@@ -170,11 +170,9 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
                                                                sensing.probe_forces, sensing.probe_force_n,
                                                                sensing.probe_pinned) if not pinned}
     best = previous.poses[previous.best]
-    ranked = sorted((st for st in earlier if st in at),
+    ranked = sorted((st for st in earlier if st in at),  # a pinned carried object's contact is never tried again
                     key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
     for step in ranked:
-        if step not in at:
-            continue  # a pinned carried object's
         q, f, fn = at[step]
         if is_light(sensing, fn):
             continue

@@ -76,6 +76,8 @@ def guarded_move(act: Act, here: np.ndarray, direction: np.ndarray, predicted: n
                 continue  # a light object: push it aside
             contact = True
             break
+    else:  # past the limit while pushing a light object on: it is still a contact to back off from
+        contact = first < math.inf and bool(row["in_contact"])
     travel = first if contact else np.inf
     if contact:
         row = act(float(-d[0] * params.backoff), float(-d[1] * params.backoff))
