@@ -60,13 +60,13 @@ class ProbeParams(Params):
         After this many probe actions with such a light contact that the set explained (it put the target there),
         the segment is not the target's: the next-ranked one is taken (2; 0: never).
     push_through : float, metres
-        How far a probe's guarded move goes on pushing what it met while the contact stays light
-        (``light_contact_n``): the clutter round a hidden target moves at a few newtons, and a probe that stops at
-        the first can spends itself on the clutter. The push's first contact is a probe contact (light, so
-        another object's); the contacts of the object carried after it are not (it moves on); the contact that
-        stops the push is one, and is another object's when it lies where the carried object touched the hand
-        (``pinned_within``): the carried object pinned against something heavy (0: off, every probe stops at its
-        first contact; docs/active.md, "Pushing light clutter aside").
+        How far a probe's guarded move, and its transit to the probe's start, go on pushing what they met while
+        the contact stays light (``light_contact_n``): the clutter round a hidden target moves at a few newtons,
+        and a probe that stops at the first can spends itself on the clutter. The push's first contact is a probe
+        contact (light, so another object's); the contacts of the object carried after it are not (it moves on);
+        the contact that stops the push is one, and is another object's when it lies where the carried object
+        touched the hand (``pinned_within``): the carried object pinned against something heavy (0: off, every
+        probe stops at its first contact; docs/active.md, "Pushing light clutter aside").
     pinned_within : float, metres
         A contact that stops a push is the carried object's when it lies within this distance of the carried
         object's last contact, in the gripper's frame (0.015).
