@@ -39,7 +39,7 @@ from pipeline.geometry import Primitive, primitive_pose, primitive_sdf, rotate
 from pipeline.isolate import IsolationParams, contact_forces, isolate_run, isolation_surface
 from pipeline.labels import canonical_labels
 from pipeline.portable import exp
-from pipeline.probe.carry import Pushes
+from pipeline.probe.carry import Pushes, commands
 from pipeline.robot import load_robot
 from pipeline.scenes import declared_region
 from pipeline.schema import step_bounds
@@ -116,7 +116,7 @@ class Sensing:
         first, self.forces = len(self.forces), self.forces + contact_forces(table, self.detection).tolist()
         force = np.column_stack([table.column("force_rep_x_n").to_numpy(zero_copy_only=False),
                                  table.column("force_rep_y_n").to_numpy(zero_copy_only=False)]).astype(np.float64)
-        cmd = np.column_stack([table.column(c).to_numpy(zero_copy_only=False) for c in ("cmd_dx_m", "cmd_dy_m")])
+        cmd = commands(table)
         step = np.asarray(cols["step"], dtype=np.int64)
         for a, (i, j) in enumerate(zip(*step_bounds(step))):
             x = np.array([cols["ee_x_m"][i], cols["ee_y_m"][i]])

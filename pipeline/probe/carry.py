@@ -9,8 +9,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import pyarrow as pa
 
-__all__ = ["Carried", "CarryVerdict", "carry_verdict", "Pushes"]
+__all__ = ["Carried", "CarryVerdict", "carry_verdict", "Pushes", "commands"]
 
 #: Two actions push the same way when their directions' cosine exceeds this.
 SAME_WAY = 0.999
@@ -78,3 +79,9 @@ class Pushes:
         verdict = carry_verdict(last, light, command, offsets, self.within)
         self.last = verdict.last
         return verdict.carried, verdict.pinned
+
+
+def commands(table: pa.Table) -> np.ndarray:
+    """The commanded move (A, 2), metres, of every action of a ``sim_run`` table."""
+    return np.column_stack([table.column("cmd_dx_m").to_numpy(zero_copy_only=False),
+                            table.column("cmd_dy_m").to_numpy(zero_copy_only=False)]).astype(np.float64)
