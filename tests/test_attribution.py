@@ -11,7 +11,7 @@ import pytest
 
 from pipeline.geometry import Primitive
 from pipeline.probe import attribution as attribution_mod
-from pipeline.probe.belief import PoseSet, TargetChoice, explaining
+from pipeline.probe.belief import PoseSet, Sensing, TargetChoice, explaining
 from pipeline.probe.params import ProbeLog, ProbeParams
 
 BOX = Primitive(kind="box", half=(0.03, 0.08), centre=np.zeros(2), yaw=0.0)
@@ -30,6 +30,8 @@ class _Sensing:
         self.probe_force_n = [np.nan]
         self.light_n = 0.0
         self.probe_pinned = [False]
+
+    is_light = Sensing.is_light  # the real rule on this fake's light_n
 
 
 @pytest.fixture
@@ -120,6 +122,8 @@ class _Contacts:
         self.probe_force_n = [np.nan for _ in points]
         self.light_n = 0.0
         self.probe_pinned = [False for _ in points]
+
+    is_light = Sensing.is_light  # the real rule on this fake's light_n
 
 
 def test_a_decision_tries_again_at_most_one_contact_by_a_fit_the_nearest_first(fits):

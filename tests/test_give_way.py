@@ -13,7 +13,7 @@ from pipeline.estimators.target_model import target_primitive
 from pipeline.geometry import Primitive
 from pipeline.probe import attribution as attribution_mod
 from pipeline.probe import policy as policy_mod
-from pipeline.probe.belief import NO_TARGET, PoseSet, TargetChoice
+from pipeline.probe.belief import NO_TARGET, PoseSet, Sensing, TargetChoice
 from pipeline.probe.policy import ProbeParams, bunched, give_way_at_budget
 from pipeline.scenes import load_scene
 
@@ -34,6 +34,7 @@ class _Sensing:
     probe_force_n = [np.nan] * 3
     probe_pinned = [False] * 3
     light_n = 0.0
+    is_light = Sensing.is_light  # the real rule on this fake's light_n
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ import pytest
 from pipeline.geometry import Primitive
 from pipeline.probe import attribution as attribution_mod
 from pipeline.probe.attribution import is_light, light_limit
-from pipeline.probe.belief import PoseSet, TargetChoice
+from pipeline.probe.belief import PoseSet, Sensing, TargetChoice
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.retrieval import _recorded_params
 
@@ -32,6 +32,8 @@ class _Sensing:
         self.probe_force_n = [float(f) for _, f in contacts.values()]
         self.probe_pinned = [False] * len(contacts)
         self.light_n = light_n
+
+    is_light = Sensing.is_light  # the real rule on this fake's light_n
 
 
 @pytest.fixture(autouse=True)

@@ -55,8 +55,8 @@ def set_limits(sensing: Sensing, params: ProbeParams, mass: float) -> None:
 
 def is_light(sensing: Sensing, force_n: float) -> bool:
     """Whether a probe contact whose action met ``force_n`` (N; NaN: not measured, never light) moved its object
-    away too easily to be the heavy target's (:func:`light_limit`)."""
-    return bool(force_n < sensing.light_n)
+    away too easily to be the heavy target's (:func:`light_limit`; the rule is :meth:`Sensing.is_light`)."""
+    return sensing.is_light(force_n)
 
 
 def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, root_seed: int, run: str,

@@ -60,10 +60,9 @@ class Sensing:
 
     Parameters
     ----------
-    run : str
-        Run name (``<scene>/<seed>``): keys the tracker's random stream as ``stucco track`` does.
-    root_seed : int
-        Root seed of the track stage.
+    run : str; root_seed : int
+        Run name (``<scene>/<seed>``) and the track stage's root seed: they key the tracker's random stream as
+        ``stucco track`` does.
     start : ndarray, shape (2,), metres
         Gripper position before the first action.
     n_scripted : int
@@ -76,12 +75,12 @@ class Sensing:
     Attributes
     ----------
     region : ((x_min, y_min), (x_max, y_max)), metres, or None
-        The scene's target region (:func:`pipeline.scenes.declared_region`: what the user tells, not a pose): the
-        no-segment prior's hypotheses lie in it (:func:`prior_set`). None: the scene declares none.
+        The target region the scene declares (:func:`pipeline.scenes.declared_region`; None: none), where the
+        no-segment prior's hypotheses lie (:func:`prior_set`).
     prior : pipeline.probe.history.HistoryPrior or None
-        The prior the scripted part's pushes put on the target's pose, set once the scripted part is observed: its
-        ``segment`` (the one it tracked) and ``cost(target, poses)``; the sets fitted to that segment from this
-        sensing add it (:func:`pipeline.probe.attribution.set_from_steps`). None: no prior.
+        The prior the scripted part's pushes put on the target's pose once the scripted part is observed (its
+        ``segment``, the one it tracked, and ``cost(target, poses)``), added to the sets fitted to that segment
+        (:func:`pipeline.probe.attribution.set_from_steps`). None: no prior.
     """
 
     def __init__(self, run: str, root_seed: int, start: np.ndarray, n_scripted: int, method: str = "stucco",
@@ -125,7 +124,7 @@ class Sensing:
             self.steps.append(int(step[i]))
             inc = bool(cols["in_contact"][i])
             p = np.array([cols["contact_x_m"][i:j], cols["contact_y_m"][i:j]], dtype=np.float64).T  # (K, 2)
-            carried, pinned = self.pushes.judge(inc and not scripted, self.forces[first + a] < self.light_n,
+            carried, pinned = self.pushes.judge(inc and not scripted, self.is_light(self.forces[first + a]),
                                                 cmd[a], p - x)
             # Only a probe's contact leaves its object where it was: the scripted part's pushes and a carry moved
             # theirs on (the scripted positions are the transit's only links).
@@ -152,11 +151,14 @@ class Sensing:
         """Gripper positions (K + 1, 2), metres: the start, then the end of every action."""
         return np.array(self.ee)
 
+    def is_light(self, force_n: float) -> bool:
+        """Whether a probe contact whose action met ``force_n`` (N; NaN: never) was under ``light_n``."""
+        return bool(force_n < self.light_n)
+
     def block_near(self, point: np.ndarray, radius: float) -> None:
         """Mark the visited positions within ``radius`` (m) of ``point`` (2,) ``blocked``: a transit met an object
-        there, so the space the gripper once passed may no longer be free. Transit leaves them out like positions
-        reached in contact (:func:`pipeline.probe.moves.transit_limits`), but as a last resort when nothing else
-        is left (:func:`pipeline.probe.policy.next_probe`); the current position starts every path."""
+        there, so the space once passed may not be free. Transit leaves them out as it does positions reached in
+        contact, but as a last resort (:func:`pipeline.probe.policy.next_probe`)."""
         near = np.linalg.norm(self.visited - np.asarray(point, dtype=np.float64).reshape(1, 2), axis=1) < radius
         self.blocked = [t or bool(b) for t, b in zip(self.blocked, near)]
 
@@ -283,10 +285,8 @@ def pose_set(choice: TargetChoice, target: Primitive, ee: np.ndarray, steps: np.
     ----------
     ee : ndarray, shape (K + 1, 2); steps : ndarray, shape (K,)
         Gripper positions (start, then every action's end) and action indices.
-    probe_points : ndarray, shape (P, 2); probe_steps : ndarray, shape (P,)
-        Probe contacts attributed to the target.
-    probe_others : ndarray, shape (R, 2)
-        Probe contacts attributed to other objects.
+    probe_points : ndarray, shape (P, 2); probe_steps : ndarray, shape (P,); probe_others : ndarray, shape (R, 2)
+        Probe contacts attributed to the target, their actions, and the probe contacts attributed to other objects.
     prior : callable, optional
         COM poses (B, 3) -> a prior cost (B,) added to each hypothesis's fit cost before the set is drawn
         (:func:`pipeline.estimators.plausible.fit.fit_segment`; the pushes' prior, :mod:`pipeline.probe.history`).
