@@ -152,13 +152,13 @@ class Sensing:
         return np.array(self.ee)
 
     def is_light(self, force_n: float) -> bool:
-        """Whether a probe contact whose action met ``force_n`` (N; NaN: never) was under ``light_n``."""
+        """Whether a probe contact whose action met ``force_n`` (N; NaN, not measured: never) was under ``light_n``."""
         return bool(force_n < self.light_n)
 
     def block_near(self, point: np.ndarray, radius: float) -> None:
         """Mark the visited positions within ``radius`` (m) of ``point`` (2,) ``blocked``: a transit met an object
-        there, so the space once passed may not be free. Transit leaves them out as it does positions reached in
-        contact, but as a last resort (:func:`pipeline.probe.policy.next_probe`)."""
+        there, so the space once passed may not be free. Transit leaves them out as positions reached in contact,
+        except in the last resort of :func:`pipeline.probe.policy.next_probe` and at the current position."""
         near = np.linalg.norm(self.visited - np.asarray(point, dtype=np.float64).reshape(1, 2), axis=1) < radius
         self.blocked = [t or bool(b) for t, b in zip(self.blocked, near)]
 
