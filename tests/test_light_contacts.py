@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.geometry import Primitive
 from pipeline.probe import attribution as attribution_mod
-from pipeline.probe.attribution import is_light, light_limit
+from pipeline.probe.attribution import light_limit
 from pipeline.probe.belief import PoseSet, Sensing, TargetChoice
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.retrieval import _recorded_params
@@ -62,7 +62,7 @@ def test_the_limit_applies_to_a_heavy_target_only():
 @pytest.mark.parametrize("force_n, light", [(0.0, True), (2.99, True), (3.0, False), (25.0, False),
                                              (float("nan"), False), (float("inf"), False)])
 def test_a_contact_is_light_below_the_limit_and_never_without_a_force(force_n, light):
-    assert is_light(_Sensing({}, 3.0), force_n) is light
+    assert _Sensing({}, 3.0).is_light(force_n) is light
 
 
 @pytest.mark.parametrize("force_n, mine, refuted", [(1.5, False, 1), (12.0, True, 0), (float("nan"), True, 0)])

@@ -29,7 +29,7 @@ from pipeline.probe.belief import (
 from pipeline.probe.params import ProbeLog, ProbeParams
 from pipeline.probe.planning import PlanParams, agreement
 
-__all__ = ["light_limit", "set_limits", "is_light", "heavy_choices", "no_target", "misfit", "current_set",
+__all__ = ["light_limit", "set_limits", "heavy_choices", "no_target", "misfit", "current_set",
            "set_from_steps", "prior_for", "mine_now", "probe_points_at", "set_share", "bunched", "give_way_at_budget",
            "required_contacts"]
 
@@ -51,12 +51,6 @@ def set_limits(sensing: Sensing, params: ProbeParams, mass: float) -> None:
     pinned (``params.pinned_within``)."""
     sensing.light_n = light_limit(params, mass)
     sensing.pushes.on, sensing.pushes.within = params.push_through > 0, float(params.pinned_within)
-
-
-def is_light(sensing: Sensing, force_n: float) -> bool:
-    """Whether a probe contact whose action met ``force_n`` (N; NaN: not measured, never light) moved its object
-    away too easily to be the heavy target's (:func:`light_limit`; the rule is :meth:`Sensing.is_light`)."""
-    return sensing.is_light(force_n)
 
 
 def heavy_choices(segments: list[Segment], target: Primitive, sensing: Sensing, root_seed: int, run: str,
@@ -116,8 +110,9 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
     some do, to the target only when the set fitted with it as the target's costs less than ``clutter_cost``
     more than the set fitted with it as another object's (docs/active.md, "Whose contact
     (attribution)"). Every contact is the target's while no set exists or the set is the no-segment prior, but
-    a light one (:func:`is_light`), which is always another object's; an action with one the previous set
-    explained counts once in ``log.refuted``. The target's contacts' steps go to ``log.target_steps``."""
+    a light one (:meth:`Sensing.is_light`, under :func:`light_limit`), which is always another object's; an action
+    with one the previous set explained counts once in ``log.refuted``. The target's contacts' steps go to
+    ``log.target_steps``."""
     done = len(log.target_steps) + len(log.other_steps)
     fitted: dict[tuple, PoseSet] = {}  # the sets of this call by target steps (a fit is deterministic)
 
@@ -143,14 +138,14 @@ def current_set(choice: TargetChoice, target: Primitive, sensing: Sensing, root_
             hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
                              params.attribute_corner)
             mine = bool(hit.any())
-            if mine and is_light(sensing, fn):
+            if mine and sensing.is_light(fn):
                 # the set put the target where something gave way at a few newtons
                 log.refuted += int(step) not in refuting
                 refuting.add(int(step))
                 mine = False
             elif mine and not hit.all():
                 mine = costs_little(int(step))
-        elif is_light(sensing, fn):
+        elif sensing.is_light(fn):
             mine = False
         (log.target_steps if mine else log.other_steps).append(int(step))
     if params.reattribute != "off" and previous is not None and previous.segment >= 0 and earlier:
@@ -174,7 +169,7 @@ def _reattribute(target: Primitive, sensing: Sensing, log: ProbeLog, earlier: li
                     key=lambda st: float(surface_distance(target, best, at[st][0])[0]))
     for step in ranked:
         q, f, fn = at[step]
-        if is_light(sensing, fn):
+        if sensing.is_light(fn):
             continue
         hit = explaining(target, previous.poses, q, params.attribute_tolerance, f, params.attribute_angle_deg,
                          params.attribute_corner)

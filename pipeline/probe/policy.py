@@ -28,7 +28,6 @@ from pipeline.probe.attribution import (
     current_set,
     give_way_at_budget,
     heavy_choices,
-    is_light,
     mine_now,
     misfit,
     no_target,
@@ -117,7 +116,7 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
     outline = gripper_outline(sensing.sdf, params.plan.outline_resolution)
 
     def light(row: dict) -> bool:  # what the recorded row will say of the action's force (Sensing.observe)
-        return is_light(sensing, window_force(row["win_wrench"], sensing.detection))
+        return sensing.is_light(window_force(row["win_wrench"], sensing.detection))
 
     need = required_contacts(target, params)
     belief = None
