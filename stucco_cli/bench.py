@@ -27,8 +27,8 @@ from stucco_cli.progress import bars_off
 def bench() -> None:
     """Benchmarks: what accuracy costs in time.
 
-    Commands: track, contacts, accuracy, sim (here and in stucco_cli/sim.py), retrieval, pushes, probe
-    (stucco_cli/bench_runs.py), scale (stucco_cli/bench_scale.py)."""
+    Commands: track, contacts, accuracy, sim (here and in stucco_cli/sim.py), retrieval, pushes,
+    grasp-sensitivity, probe, explore (stucco_cli/bench_runs.py), scale (stucco_cli/bench_scale.py)."""
 
 
 def parse_choices(name: str, text: str, allowed: Sequence[str], what: str = "value", allow_none: bool = True

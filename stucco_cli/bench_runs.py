@@ -1,5 +1,5 @@
-"""`stucco bench retrieval`, `bench pushes`, `bench probe` and `bench explore`: benchmarks over collected runs (an
-evaluation directory's, the active protocol's or the explore policy's)."""
+"""`stucco bench retrieval`, `bench pushes`, `bench grasp-sensitivity`, `bench probe` and `bench explore`:
+benchmarks over collected runs (an evaluation directory's, the active protocol's or the explore policy's)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from pipeline import registry
-from stucco_cli.bench import parse_ints, parse_methods
+from stucco_cli.bench import parse_floats, parse_ints, parse_methods
 from stucco_cli.common import global_options, parsed, pass_settings, say, unique, user_errors, writable_dir
 from stucco_cli.progress import run_bar
 
@@ -96,6 +96,36 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
     pairs = _collected_pairs(runs_from, parsed("--scenes", parse_scenes, scenes), parsed("--seeds", parse_seeds, seeds))
     with user_errors("bench pushes"):
         rows = push_rows(runs_from, pairs, replay=replay, jobs=settings.jobs, progress=run_bar(settings, "pushes"))
+        paths = write_outputs(rows, out_dir)
+    click.echo(summary_markdown(summarise(rows)), nl=False)
+    say(settings, f"-> {', '.join(str(p) for p in paths)}")
+
+
+@click.command("grasp-sensitivity")
+@click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
+              help="Evaluation directory made by `stucco evaluate` with the scripted policy (its runs and retrieval "
+                   "tables are used).")
+@click.option("--shifts-um", default="1,100", show_default=True,
+              help="Shifts along x, micrometres (comma-separated, 0.001-10000): of the estimate and of the target.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench/grasp-sensitivity"), show_default=True,
+              help="sensitivity.csv, sensitivity_summary.md.")
+@global_options()
+@pass_settings
+def bench_grasp_sensitivity(settings, runs_from, shifts_um, out_dir) -> None:
+    """How reproducible a grasp's outcome is: every scripted grasp of an evaluation simulated again at its
+    estimate, and with the estimate or the target moved by each shift; the outcomes that change
+    (docs/experiments/grasp-simulation-speed.md)."""
+    writable_dir("--out", out_dir)
+    from pipeline.studies.grasp_sensitivity import sensitivity_rows, summarise, summary_markdown, write_outputs
+
+    _evaluation_dir(runs_from)
+    shifts = parse_floats("--shifts-um", shifts_um, lo=0.001, hi=10_000.0)
+    if not shifts:
+        raise click.BadParameter("expected at least one shift", param_hint="--shifts-um")
+    with user_errors("bench grasp-sensitivity"):
+        rows = sensitivity_rows(runs_from, [s * 1e-6 for s in shifts], jobs=settings.jobs,
+                                progress=run_bar(settings, "grasps"))
         paths = write_outputs(rows, out_dir)
     click.echo(summary_markdown(summarise(rows)), nl=False)
     say(settings, f"-> {', '.join(str(p) for p in paths)}")

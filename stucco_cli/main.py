@@ -40,6 +40,6 @@ def cli(ctx: click.Context, seed: int, jobs: int, verbose: int, quiet: bool) -> 
 for _command in (sim.scenes, sim.collect, sim.isolate, track.track, track.segment, retrieve.retrieve, score.score,
                  plot.plot, evaluate.evaluate, study.study, bench.bench):
     cli.add_command(_command)
-for _command in (bench_runs.bench_retrieval, bench_runs.bench_pushes, bench_runs.bench_probe, bench_runs.bench_explore,
-                 bench_scale.bench_scale, sim.sim_bench):
+for _command in (bench_runs.bench_retrieval, bench_runs.bench_pushes, bench_runs.bench_grasp_sensitivity,
+                 bench_runs.bench_probe, bench_runs.bench_explore, bench_scale.bench_scale, sim.sim_bench):
     bench.bench.add_command(_command)
