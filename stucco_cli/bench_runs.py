@@ -31,6 +31,13 @@ def _collected_pairs(runs_from: Path, scene_list, seed_list) -> list[tuple[str, 
     return pairs
 
 
+def _out_option(name: str, files: str):
+    """The ``--out`` option of a bench over collected runs: its folder (default out/bench/NAME) and the files it
+    writes there."""
+    return click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+                        default=Path(f"out/bench/{name}"), show_default=True, help=files)
+
+
 @click.command("retrieval")
 @click.option("--runs-from", "runs_from", required=True, type=click.Path(path_type=Path),
               help="Evaluation directory made by `stucco evaluate` (its runs and segments are used).")
@@ -41,9 +48,7 @@ def _collected_pairs(runs_from: Path, scene_list, seed_list) -> list[tuple[str, 
                    + ", ".join(registry.estimator_names()) + "; or 'all').")
 @click.option("--method", default=registry.tracker_names()[0], show_default=True,
               help="Tracking method of the tracker rung.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/retrieval"), show_default=True,
-              help="ladder.csv, ladder_summary.csv, ladder.png.")
+@_out_option("retrieval", "ladder.csv, ladder_summary.csv, ladder.png.")
 @global_options()
 @pass_settings
 def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_dir) -> None:
@@ -79,9 +84,7 @@ def bench_retrieval(settings, runs_from, scenes, seeds, estimators, method, out_
 @click.option("--seeds", default="100-109", show_default=True, help="Run seeds: N, N-M, or a comma-separated list.")
 @click.option("--replay/--no-replay", default=True, show_default=True,
               help="Also replay each push in pybullet, the whole scene and the target alone.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/pushes"), show_default=True,
-              help="pushes.csv, pushes_summary.csv, pushes.png.")
+@_out_option("pushes", "pushes.csv, pushes_summary.csv, pushes.png.")
 @global_options()
 @pass_settings
 def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
@@ -107,9 +110,7 @@ def bench_pushes(settings, runs_from, scenes, seeds, replay, out_dir) -> None:
                    "tables are used).")
 @click.option("--shifts-um", default="1,100", show_default=True,
               help="Shifts along x, micrometres (comma-separated, 0.001-10000): of the estimate and of the target.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench/grasp-sensitivity"), show_default=True,
-              help="sensitivity.csv, sensitivity_summary.md.")
+@_out_option("grasp-sensitivity", "sensitivity.csv, sensitivity_summary.md.")
 @global_options()
 @pass_settings
 def bench_grasp_sensitivity(settings, runs_from, shifts_um, out_dir) -> None:
