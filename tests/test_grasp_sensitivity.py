@@ -73,6 +73,11 @@ def test_bad_shifts_and_missing_runs_are_refused(evaluation, tmp_path):
     (empty / "retrieval").mkdir(parents=True)
     with pytest.raises(ValueError, match="no scripted grasp"):
         sensitivity_rows(empty, [1e-6])
+    odd = tmp_path / "odd"
+    (odd / "retrieval").mkdir(parents=True)
+    pq.write_table(pa.table({"scene": ["FB"], "seed": [0]}), odd / "retrieval" / "FB-000-stucco-plausible.parquet")
+    with pytest.raises(ValueError, match="not a retrieval table .no column 'method'"):
+        sensitivity_rows(odd, [1e-6])
     orphan = tmp_path / "orphan"
     shutil.copytree(evaluation / "retrieval", orphan / "retrieval")
     with pytest.raises(ValueError, match="no run file for FB seed 0"):
