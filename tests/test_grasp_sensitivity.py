@@ -13,6 +13,8 @@ from click.testing import CliRunner
 
 from pipeline.estimators.run_info import load_run
 from pipeline.grasp import grasp_at
+from pipeline.retrieve import retrieval_table
+from pipeline.schema import SchemaError, write_table
 from pipeline.studies.grasp_sensitivity import scripted_grasps, sensitivity_rows, summarise, write_outputs
 from stucco_cli.main import cli
 
@@ -32,16 +34,16 @@ def evaluation(tmp_path_factory) -> Path:
     for estimator, shift in (("plausible", 0.0), ("paper", 0.02)):
         pose = np.asarray(info.true_pose, dtype=np.float64) + [shift, 0.0, 0.0]
         g = grasp_at(info.scene, info.final_poses, info.final_ee, pose, tilted=info.final_tilted)
-        rows.append(dict(scene="FB", seed=0, method="stucco", estimator=estimator, x_m=float(pose[0]),
-                         y_m=float(pose[1]), yaw_rad=float(pose[2]), grasp_success=bool(g.success),
-                         grasp_attempts=None))
+        rows.append(dict(run="FB/0", scene="FB", seed=0, method="stucco", estimator=estimator, target="cracker_box",
+                         x_m=float(pose[0]), y_m=float(pose[1]), yaw_rad=float(pose[2]), segment=0, n_points=3,
+                         n_segments=1, position_var_m2=None, icp_rmse_m=None, penetration_m=0.0, low_confidence=False,
+                         notes="", true_x_m=None, true_y_m=None, true_yaw_rad=None, position_error_m=None,
+                         yaw_error_rad=None, grasp_success=bool(g.success), grasp_outcome=g.outcome,
+                         grasp_attempts=None, grasp_success_any=None, icp_s=0.0, grasp_s=None))
     rows.append(dict(rows[0], estimator="pushtrack", grasp_attempts=2))  # the active protocol's planned grasp
-    schema = pa.schema([("scene", pa.string()), ("seed", pa.int64()), ("method", pa.string()),
-                        ("estimator", pa.string()), ("x_m", pa.float64()), ("y_m", pa.float64()),
-                        ("yaw_rad", pa.float64()), ("grasp_success", pa.bool_()), ("grasp_attempts", pa.int64())])
     for r in rows:
-        pq.write_table(pa.Table.from_pylist([r], schema=schema),
-                       out / "retrieval" / f"FB-000-stucco-{r['estimator']}.parquet")
+        write_table(retrieval_table([r]), out / "retrieval" / f"FB-000-stucco-{r['estimator']}.parquet",
+                    stage="retrieve", params={}, seed=0, kind="retrieval")
     return out
 
 
@@ -76,7 +78,7 @@ def test_bad_shifts_and_missing_runs_are_refused(evaluation, tmp_path):
     odd = tmp_path / "odd"
     (odd / "retrieval").mkdir(parents=True)
     pq.write_table(pa.table({"scene": ["FB"], "seed": [0]}), odd / "retrieval" / "FB-000-stucco-plausible.parquet")
-    with pytest.raises(ValueError, match="not a retrieval table .no column 'method'"):
+    with pytest.raises(SchemaError, match="FB-000-stucco-plausible.parquet: column 'run': missing"):
         sensitivity_rows(odd, [1e-6])
     orphan = tmp_path / "orphan"
     shutil.copytree(evaluation / "retrieval", orphan / "retrieval")

@@ -14,20 +14,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
 from pipeline.atomic import together, write_csv_rows, write_text
 from pipeline.estimators.run_info import load_run
 from pipeline.grasp import GraspParams, grasp_at
 from pipeline.layout import partition
 from pipeline.parallel import run_calls, single_threaded
-from pipeline.safe_open import regular_file
+from pipeline.schema.retrieval import read_retrieval
 
 __all__ = ["SensitivityRow", "PERTURBED", "scripted_grasps", "sensitivity_rows", "summarise", "summary_markdown",
            "write_outputs"]
 
-#: The retrieval table's columns the bench reads (docs/tables.md, "retrieval").
-_COLUMNS = ("scene", "seed", "method", "estimator", "x_m", "y_m", "yaw_rad", "grasp_success", "grasp_attempts")
 #: What a shift moves: the estimate the grasp is aimed at, or the target's position in the restored final state.
 PERTURBED = ("estimate", "target")
 
@@ -58,11 +55,7 @@ def scripted_grasps(runs_from: str | Path) -> list[dict]:
     for f in sorted((Path(runs_from) / "retrieval").glob("*.parquet")):
         if f.name.endswith(".candidates.parquet"):
             continue
-        table = pq.read_table(regular_file(f, "retrieval table"))
-        missing = [c for c in _COLUMNS if c not in table.column_names]
-        if missing:
-            raise ValueError(f"{f}: not a retrieval table (no column {missing[0]!r})")
-        for r in table.to_pylist():
+        for r in read_retrieval(f).to_pylist():
             if r.get("grasp_success") is not None and r.get("grasp_attempts") is None:
                 out.append(r)
     return out
