@@ -195,12 +195,14 @@ def test_the_rummage_pokes_from_every_open_side_to_the_middle_and_keeps_off_the_
     assert np.isclose(ys + gy1, 0.0).any() and np.isclose(ys + gy0, 0.0).any() and np.isclose(xs + gx0, 0.4).any()
     assert not ((ys + gy1 > 0.0 + 1e-9) & (xs > 0.2)).any() or not ((ys + gy0 < -1e-9) & (ys > 0.2)).any()
     assert points[-1][0] == pytest.approx(points[1][0])  # back on the approach line
-    # a wall close beside the region's -y side bars that side's line and the far line, which starts on it: the front
-    # and the +y side remain, and no move of the hand comes within the clearance of the wall
+    # a wall close beside the region's -y side bars that side's line and the far line's -y end, which starts on it:
+    # the front, the +y side and the far line's lanes the hand reaches from the +y side remain, and no move of the
+    # hand comes within the clearance of the wall
     wall = np.array([[1.0, -0.45], [1.0, -0.25], [-0.3, -0.25], [-0.3, -0.45]])
     barred = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[wall]))
-    assert _poke_directions(barred) == {(1, 0), (0, -1)}
+    assert _poke_directions(barred) == {(1, 0), (-1, 0), (0, -1)}
     assert (barred[:, 1] + gy0).min() >= -0.25 + SIDE_CLEARANCE_M - 1e-9
+    assert all(separation(_hand_sweep(a, b), wall) >= SIDE_CLEARANCE_M - 1e-9 for a, b in zip(barred, barred[1:]))
     # walls on every side: the front pokes only; the same arguments, the same waypoints
     walls = [wall, wall * [1, -1], np.array([[0.9, -1.0], [0.9, 1.0], [0.7, 1.0], [0.7, -1.0]])]
     front = coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=walls)
@@ -208,6 +210,33 @@ def test_the_rummage_pokes_from_every_open_side_to_the_middle_and_keeps_off_the_
     assert front == coverage_waypoints(region, start, lane_spacing_m=0.2)
     again = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[wall]))
     assert np.array_equal(again, barred)
+
+
+def _hand_sweep(a, b) -> np.ndarray:
+    """Outline (4, 2) of the hand's swept rectangle moving straight (along an axis) from base a to base b."""
+    (gx0, gy0), (gx1, gy1) = GRIPPER_OUTLINE_M
+    x0, x1 = min(a[0], b[0]) + gx0, max(a[0], b[0]) + gx1
+    y0, y1 = min(a[1], b[1]) + gy0, max(a[1], b[1]) + gy1
+    return np.array([[x1, y0], [x1, y1], [x0, y1], [x0, y0]])
+
+
+def test_a_wall_near_a_corner_of_the_round_costs_the_pokes_near_it_not_the_whole_side():
+    # A far wall just beyond the far line bars the far side and the corners where the side lines meet it: the -y and
+    # +y sides are still poked along their whole length, reached from the front line, each lane once, and no move of
+    # the hand comes within the clearance of the wall.
+    region, start = ((0.2, -0.2), (0.6, 0.2)), (-0.05, 0.0)
+    far_wall = np.array([[0.9, -1.0], [0.9, 1.0], [0.7, 1.0], [0.7, -1.0]])
+    points = np.array(coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[far_wall]))
+    assert _poke_directions(points) == {(1, 0), (0, 1), (0, -1)}
+    assert all(separation(_hand_sweep(a, b), far_wall) >= SIDE_CLEARANCE_M - 1e-9 for a, b in zip(points, points[1:]))
+    # every strip of the region's length poked from each side, to the middle line, once per round
+    side_lanes = [sorted({round(a[0], 6) for a, b, c in zip(points, points[1:], points[2:])
+                          if np.allclose(a, c) and np.sign(b[1] - a[1]) == s and a[0] == b[0]}) for s in (1, -1)]
+    assert side_lanes[0] == side_lanes[1] and len(side_lanes[0]) == 3
+    assert points[-1][0] == pytest.approx(points[1][0])  # back on the approach line
+    # the same wall moved away bars nothing: the whole round, far side included
+    away = coverage_waypoints(region, start, lane_spacing_m=0.2, sides=SIDES, walls=[far_wall + [0.3, 0.0]])
+    assert _poke_directions(np.array(away)) == {(1, 0), (0, 1), (-1, 0), (0, -1)}
 
 
 def test_the_pokes_reach_across_and_into_the_region_and_come_back():

@@ -163,15 +163,43 @@ def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]]
     for k, name in ((1, "right"), (2, "far"), (3, "left")):
         if name not in sides:
             legs[k] = (legs[k][0], legs[k][1], [])
-    clear = [all(separation(_swept_box(a, b), w) >= SIDE_CLEARANCE_M for w in walls) for a, b, _ in legs]
+    clear = [_clear(a, b, walls) for a, b, _ in legs]
     if all(clear):
         return points + _walk(legs, False)
     first, last = clear.index(False), len(clear) - 1 - clear[::-1].index(False)
     out = _walk(legs[:first], False)
+    done: set[int] = set()
+    out += _partial(legs[first], walls, False, done)
     out += _walk([(a, b, []) for a, b, _ in legs[:first]][::-1], True)
     way = legs[last + 1:][::-1]
-    out += _walk(way, True) + _walk([(a, b, []) for a, b, _ in way][::-1], False)
+    out += _walk(way, True)
+    out += _partial(legs[last], walls, True, done if last == first else set())
+    out += _walk([(a, b, []) for a, b, _ in way][::-1], False)
     return points + out
+
+
+def _clear(a: Point, b: Point, walls) -> bool:
+    """Whether the hand moving straight from base ``a`` to base ``b`` keeps ``SIDE_CLEARANCE_M`` from every wall."""
+    return all(separation(_swept_box(a, b), w) >= SIDE_CLEARANCE_M for w in walls)
+
+
+def _partial(leg, walls, backward: bool, done: set[int]) -> list[Point]:
+    """The pokes of a barred leg the hand reaches from its start (its end with ``backward``) along its line, in
+    order, up to the first one whose way along the line or whose own move comes within the clearance of a wall,
+    and the way back; the indices of the pokes made are added to ``done`` and those already in it are skipped (the
+    leg poked from both ends). A wall near a corner of the round then costs the pokes near it, not the whole side."""
+    a, b, pokes = leg
+    home = b if backward else a
+    order = range(len(pokes) - 1, -1, -1) if backward else range(len(pokes))
+    out: list[Point] = []
+    for i in order:
+        line, deep, _ = pokes[i]
+        if not (_clear(home, line, walls) and _clear(line, deep, walls)):
+            break
+        if i not in done:
+            done.add(i)
+            out += pokes[i]
+    return out + [home] if out else out
 
 
 def coverage_passes(region_m: tuple[tuple[float, float], tuple[float, float]], start_m: tuple[float, float], *,
