@@ -188,3 +188,41 @@ def test_a_budget_larger_than_a_spent_collected_one_is_refused(tmp_path, monkeyp
     monkeypatch.setattr(bench_mod, "check_run_settings", lambda *a, **k: None)  # (a fake run: its budget alone)
     with pytest.raises(ValueError, match="collected with a probe budget of 2, spent"):
         bench_mod._one("TC", 0, tmp_path, (0, 4), 0, ProbeParams(budget=4))
+
+
+@pytest.mark.parametrize("unsupported", [0, 2])
+def test_a_segment_no_probe_contact_is_given_to_gives_way_after_so_many_probes(monkeypatch, unsupported):
+    """Probes that each meet another object (here: contacts the attribution gives to other objects) leave the
+    segment's set with nothing of the probes on it; after ``unsupported`` probes it gives way to the next-ranked
+    segment, and after the last to the no-segment prior (-1), which never gives way. 0: the segment stays."""
+    table = schema.read_run(Path(__file__).resolve().parents[1] / "data" / "regression" / "TC-000.parquet")
+    start = np.array([table.column("ee_start_x_m")[0].as_py(), table.column("ee_start_y_m")[0].as_py()])
+    prim = target_primitive(load_scene("TC"))[1]
+
+    def current_set(choice, target, sensing, root_seed, run, log, previous, params):
+        log.other_steps.append(1000 + len(log.other_steps))  # each probe's contact is another object's
+        return PoseSet(poses=np.zeros((2, 3)), weights=np.full(2, 0.5), best=0, segment=choice.segment)
+
+    def plan(*a, **k):
+        return policy_mod.ProbePlan(path=np.zeros((1, 2)), start=np.zeros(2), direction=np.array([1.0, 0.0]),
+                                    predicted=np.full(2, 0.05), gain=1.0, mode="gain")
+
+    observe = Sensing.observe  # the probes act on nothing here: no rows are added after the scripted part's
+    monkeypatch.setattr(Sensing, "observe", lambda self, rows: observe(self, rows) if rows.num_rows else None)
+    monkeypatch.setattr(policy_mod, "current_set", current_set)
+    monkeypatch.setattr(policy_mod, "set_share", lambda *a, **k: 0.2)
+    monkeypatch.setattr(policy_mod, "next_probe", plan)
+    monkeypatch.setattr(policy_mod, "retrace", lambda act, here, *a: (here, 1, False))
+    monkeypatch.setattr(policy_mod, "guarded_move", lambda act, here, *a: (here, 3, True, 0.05))
+    monkeypatch.setattr(policy_mod, "return_to_start", lambda *a, **k: 0)
+    log = policy_mod.probe_run(lambda dx, dy: {}, lambda: table, "TC/0", 0, prim,
+                               start, ProbeParams(budget=8, unsupported=unsupported), scene=load_scene("TC"))
+    segments = [h["segment"] for h in log.history]
+    assert log.probes == 8 and len(segments) == 9
+    if not unsupported:
+        assert log.switches == 0 and len(set(segments)) == 1 and segments[0] >= 0
+        return
+    # a switch every `unsupported` probes while a segment is taken, then the prior keeps the rest
+    assert segments[0] >= 0 and segments[-1] == -1 and log.switches == len(set(segments)) - 1 >= 1
+    changes = [i for i in range(1, len(segments)) if segments[i] != segments[i - 1]]
+    assert all(b - a == unsupported for a, b in zip(changes, changes[1:])) and changes[0] == unsupported

@@ -45,6 +45,10 @@ class ProbeParams(Params):
     stall : int
         Probes after which a segment whose set still does not agree gives way to the next-ranked one (99: never;
         4 switched right segments away on the training seeds, docs/experiments/active-segment-choice.md).
+    unsupported : int
+        Probes after which a segment's set that no probe contact has been attributed to gives way to the
+        next-ranked segment, or to the no-segment prior after the last (0: never; 6 gained three generated
+        training runs of 40 and lost a paper task's, docs/experiments/generated-scenes.md, section 25).
     min_span : float
         For a box, the set is trusted only once the target's probe contacts span this share of its long side
         (0.6); until then the next probe goes where the estimate predicts contact farthest from them.
@@ -124,6 +128,7 @@ class ProbeParams(Params):
     attribute_corner: float = 0.015
     misfit_tolerance: float = 0.006
     stall: int = 99
+    unsupported: int = 0
     min_span: float = 0.6
     min_target_contacts: int = 3
     switch_probes: int = 3
@@ -150,7 +155,7 @@ class ProbeParams(Params):
         **{name: number(0) for name in ("slow_zone", "overshoot")},
         **{name: number(0, lo_open=True) for name in ("attribute_tolerance", "misfit_tolerance")},
         "attribute_angle_deg": number(0, 180), "attribute_corner": number(0),
-        "stall": integer(0), "switch_probes": integer(0, 64), "min_span": number(0, 1),
+        "stall": integer(0), "unsupported": integer(0, 64), "switch_probes": integer(0, 64), "min_span": number(0, 1),
         "clutter_cost": number(0), "light_contact_n": number(0), "light_scripted_n": number(0),
         "light_refutations": integer(0), "push_through": number(0, 1), "pinned_within": number(0),
         "prior_clear_of_others": rule("true or false", lambda v: isinstance(v, bool)),
