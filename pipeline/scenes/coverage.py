@@ -122,8 +122,9 @@ def coverage_waypoints(region_m: tuple[tuple[float, float], tuple[float, float]]
     region's far x edge is split into the fewest equal steps of at most ``DEPTH_STEP_M``; round r pokes every lane
     (:func:`lanes`) to r steps deep. A poke is: along the approach line to the lane's y, straight in along +x,
     straight back out to the line. The other ``sides`` follow, on a round of the region (:func:`_side_legs`): each
-    leg kept only where the hand's swept rectangle stays ``SIDE_CLEARANCE_M`` from every wall; with a leg barred,
-    the hand goes round as far as the first barred leg and back, then the other way as far as the last and back.
+    leg walked whole where the hand's swept rectangle stays ``SIDE_CLEARANCE_M`` from every wall; with a leg barred,
+    the hand goes round as far as the first barred leg, pokes along it as far as it keeps that clearance
+    (:func:`_partial`) and comes back, then the same the other way round as far as the last barred leg.
 
     Parameters
     ----------
