@@ -134,8 +134,8 @@ def probe_run(act: Act, table: Callable[[], pa.Table], run: str, root_seed: int,
         refuted = params.light_refutations > 0 and log.refuted >= params.light_refutations
         # Every probe sent to the set's object met another object: the set has nothing of the probes on it.
         unsupported = 0 < params.unsupported <= log.probes - since and not log.target_steps
-        astray = len(mine) >= 2 and misfit(target, belief, mine) > params.misfit_tolerance
-        if choice.segment >= 0 and (stalled or refuted or unsupported or astray):
+        if choice.segment >= 0 and (stalled or refuted or unsupported or
+                                    len(mine) >= 2 and misfit(target, belief, mine) > params.misfit_tolerance):
             # The probes' contacts do not lie on this segment's object, or none does, or they leave its set wide,
             # or what the set took for the target gave way at a few newtons: take the next-ranked segment (or none) and
             # attribute every probe contact afresh against its set.
